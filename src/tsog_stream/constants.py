@@ -1,0 +1,64 @@
+"""Constants of the SOG v2 and TSOG formats, defined once (see docs/spec.md)."""
+
+from __future__ import annotations
+
+from typing import Final
+
+# --- SOG v2 -------------------------------------------------------------------------------
+SOG_VERSION: Final = 2
+CODEBOOK_SIZE: Final = 256
+"""Entries in every scalar codebook (scales, sh0, shN)."""
+WEBP_MAX_SIDE: Final = 16383
+"""Largest width or height a WebP image may have."""
+IMAGE_ALIGN: Final = 4
+"""Per-Gaussian images have width and height that are multiples of this."""
+SH_C0: Final = 0.28209479177387814
+"""Zeroth spherical-harmonics basis constant: colour = 0.5 + SH_C0 * f_dc."""
+SH_COEFFS_BY_BANDS: Final[dict[int, int]] = {0: 0, 1: 3, 2: 8, 3: 15}
+"""Coefficients per colour channel beyond DC, by number of SH bands."""
+SH_BANDS_BY_COEFFS: Final[dict[int, int]] = {v: k for k, v in SH_COEFFS_BY_BANDS.items()}
+SH_PALETTE_MAX: Final = 65536
+"""The SH palette is addressed by a 16-bit label."""
+SH_CENTROIDS_PER_ROW: Final = 64
+"""Palette entries per row of the shN centroid image."""
+QUAT_TAG_BASE: Final = 252
+"""Alpha of quats.webp = QUAT_TAG_BASE + index of the dropped (largest) component."""
+U16_MAX: Final = 65535
+INFINITY_SENTINEL_OFFSET: Final = 20.0
+"""Codebook slots reserved for -inf/+inf hold finite min - 20 / finite max + 20."""
+
+MEANS_L: Final = "means_l.webp"
+MEANS_U: Final = "means_u.webp"
+QUATS: Final = "quats.webp"
+SCALES: Final = "scales.webp"
+SH0: Final = "sh0.webp"
+SHN_CENTROIDS: Final = "shN_centroids.webp"
+SHN_LABELS: Final = "shN_labels.webp"
+META_JSON: Final = "meta.json"
+GENERATOR: Final = "tsog-stream"
+
+# --- TSOG ---------------------------------------------------------------------------------
+TIMELINE_L: Final = "timeline_l.webp"
+TIMELINE_U: Final = "timeline_u.webp"
+
+TEMPORAL_CHANNELS: Final[dict[str, int]] = {
+    "means": 3,
+    "scales": 3,
+    "quats": 4,
+    "sh0": 3,
+    "opacity": 1,
+}
+"""Attributes that may carry temporal polynomial coefficients, and their channel counts.
+
+``means`` are world units, ``scales`` log-scale, ``quats`` raw (w, x, y, z) components
+renormalised on evaluation, ``sh0`` f_dc values, ``opacity`` the logit.
+"""
+MAX_TEMPORAL_ORDER: Final = 8
+
+VISIBILITY_THRESHOLD: Final = 1.0 / 255.0
+"""Type-2 Gaussians whose temporal opacity factor falls under this are invisible."""
+
+
+def temporal_file(attr: str, order: int, half: str) -> str:
+    """Name of the image holding byte ``half`` ('l' or 'u') of ``attr``'s order-``order`` term."""
+    return f"temporal_{attr}_{order}_{half}.webp"

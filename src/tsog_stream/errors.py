@@ -1,0 +1,80 @@
+"""The one error tree of tsog-stream.
+
+Every bad input, broken file or failed transfer surfaces as a :class:`TsogError`;
+lower-level exceptions (``struct.error``, Pillow's ``OSError``, ``zipfile.BadZipFile``,
+pydantic's ``ValidationError``) are translated where they are raised::
+
+    TsogError
+    ├── InputError          a caller passed an invalid argument or an impossible option
+    ├── FormatError         bytes that do not follow a format (PLY, SOG, TSOG, zip, WebP)
+    │   ├── PlyError
+    │   ├── SogError
+    │   │   └── MetaError   meta.json that fails its schema (names the field)
+    │   └── UnsupportedError  a valid file using a feature we do not implement
+    ├── IntegrityError      content that contradicts itself (sizes, hashes, counts)
+    └── SourceError         a file or remote source could not be read or written
+"""
+
+from __future__ import annotations
+
+
+class TsogError(Exception):
+    """Base of every error tsog-stream raises on purpose.
+
+    ``where`` names the file (and optionally the field or byte offset) so a message
+    always says what was expected, what was found, and where.
+    """
+
+    def __init__(self, message: str, *, where: str | None = None) -> None:
+        self.message = message
+        self.where = where
+        super().__init__(f"{where}: {message}" if where else message)
+
+
+class InputError(TsogError):
+    """An argument or option that cannot be honoured (bad time, bad budget, wrong shape)."""
+
+
+class FormatError(TsogError):
+    """Bytes that do not follow the format they claim to be."""
+
+
+class PlyError(FormatError):
+    """A PLY header or body that cannot be read."""
+
+
+class SogError(FormatError):
+    """A SOG/TSOG chunk (zip, images, meta.json) that cannot be read."""
+
+
+class MetaError(SogError):
+    """A meta.json that fails schema validation; ``field`` is the dotted path of the culprit."""
+
+    def __init__(self, message: str, *, field: str, where: str | None = None) -> None:
+        self.field = field
+        super().__init__(f"field '{field}': {message}", where=where)
+
+
+class UnsupportedError(FormatError):
+    """A well-formed file that uses a feature this version does not support."""
+
+
+class IntegrityError(TsogError):
+    """Content that contradicts itself: sizes, counts or hashes that do not agree."""
+
+
+class SourceError(TsogError):
+    """A file, folder or remote source that could not be read or written."""
+
+
+__all__ = [
+    "FormatError",
+    "InputError",
+    "IntegrityError",
+    "MetaError",
+    "PlyError",
+    "SogError",
+    "SourceError",
+    "TsogError",
+    "UnsupportedError",
+]

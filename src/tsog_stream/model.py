@@ -1,0 +1,198 @@
+"""In-memory model: static Gaussians (struct of arrays) and the 4D extension (timeline + temporal).
+
+Time convention (docs/spec.md, "Time"): every public API takes and returns time in **seconds**.
+A :class:`Timeline` stores its values in *timeline units*: frames when ``fps`` is set (types 0
+and 1), seconds otherwise. Readers convert their source's unit once, on input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+import numpy.typing as npt
+
+from .constants import SH_BANDS_BY_COEFFS, TEMPORAL_CHANNELS
+from .errors import InputError
+
+F32 = npt.NDArray[np.float32]
+Index = npt.NDArray[np.intp] | npt.NDArray[np.bool_]
+
+
+def _as_f32(name: str, value: npt.ArrayLike, shape_tail: tuple[int, ...]) -> F32:
+    """Coerce ``value`` to a C-contiguous float32 array of shape (N, *shape_tail) or raise."""
+    arr = np.ascontiguousarray(value, dtype=np.float32)
+    if arr.ndim != 1 + len(shape_tail) or arr.shape[1:] != shape_tail:
+        want = "(N" + "".join(f", {d}" for d in shape_tail) + ")"
+        raise InputError(f"expected shape {want}, got {arr.shape}", where=name)
+    return arr
+
+
+@dataclass(eq=False)
+class Gaussians:
+    """Static 3D Gaussians in the 3DGS PLY domain, one row per Gaussian.
+
+    ``scales`` are natural-log sigmas, ``quats`` are (w, x, y, z) and need not be unit length,
+    ``opacities`` are logits, ``sh0`` are f_dc values, ``shN`` is (N, K, 3) with K in
+    {0, 3, 8, 15}: ``shN[i, k, c]`` is PLY ``f_rest_{c*K + k}``.
+    """
+
+    means: F32
+    scales: F32
+    quats: F32
+    opacities: F32
+    sh0: F32
+    shN: F32 = field(default_factory=lambda: np.zeros((0, 0, 3), np.float32))
+
+    def __post_init__(self) -> None:
+        self.means = _as_f32("means", self.means, (3,))
+        n = self.means.shape[0]
+        self.scales = _as_f32("scales", self.scales, (3,))
+        self.quats = _as_f32("quats", self.quats, (4,))
+        self.opacities = np.ascontiguousarray(self.opacities, dtype=np.float32).reshape(-1)
+        self.sh0 = _as_f32("sh0", self.sh0, (3,))
+        shn = np.ascontiguousarray(self.shN, dtype=np.float32)
+        if shn.size == 0 and (shn.ndim != 3 or n > 0):
+            shn = np.zeros((n, 0, 3), np.float32)  # no SH bands, whatever empty shape was given
+        if shn.ndim != 3 or shn.shape[2] != 3 or shn.shape[1] not in SH_BANDS_BY_COEFFS:
+            raise InputError(f"expected shape (N, K, 3) with K in 0/3/8/15, got {shn.shape}", where="shN")
+        self.shN = shn
+        for name in ("scales", "quats", "opacities", "sh0", "shN"):
+            got = getattr(self, name).shape[0]
+            if got != n:
+                raise InputError(f"has {got} rows but means has {n}", where=name)
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    @property
+    def sh_bands(self) -> int:
+        """Number of SH bands beyond DC (0-3)."""
+        return SH_BANDS_BY_COEFFS[self.shN.shape[1]]
+
+    def subset(self, index: Index) -> Gaussians:
+        """The Gaussians selected by an integer or boolean index, in that order."""
+        return Gaussians(
+            self.means[index],
+            self.scales[index],
+            self.quats[index],
+            self.opacities[index],
+            self.sh0[index],
+            self.shN[index],
+        )
+
+    @staticmethod
+    def empty(sh_bands: int = 0) -> Gaussians:
+        """A scene with no Gaussians (and ``sh_bands`` bands, so concatenation stays typed)."""
+        k = {0: 0, 1: 3, 2: 8, 3: 15}[sh_bands]
+        z = np.zeros
+        return Gaussians(z((0, 3)), z((0, 3)), z((0, 4)), z(0), z((0, 3)), z((0, k, 3)))
+
+
+class TimelineType(IntEnum):
+    """The ``timeline.type`` values of TSOG (paper section 3.2); values are the stored numbers."""
+
+    FRAME = 0
+    """R = frame id: the Gaussian exists in that frame only."""
+    START_DURATION = 1
+    """R = start, G = duration: visible for start <= t < start + duration."""
+    CENTER_SCALE = 2
+    """R = centre, G = scale: opacity times exp(-1/2 ((t - centre) / scale)^2)."""
+
+
+@dataclass(eq=False)
+class Timeline:
+    """Per-Gaussian lifespans in timeline units (frames if ``fps`` is set for types 0/1, else s).
+
+    ``t0`` is frame id / start / centre, ``t1`` duration / scale (zeros for type 0).
+    ``scene_length`` (seconds) is optional; when absent it is derived from the lifespans.
+    """
+
+    type: TimelineType
+    t0: npt.NDArray[np.float64]
+    t1: npt.NDArray[np.float64]
+    fps: float | None = None
+    scene_length: float | None = None
+
+    def __post_init__(self) -> None:
+        self.type = TimelineType(self.type)
+        self.t0 = np.ascontiguousarray(self.t0, dtype=np.float64).reshape(-1)
+        t1 = np.zeros_like(self.t0) if self.t1 is None else self.t1
+        self.t1 = np.ascontiguousarray(t1, dtype=np.float64).reshape(-1)
+        if self.t1.shape != self.t0.shape:
+            raise InputError(f"t1 has {self.t1.shape[0]} rows, t0 has {self.t0.shape[0]}", where="timeline")
+        if self.fps is not None and not (np.isfinite(self.fps) and self.fps > 0):
+            raise InputError(f"fps must be a positive number, got {self.fps}", where="timeline.fps")
+        if self.fps is not None and self.type is TimelineType.CENTER_SCALE:
+            raise InputError("fps applies to timeline types 0 and 1 only", where="timeline.fps")
+        if not (np.all(np.isfinite(self.t0)) and np.all(np.isfinite(self.t1))):
+            raise InputError("timeline values must be finite", where="timeline")
+        if self.type is TimelineType.CENTER_SCALE and np.any(self.t1 <= 0):
+            raise InputError("type-2 scales must be positive", where="timeline.scale")
+        if self.type is TimelineType.START_DURATION and np.any(self.t1 < 0):
+            raise InputError("type-1 durations must not be negative", where="timeline.duration")
+
+    def __len__(self) -> int:
+        return int(self.t0.shape[0])
+
+    @property
+    def seconds_per_unit(self) -> float:
+        """Seconds in one timeline unit: 1/fps when frames are the unit, else 1."""
+        return 1.0 / self.fps if self.fps else 1.0
+
+    def subset(self, index: Index) -> Timeline:
+        """The lifespans selected by ``index``."""
+        return Timeline(self.type, self.t0[index], self.t1[index], self.fps, self.scene_length)
+
+
+@dataclass(eq=False)
+class Scene:
+    """A (possibly dynamic) scene: base Gaussians, optional timeline and temporal coefficients.
+
+    ``temporal[attr]`` is (N, order, channels) float32 for the attributes of
+    :data:`~tsog_stream.constants.TEMPORAL_CHANNELS`; coefficient k (1-based) multiplies
+    ``(t - t_ref)**k`` with t in seconds, so its unit is attribute-unit per second**k.
+    ``t_ref`` is the frame time (type 0), the start (type 1) or the centre (type 2).
+    """
+
+    gaussians: Gaussians
+    timeline: Timeline | None = None
+    temporal: dict[str, F32] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.gaussians)
+        if self.timeline is not None and len(self.timeline) != n:
+            raise InputError(f"timeline has {len(self.timeline)} rows, scene has {n}", where="timeline")
+        if self.temporal and self.timeline is None:
+            raise InputError("temporal coefficients need a timeline (their reference time)", where="temporal")
+        for attr, coeffs in list(self.temporal.items()):
+            if attr not in TEMPORAL_CHANNELS:
+                raise InputError(f"unknown dynamic attribute {attr!r}", where="temporal")
+            arr = np.ascontiguousarray(coeffs, dtype=np.float32)
+            channels = TEMPORAL_CHANNELS[attr]
+            if arr.ndim != 3 or arr.shape[0] != n or arr.shape[2] != channels or arr.shape[1] < 1:
+                raise InputError(
+                    f"expected shape ({n}, order>=1, {channels}), got {arr.shape}", where=f"temporal.{attr}"
+                )
+            self.temporal[attr] = arr
+
+    def __len__(self) -> int:
+        return len(self.gaussians)
+
+    @property
+    def is_dynamic(self) -> bool:
+        """True when the scene has a timeline."""
+        return self.timeline is not None
+
+    def subset(self, index: Index) -> Scene:
+        """The Gaussians selected by ``index``, with their lifespans and coefficients."""
+        timeline = self.timeline.subset(index) if self.timeline is not None else None
+        temporal = {k: v[index] for k, v in self.temporal.items()}
+        return Scene(self.gaussians.subset(index), timeline, temporal)
+
+    def at(self, t: float, threshold: float | None = None) -> Gaussians:
+        """The static Gaussians visible at time ``t`` (seconds); see :mod:`tsog_stream.temporal`."""
+        from .temporal import evaluate_at
+
+        return evaluate_at(self, t, threshold)
