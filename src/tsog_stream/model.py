@@ -13,7 +13,7 @@ from enum import IntEnum
 import numpy as np
 import numpy.typing as npt
 
-from .constants import SH_BANDS_BY_COEFFS, TEMPORAL_CHANNELS
+from .constants import SH_BANDS_BY_COEFFS, SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
 
 F32 = npt.NDArray[np.float32]
@@ -56,12 +56,32 @@ class Gaussians:
         if shn.size == 0 and (shn.ndim != 3 or n > 0):
             shn = np.zeros((n, 0, 3), np.float32)  # no SH bands, whatever empty shape was given
         if shn.ndim != 3 or shn.shape[2] != 3 or shn.shape[1] not in SH_BANDS_BY_COEFFS:
-            raise InputError(f"expected shape (N, K, 3) with K in 0/3/8/15, got {shn.shape}", where="shN")
+            raise InputError(
+                f"expected shape (N, K, 3) with K in 0/3/8/15, got {shn.shape}", where="shN"
+            )
         self.shN = shn
         for name in ("scales", "quats", "opacities", "sh0", "shN"):
             got = getattr(self, name).shape[0]
             if got != n:
                 raise InputError(f"has {got} rows but means has {n}", where=name)
+
+    @classmethod
+    def from_arrays(
+        cls,
+        means: npt.ArrayLike,
+        scales: npt.ArrayLike,
+        quats: npt.ArrayLike,
+        opacities: npt.ArrayLike,
+        sh0: npt.ArrayLike,
+        shN: npt.ArrayLike | None = None,
+    ) -> Gaussians:
+        """Build from any array-likes (any float dtype); shapes are checked, data made float32."""
+
+        def f32(a: npt.ArrayLike) -> F32:
+            return np.ascontiguousarray(a, dtype=np.float32)
+
+        rest = np.zeros((0, 0, 3), np.float32) if shN is None else f32(shN)
+        return cls(f32(means), f32(scales), f32(quats), f32(opacities), f32(sh0), rest)
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -85,9 +105,9 @@ class Gaussians:
     @staticmethod
     def empty(sh_bands: int = 0) -> Gaussians:
         """A scene with no Gaussians (and ``sh_bands`` bands, so concatenation stays typed)."""
-        k = {0: 0, 1: 3, 2: 8, 3: 15}[sh_bands]
+        k = SH_COEFFS_BY_BANDS[sh_bands]
         z = np.zeros
-        return Gaussians(z((0, 3)), z((0, 3)), z((0, 4)), z(0), z((0, 3)), z((0, k, 3)))
+        return Gaussians.from_arrays(z((0, 3)), z((0, 3)), z((0, 4)), z(0), z((0, 3)), z((0, k, 3)))
 
 
 class TimelineType(IntEnum):
@@ -118,10 +138,11 @@ class Timeline:
     def __post_init__(self) -> None:
         self.type = TimelineType(self.type)
         self.t0 = np.ascontiguousarray(self.t0, dtype=np.float64).reshape(-1)
-        t1 = np.zeros_like(self.t0) if self.t1 is None else self.t1
-        self.t1 = np.ascontiguousarray(t1, dtype=np.float64).reshape(-1)
+        self.t1 = np.ascontiguousarray(self.t1, dtype=np.float64).reshape(-1)
         if self.t1.shape != self.t0.shape:
-            raise InputError(f"t1 has {self.t1.shape[0]} rows, t0 has {self.t0.shape[0]}", where="timeline")
+            raise InputError(
+                f"t1 has {self.t1.shape[0]} rows, t0 has {self.t0.shape[0]}", where="timeline"
+            )
         if self.fps is not None and not (np.isfinite(self.fps) and self.fps > 0):
             raise InputError(f"fps must be a positive number, got {self.fps}", where="timeline.fps")
         if self.fps is not None and self.type is TimelineType.CENTER_SCALE:
@@ -163,9 +184,13 @@ class Scene:
     def __post_init__(self) -> None:
         n = len(self.gaussians)
         if self.timeline is not None and len(self.timeline) != n:
-            raise InputError(f"timeline has {len(self.timeline)} rows, scene has {n}", where="timeline")
+            raise InputError(
+                f"timeline has {len(self.timeline)} rows, scene has {n}", where="timeline"
+            )
         if self.temporal and self.timeline is None:
-            raise InputError("temporal coefficients need a timeline (their reference time)", where="temporal")
+            raise InputError(
+                "temporal coefficients need a timeline (their reference time)", where="temporal"
+            )
         for attr, coeffs in list(self.temporal.items()):
             if attr not in TEMPORAL_CHANNELS:
                 raise InputError(f"unknown dynamic attribute {attr!r}", where="temporal")
@@ -173,7 +198,8 @@ class Scene:
             channels = TEMPORAL_CHANNELS[attr]
             if arr.ndim != 3 or arr.shape[0] != n or arr.shape[2] != channels or arr.shape[1] < 1:
                 raise InputError(
-                    f"expected shape ({n}, order>=1, {channels}), got {arr.shape}", where=f"temporal.{attr}"
+                    f"expected shape ({n}, order>=1, {channels}), got {arr.shape}",
+                    where=f"temporal.{attr}",
                 )
             self.temporal[attr] = arr
 
@@ -193,6 +219,6 @@ class Scene:
 
     def at(self, t: float, threshold: float | None = None) -> Gaussians:
         """The static Gaussians visible at time ``t`` (seconds); see :mod:`tsog_stream.temporal`."""
-        from .temporal import evaluate_at
+        from .temporal import evaluate_at  # noqa: PLC0415 - temporal imports this module
 
         return evaluate_at(self, t, threshold)

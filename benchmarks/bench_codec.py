@@ -1,0 +1,210 @@
+"""Codec benchmark: encode/decode SH0 and SH3 scenes of 100k and 1M Gaussians, ours vs splat-transform.
+
+Each encode/decode runs in its own process so wall time and peak memory (max RSS) are measured
+alike for both tools. Errors are measured against the source in texel order. Results go to
+benchmarks/results/codec.json and the "codec" section of docs/benchmarks.md.
+
+    .venv/bin/python benchmarks/bench_codec.py                 # 100k and 1M, SH0 and SH3
+    .venv/bin/python benchmarks/bench_codec.py --sizes 100000 --reference-timeout 3600
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tsog_stream import Scene
+from tsog_stream.codec.chunk import decode_chunk, texel_order
+from tsog_stream.compare import attribute_errors
+from tsog_stream.io.chunks import read_chunk_files
+from tsog_stream.io.ply import write_ply
+from tsog_stream.synthetic import static_gaussians
+
+REPO = Path(__file__).resolve().parents[1]
+TOOL = REPO / "node_modules" / ".bin" / "splat-transform"
+TSOG = REPO / ".venv" / "bin" / "tsog"
+RESULTS = REPO / "benchmarks" / "results" / "codec.json"
+DOC = REPO / "docs" / "benchmarks.md"
+
+
+def run_measured(cmd: list[str], timeout: float) -> dict[str, Any]:
+    """Run ``cmd``; wall seconds, peak RSS in MiB and whether it finished in time."""
+    start = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = start + timeout
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.monotonic() > deadline:
+            proc.kill()
+            os.wait4(proc.pid, 0)
+            return {"finished": False, "seconds": round(timeout, 1)}
+        time.sleep(0.05)
+    seconds = time.monotonic() - start
+    ok = os.waitstatus_to_exitcode(status) == 0
+    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    out = {
+        "finished": ok,
+        "seconds": round(seconds, 2),
+        "peak_mib": round(usage.ru_maxrss / 1024, 1),
+    }
+    if not ok:
+        out["error"] = err[-500:]
+    return out
+
+
+def errors_of(chunk: Path, source: Scene) -> dict[str, float]:
+    """Per-attribute errors of a decoded chunk against the source in texel order."""
+    decoded = decode_chunk(read_chunk_files(chunk), where=str(chunk)).gaussians
+    aligned = source.subset(texel_order(source)).gaussians
+    e = attribute_errors(aligned, decoded).as_dict()
+    keys = ("means_max", "rotation_deg_mean", "scales_mean", "sh0_mean", "opacity_mean", "shN_rms")
+    return {k: round(e[k], 6) for k in keys}
+
+
+def bench_case(n: int, bands: int, work: Path, args: argparse.Namespace) -> dict[str, Any]:
+    """One input size and SH degree through both tools."""
+    source = Scene(static_gaussians(n, sh_bands=bands, seed=7))
+    ply = work / f"in_{n}_{bands}.ply"
+    write_ply(ply, source.gaussians)
+    row: dict[str, Any] = {"gaussians": n, "sh_bands": bands, "ply_bytes": ply.stat().st_size}
+    ours = work / "ours.sog"
+    row["ours_encode"] = run_measured([str(TSOG), "encode", str(ply), str(ours), "-f", "-q"], 3600)
+    row["ours_decode"] = run_measured(
+        [str(TSOG), "decode", str(ours), str(work / "o.ply"), "-q"], 3600
+    )
+    row["ours_bytes"] = ours.stat().st_size
+    row["ours_errors"] = errors_of(ours, source)
+    if not args.skip_reference:
+        theirs = work / "theirs.sog"
+        iters = (
+            ["-i", str(args.reference_iterations)]
+            if bands and n >= args.reference_fast_above
+            else []
+        )
+        cmd = [str(TOOL), "-w", "-g", "cpu", *iters, str(ply), str(theirs)]
+        row["reference_options"] = " ".join(["-w", "-g", "cpu", *iters])
+        row["reference_encode"] = run_measured(cmd, args.reference_timeout)
+        if row["reference_encode"]["finished"]:
+            back = [str(TOOL), "-w", str(theirs), str(work / "t.ply")]
+            row["reference_decode"] = run_measured(back, 3600)
+            row["reference_bytes"] = theirs.stat().st_size
+            row["reference_errors"] = errors_of(theirs, source)
+    print(json.dumps(row), flush=True)
+    return row
+
+
+def _cell(row: dict[str, Any], key: str, field: str) -> str:
+    """A table cell: a measured figure, or why there is none."""
+    m = row.get(key)
+    if m is None:
+        return "—"
+    if not m.get("finished"):
+        return f"> {m['seconds']:.0f} s (stopped)"
+    return f"{m[field]}"
+
+
+def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
+    """The codec section of docs/benchmarks.md."""
+    lines = [
+        "<!-- codec:begin (written by benchmarks/bench_codec.py) -->",
+        "## SOG codec: ours vs splat-transform",
+        "",
+        f"Run {stamp} on this project's 2-core machine; synthetic static scenes "
+        "(`tsog_stream.synthetic.static_gaussians`, seed 7). Wall time and peak RSS of a whole "
+        "CLI process each. splat-transform 3.7.0 on the CPU (`-g cpu`); options per row.",
+        "",
+        "| N | SH | PLY MB | ours enc s | ref enc s | ratio | ours dec s | ref dec s | ours peak MiB |"
+        " ref peak MiB | ours MB | ref MB | ref options |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for r in rows:
+        oe, re_ = r["ours_encode"], r.get("reference_encode", {})
+        ratio = (
+            f"{re_['seconds'] / oe['seconds']:.1f}x"
+            if re_.get("finished") and oe.get("finished")
+            else "—"
+        )
+        lines.append(
+            f"| {r['gaussians']:,} | {r['sh_bands']} | {r['ply_bytes'] / 1e6:.1f} | {_cell(r, 'ours_encode', 'seconds')}"
+            f" | {_cell(r, 'reference_encode', 'seconds')} | {ratio} | {_cell(r, 'ours_decode', 'seconds')}"
+            f" | {_cell(r, 'reference_decode', 'seconds')} | {_cell(r, 'ours_encode', 'peak_mib')}"
+            f" | {_cell(r, 'reference_encode', 'peak_mib')} | {r['ours_bytes'] / 1e6:.2f}"
+            f" | {r.get('reference_bytes', 0) / 1e6:.2f} | `{r.get('reference_options', '')}` |"
+        )
+    lines += [
+        "",
+        "Errors against the source (positions: max, scene units; rotation: mean degrees; scales, "
+        "sh0: mean |Δ| in ln σ and f_dc; opacity: mean |Δ alpha|; shN: RMS of f_rest):",
+        "",
+        "| N | SH | tool | pos max | rot mean ° | scale mean | sh0 mean | alpha mean | shN RMS |",
+        "|---:|---:|---|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        for tool, key in (("ours", "ours_errors"), ("splat-transform", "reference_errors")):
+            e = r.get(key)
+            if e:
+                lines.append(
+                    f"| {r['gaussians']:,} | {r['sh_bands']} | {tool} | {e['means_max']:.2e}"
+                    f" | {e['rotation_deg_mean']:.3f} | {e['scales_mean']:.4f} | {e['sh0_mean']:.4f}"
+                    f" | {e['opacity_mean']:.4f} | {e['shN_rms']:.4f} |"
+                )
+    lines.append("<!-- codec:end -->")
+    return "\n".join(lines) + "\n"
+
+
+def write_section(section: str) -> None:
+    """Replace the codec section of docs/benchmarks.md (creating the file if needed)."""
+    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\n"
+    begin, end = "<!-- codec:begin", "<!-- codec:end -->"
+    if begin in text:
+        head, rest = text.split(begin, 1)
+        tail = rest.split(end, 1)[1].lstrip("\n")
+        text = head + section + tail
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    DOC.write_text(text)
+
+
+def main() -> int:
+    """Run the benchmark grid and write the results."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000])
+    parser.add_argument("--bands", type=int, nargs="+", default=[0, 3])
+    parser.add_argument("--skip-reference", action="store_true", help="only run tsog-stream")
+    parser.add_argument(
+        "--reference-timeout", type=float, default=1800, help="seconds per reference encode"
+    )
+    parser.add_argument("--reference-iterations", type=int, default=1, help="-i for big SH cases")
+    parser.add_argument(
+        "--reference-fast-above", type=int, default=100_000, help="use -i from this N"
+    )
+    args = parser.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="tsog-bench-") as tmp:
+        for n in args.sizes:
+            for bands in args.bands:
+                rows.append(bench_case(n, bands, Path(tmp), args))
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps({"date": stamp, "rows": rows}, indent=2))
+    write_section(markdown(rows, stamp))
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())

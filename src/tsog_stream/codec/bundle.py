@@ -1,0 +1,78 @@
+"""Bundled chunks: a ``.sog`` zip of stored entries, written deterministically.
+
+Entries are stored (WebP is already compressed), with a fixed timestamp so the same files
+give byte-identical archives, no extra fields and no archive comment. ``meta.json`` goes last,
+as splat-transform writes it.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from collections.abc import Mapping
+
+from ..constants import META_JSON
+from ..errors import SogError
+
+FIXED_DATE = (1980, 1, 1, 0, 0, 0)
+MAX_ENTRIES = 4096
+ZIP_MAGIC = b"PK\x03\x04"
+MAX_DEFLATE_RATIO = 1032
+"""Deflate cannot expand data more than about 1032:1; a larger claim is a lie or a bomb."""
+
+
+def is_zip(data: bytes) -> bool:
+    """True when ``data`` starts like a zip archive (a bundled .sog)."""
+    return data[:4] == ZIP_MAGIC
+
+
+def bundle_bytes(files: Mapping[str, bytes]) -> bytes:
+    """A .sog archive of ``files`` (name -> bytes), meta.json last, byte-for-byte reproducible."""
+    names = [n for n in files if n != META_JSON] + ([META_JSON] if META_JSON in files else [])
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED, allowZip64=False) as archive:
+        for name in names:
+            info = zipfile.ZipInfo(name, date_time=FIXED_DATE)
+            info.compress_type = zipfile.ZIP_STORED
+            info.external_attr = 0o644 << 16
+            archive.writestr(info, files[name])
+    return out.getvalue()
+
+
+def read_bundle(data: bytes, *, where: str = "<bundle>") -> dict[str, bytes]:
+    """Entries of a .sog archive (stored or deflated); any damage raises SogError."""
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
+    with archive:
+        infos = archive.infolist()
+        if len(infos) > MAX_ENTRIES:
+            raise SogError(
+                f"{len(infos)} entries, more than the {MAX_ENTRIES} allowed", where=where
+            )
+        files: dict[str, bytes] = {}
+        for info in infos:
+            files[info.filename] = _read_entry(archive, info, len(data), where)
+    if META_JSON not in files:
+        raise SogError("archive has no meta.json at its root", where=where)
+    return files
+
+
+def _read_entry(archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, where: str) -> bytes:
+    """One entry's bytes, refusing methods other than stored/deflate and absurd sizes."""
+    name = f"{where}/{info.filename}"
+    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+        raise SogError(f"compression method {info.compress_type} is not supported", where=name)
+    if info.compress_size > total or info.file_size > MAX_DEFLATE_RATIO * info.compress_size + 1024:
+        raise SogError(
+            f"entry claims {info.file_size} bytes ({info.compress_size} compressed) in a "
+            f"{total}-byte archive",
+            where=name,
+        )
+    if info.flag_bits & 0x1:
+        raise SogError("encrypted entries are not supported", where=name)
+    try:
+        return archive.read(info)
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, RuntimeError) as exc:
+        raise SogError(f"damaged entry: {exc}", where=name) from exc

@@ -1,0 +1,99 @@
+"""A TSOG chunk as a set of files: encode a Scene to {name: bytes}, decode it back.
+
+A chunk without a timeline is a plain SOG v2 dataset. With one, it is the same SOG v2 dataset
+plus the ``timeline``/``temporal`` meta keys and their images, index-aligned (docs/spec.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from .. import __version__
+from .. import constants as C
+from ..errors import SogError
+from ..model import Scene
+from ..morton import morton_order
+from ..schemas import ChunkMeta, check_image_sizes, dump_meta, listed_files, parse_meta
+from .layout import image_size
+from .sog_decode import decode_sog
+from .sog_encode import encode_sog
+from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
+from .webp import decode_many, encode_many
+
+Progress = Callable[[str], None]
+U8 = npt.NDArray[np.uint8]
+
+
+def texel_order(scene: Scene) -> npt.NDArray[np.intp]:
+    """The Morton order of the scene's base positions (splat-transform's order)."""
+    return morton_order(scene.gaussians.means)
+
+
+def encode_chunk(
+    scene: Scene,
+    *,
+    order: npt.NDArray[np.intp] | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> dict[str, bytes]:
+    """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
+
+    ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
+    Same scene and seed give byte-identical files.
+    """
+    note = progress or (lambda _msg: None)
+    note("ordering")
+    ordered = scene.subset(texel_order(scene) if order is None else order)
+    width, height = image_size(len(ordered))
+    sog = encode_sog(ordered.gaussians, width, height, seed=seed, progress=note)
+    images = dict(sog.images)
+    meta: dict[str, Any] = dict(sog.meta)
+    meta["asset"] = {"generator": f"{C.GENERATOR} {__version__}"}
+    if ordered.timeline is not None:
+        timeline_images, meta["timeline"] = encode_timeline(ordered.timeline, width, height)
+        images.update(timeline_images)
+    if ordered.temporal:
+        temporal_images, meta["temporal"] = encode_temporal(
+            ordered.temporal, ordered.gaussians.quats, width, height
+        )
+        images.update(temporal_images)
+    parsed = parse_meta(meta, where="encoder output")
+    note("WebP")
+    files = encode_many(images)
+    files[C.META_JSON] = dump_meta(parsed)
+    return files
+
+
+def read_meta(files: Mapping[str, bytes], *, where: str) -> ChunkMeta:
+    """The validated meta.json of a chunk's files."""
+    if C.META_JSON not in files:
+        raise SogError("no meta.json", where=where)
+    return parse_meta(files[C.META_JSON], where=f"{where}/{C.META_JSON}")
+
+
+def decode_images(meta: ChunkMeta, files: Mapping[str, bytes], *, where: str) -> dict[str, U8]:
+    """Every image the meta lists, decoded and checked against the count and each other."""
+    needed: dict[str, bytes] = {}
+    for field, name in listed_files(meta):
+        if name not in files:
+            raise SogError(f"file {name!r} listed in {field} is missing", where=where)
+        needed[name] = files[name]
+    images = decode_many(needed, where=where)
+    sizes = {name: (img.shape[1], img.shape[0]) for name, img in images.items()}
+    check_image_sizes(meta, sizes, where=f"{where}/{C.META_JSON}")
+    return images
+
+
+def decode_chunk(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Scene:
+    """The Scene stored in a chunk's files, Gaussians in texel order."""
+    meta = read_meta(files, where=where)
+    images = decode_images(meta, files, where=where)
+    count = int(meta.count)
+    gaussians = decode_sog(meta, images)
+    timeline = decode_timeline(meta.timeline, images, count) if meta.timeline is not None else None
+    temporal = decode_temporal(meta.temporal, images, count) if meta.temporal else {}
+    return Scene(gaussians, timeline, temporal)

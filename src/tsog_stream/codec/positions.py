@@ -1,0 +1,64 @@
+"""Positions: symmetric-log 16-bit codes split into low/high byte images (SOG v2 means)."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from ..constants import U16_MAX
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+
+
+def log_transform(v: npt.ArrayLike) -> F64:
+    """f(v) = sign(v) * ln(1 + |v|), the transform SOG applies before quantising positions."""
+    a = np.asarray(v, dtype=np.float64)
+    return np.sign(a) * np.log1p(np.abs(a))
+
+
+def inverse_log_transform(t: npt.ArrayLike) -> F64:
+    """Inverse of :func:`log_transform`."""
+    a = np.asarray(t, dtype=np.float64)
+    return np.sign(a) * np.expm1(np.abs(a))
+
+
+def quantize_u16(values: F64, mins: F64, maxs: F64) -> npt.NDArray[np.uint16]:
+    """Round ``values`` (N, C) to 16-bit codes over per-channel [mins, maxs] (0 where max = min)."""
+    span = maxs - mins
+    safe = np.where(span > 0, span, 1.0)
+    q = np.rint((values - mins) / safe * U16_MAX)
+    q = np.where(span > 0, q, 0.0)
+    return np.asarray(np.clip(q, 0, U16_MAX), dtype=np.uint16)
+
+
+def dequantize_u16(codes: npt.NDArray[np.uint16], mins: F64, maxs: F64) -> F64:
+    """Values of 16-bit codes over per-channel [mins, maxs]."""
+    return mins + (maxs - mins) * (codes.astype(np.float64) / U16_MAX)
+
+
+def split_u16(codes: npt.NDArray[np.uint16]) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]:
+    """(low byte, high byte) of 16-bit codes."""
+    return (codes & 0xFF).astype(np.uint8), (codes >> 8).astype(np.uint8)
+
+
+def join_u16(low: npt.NDArray[np.uint8], high: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint16]:
+    """16-bit codes from their low and high bytes."""
+    return low.astype(np.uint16) | (high.astype(np.uint16) << np.uint16(8))
+
+
+def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
+    """(mins, maxs, codes) of positions: mins/maxs in log space, codes (N, 3) rounded."""
+    logs = log_transform(means)
+    if logs.shape[0] == 0:
+        zeros = np.zeros(3)
+        return zeros, zeros.copy(), np.zeros((0, 3), np.uint16)
+    mins, maxs = logs.min(axis=0), logs.max(axis=0)
+    return mins, maxs, quantize_u16(logs, mins, maxs)
+
+
+def decode_means(codes: npt.NDArray[np.uint16], mins: F64, maxs: F64) -> F32:
+    """Positions from 16-bit codes; a zero range decodes to the min, as splat-transform does."""
+    span = np.where(maxs - mins != 0, maxs - mins, 1.0)
+    logs = mins + span * (codes.astype(np.float64) / U16_MAX)
+    return inverse_log_transform(logs).astype(np.float32)

@@ -1,0 +1,64 @@
+"""Rotations: smallest-three quaternion bytes with the 252+m tag (SOG v2 quats.webp)."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from ..constants import QUAT_TAG_BASE
+
+F32 = npt.NDArray[np.float32]
+U8 = npt.NDArray[np.uint8]
+SQRT2 = float(np.sqrt(2.0))
+_KEPT = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
+"""Components stored in R, G, B, indexed by the dropped (largest) component."""
+
+
+def canonical_factor(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.intp]]:
+    """Per-Gaussian factor sign/norm that makes each quaternion unit with its largest part >= 0.
+
+    Returns (factor, index of the largest component). Temporal quaternion coefficients are
+    multiplied by the same factor so base + coefficients keep describing the same rotation.
+    A zero quaternion gets factor 1 (it is replaced by the identity).
+    """
+    q = quats.astype(np.float64)
+    norm = np.linalg.norm(q, axis=1)
+    largest = np.argmax(np.abs(q), axis=1)  # first index wins ties, like the reference
+    sign = np.where(q[np.arange(q.shape[0]), largest] < 0, -1.0, 1.0)
+    return np.divide(sign, norm, out=np.ones_like(norm), where=norm > 0), largest
+
+
+def canonical_quats(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.intp]]:
+    """Unit quaternions whose largest component is positive, and that component's index."""
+    factor, largest = canonical_factor(quats)
+    q = quats.astype(np.float64) * factor[:, None]
+    zero = ~np.any(quats != 0, axis=1)
+    q[zero] = (1.0, 0.0, 0.0, 0.0)
+    largest[zero] = 0
+    return q, largest
+
+
+def encode_quats(quats: F32) -> U8:
+    """(N, 4) texels: the three smaller components as bytes, alpha = 252 + dropped index."""
+    q, largest = canonical_quats(quats)
+    kept = np.take_along_axis(q, _KEPT[largest], axis=1) * SQRT2
+    codes = np.clip(np.rint(255.0 * (kept * 0.5 + 0.5)), 0, 255).astype(np.uint8)
+    out = np.empty((q.shape[0], 4), np.uint8)
+    out[:, :3] = codes
+    out[:, 3] = QUAT_TAG_BASE + largest
+    return out
+
+
+def decode_quats(texels: U8) -> F32:
+    """Unit (w, x, y, z) quaternions from smallest-three texels; a bad tag gives identity."""
+    n = texels.shape[0]
+    tag = texels[:, 3].astype(np.intp) - QUAT_TAG_BASE
+    valid = (tag >= 0) & (tag <= 3)
+    largest = np.where(valid, tag, 0)
+    abc = (texels[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / SQRT2
+    q = np.zeros((n, 4))
+    np.put_along_axis(q, _KEPT[largest], abc, axis=1)
+    rest = np.sqrt(np.maximum(0.0, 1.0 - np.sum(abc * abc, axis=1)))
+    q[np.arange(n), largest] = rest
+    q[~valid] = (1.0, 0.0, 0.0, 0.0)
+    return q.astype(np.float32)

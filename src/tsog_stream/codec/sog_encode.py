@@ -1,0 +1,130 @@
+"""SOG v2 encoder: static Gaussians -> per-Gaussian byte images + the SOG part of meta.json.
+
+Images are returned as raw (H, W, 4) arrays; :mod:`tsog_stream.codec.chunk` encodes them to
+WebP in parallel. Where splat-transform truncates a float to a byte we round (half the error).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from .. import constants as C
+from ..model import Gaussians
+from ..quantize import assign_codebook, build_codebook
+from ..sh_palette import fit_palette, palette_size
+from .layout import texels, to_image
+from .positions import encode_means, split_u16
+from .rotations import encode_quats
+
+U8 = npt.NDArray[np.uint8]
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class SogParts:
+    """Byte images (file name -> (H, W, 4)) and the SOG keys of meta.json, in texel order."""
+
+    images: dict[str, U8]
+    meta: dict[str, Any]
+
+
+def _floats(values: npt.ArrayLike) -> list[float]:
+    """JSON-ready list of Python floats (float32 values keep their exact float64 repr)."""
+    return [float(v) for v in np.asarray(values).reshape(-1)]
+
+
+def opacity_bytes(logits: npt.NDArray[np.float32]) -> U8:
+    """Alpha byte = round(sigmoid(logit) * 255), clamped; +inf -> 255, -inf -> 0."""
+    with np.errstate(over="ignore"):
+        alpha = 1.0 / (1.0 + np.exp(-logits.astype(np.float64)))
+    return np.clip(np.rint(alpha * 255.0), 0, 255).astype(np.uint8)
+
+
+def _codebook_texels(
+    columns: npt.NDArray[np.float32], alpha: npt.ArrayLike = 255
+) -> tuple[U8, list[float]]:
+    """One shared 256-entry codebook over (N, 3) columns; texels of the per-column indices."""
+    codebook = build_codebook(columns)
+    labels = assign_codebook(columns, codebook).reshape(columns.shape)
+    return texels(labels[:, 0], labels[:, 1], labels[:, 2], alpha=alpha), _floats(codebook)
+
+
+def _sh_rest(gaussians: Gaussians) -> npt.NDArray[np.float32]:
+    """(N, 3K) f_rest vectors in PLY order (channel-major: all R coefficients, then G, then B)."""
+    n, k, _ = gaussians.shN.shape
+    return np.ascontiguousarray(gaussians.shN.transpose(0, 2, 1).reshape(n, 3 * k))
+
+
+def _encode_sh_palette(
+    gaussians: Gaussians, width: int, height: int, seed: int
+) -> tuple[dict[str, U8], dict[str, Any]]:
+    """Palette (k-means on f_rest), its codebook, the centroid image and the label image."""
+    coeffs = gaussians.shN.shape[1]
+    vectors = _sh_rest(gaussians)
+    centroids, labels = fit_palette(vectors, palette_size(len(gaussians)), seed=seed)
+    count = centroids.shape[0]
+    codebook = build_codebook(centroids)
+    cbytes = assign_codebook(centroids, codebook).reshape(count, 3, coeffs)
+    rows = -(-count // C.SH_CENTROIDS_PER_ROW)
+    cells = np.zeros((rows * C.SH_CENTROIDS_PER_ROW, coeffs, 4), np.uint8)
+    cells[:count, :, :3] = cbytes.transpose(0, 2, 1)  # (palette entry, coefficient j, channel)
+    cells[:count, :, 3] = 255
+    centroid_image = cells.reshape(rows, C.SH_CENTROIDS_PER_ROW * coeffs, 4)
+    labels = labels.astype(np.uint32)
+    label_texels = texels(labels & 0xFF, labels >> 8, np.zeros_like(labels, np.uint8))
+    images = {
+        C.SHN_CENTROIDS: centroid_image,
+        C.SHN_LABELS: to_image(label_texels, width, height),
+    }
+    meta = {
+        "count": int(count),
+        "bands": gaussians.sh_bands,
+        "codebook": _floats(codebook),
+        "files": [C.SHN_CENTROIDS, C.SHN_LABELS],
+    }
+    return images, meta
+
+
+def encode_sog(
+    gaussians: Gaussians,
+    width: int,
+    height: int,
+    *,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> SogParts:
+    """Encode Gaussians already in texel order into SOG v2 images and meta keys."""
+    note = progress or (lambda _msg: None)
+    note("positions")
+    mins, maxs, codes = encode_means(gaussians.means)
+    low, high = split_u16(codes)
+    images = {
+        C.MEANS_L: to_image(texels(low[:, 0], low[:, 1], low[:, 2]), width, height),
+        C.MEANS_U: to_image(texels(high[:, 0], high[:, 1], high[:, 2]), width, height),
+        C.QUATS: to_image(encode_quats(gaussians.quats), width, height),
+    }
+    note("scale codebook")
+    scale_texels, scale_codebook = _codebook_texels(gaussians.scales)
+    images[C.SCALES] = to_image(scale_texels, width, height)
+    note("colour codebook")
+    sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, opacity_bytes(gaussians.opacities))
+    images[C.SH0] = to_image(sh0_texels, width, height)
+    meta: dict[str, Any] = {
+        "version": C.SOG_VERSION,
+        "asset": {"generator": C.GENERATOR},
+        "count": len(gaussians),
+        "means": {"mins": _floats(mins), "maxs": _floats(maxs), "files": [C.MEANS_L, C.MEANS_U]},
+        "scales": {"codebook": scale_codebook, "files": [C.SCALES]},
+        "quats": {"files": [C.QUATS]},
+        "sh0": {"codebook": sh0_codebook, "files": [C.SH0]},
+    }
+    if gaussians.sh_bands > 0 and len(gaussians) > 0:
+        note("SH palette")
+        sh_images, meta["shN"] = _encode_sh_palette(gaussians, width, height, seed)
+        images.update(sh_images)
+    return SogParts(images, meta)

@@ -1,0 +1,271 @@
+"""Plain 3DGS PLY files: bytes <-> :class:`~tsog_stream.model.Gaussians` (sans-I/O core).
+
+:func:`parse_ply` maps the ``vertex`` element of the standard 3DGS layout (x y z, f_dc_0..2,
+f_rest_*, opacity, scale_0..2, rot_0..3; any order, any numeric type, ASCII or binary of either
+byte order) to float32 Gaussians with one vectorised gather. :func:`ply_bytes` writes the layout
+every 3DGS tool reads: binary little-endian, all float, normals as zeros. :func:`read_ply` and
+:func:`write_ply` are the only functions here that touch files; :func:`write_ply` publishes
+atomically (temporary file in the target folder, then ``os.replace``).
+
+Decisions:
+
+* **Trailing bytes are a note, not an error.** A body longer than the header declares (the real
+  ``cvlab_pc_short.ply`` declares 100 vertices and then holds 14029 more bytes) is read as
+  declared: those rows are complete and intact, the header is the contract, and rejecting the
+  file would help nobody. A body *shorter* than declared is a :class:`PlyError`.
+* **Non-finite values are kept as read** and counted in a note; later stages decide what to do.
+* Normals (nx, ny, nz) are ignored. Every other unmapped vertex property is returned in
+  :attr:`PlyContents.extra` (e.g. FreeTimeGS's ``t`` and ``motion_*``) and listed in a note.
+* PlayCanvas compressed PLY is recognised from its header and decoded by
+  :mod:`~tsog_stream.io.compressed_ply`, so :func:`parse_ply` reads both kinds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import secrets
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from ..constants import GENERATOR
+from ..errors import InputError, PlyError, SourceError
+from ..model import F32, Gaussians
+from .ply_header import MAGICS, PlyHeader, Records, parse_header, read_elements
+
+POSITION: Final = ("x", "y", "z")
+NORMALS: Final = ("nx", "ny", "nz")
+SCALES: Final = ("scale_0", "scale_1", "scale_2")
+ROTATION: Final = ("rot_0", "rot_1", "rot_2", "rot_3")
+OPACITY: Final = "opacity"
+F_DC: Final = ("f_dc_0", "f_dc_1", "f_dc_2")
+REQUIRED: Final = (*POSITION, *SCALES, *ROTATION, OPACITY, *F_DC)
+"""Required vertex properties, in the column order of the gathered matrix."""
+F_REST_COUNTS: Final = (0, 9, 24, 45)
+"""Allowed numbers of f_rest properties (SH degree 0, 1, 2, 3)."""
+
+_F_REST = re.compile(r"f_rest_(0|[1-9][0-9]*)")
+_PROPERTY_NAME = re.compile(r"[!-~]+")
+"""A property name a PLY header can hold: printable ASCII, no whitespace."""
+
+PathLike = str | os.PathLike[str]
+
+
+@dataclass(frozen=True, slots=True)
+class PlyContents:
+    """What a PLY file held: Gaussians, unmapped vertex properties, warnings and the header."""
+
+    gaussians: Gaussians
+    extra: dict[str, npt.NDArray[np.generic]]
+    notes: list[str]
+    header: PlyHeader
+
+
+def sniff_ply(data: bytes | memoryview) -> bool:
+    """True when ``data`` starts with the PLY magic line (``ply\\n`` or ``ply\\r\\n``)."""
+    return bytes(data[:5]).startswith(MAGICS)
+
+
+def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents:
+    """Decode a 3DGS PLY (plain or PlayCanvas compressed) held in memory."""
+    header = parse_header(data, name=name)
+    from . import compressed_ply  # noqa: PLC0415 -- compressed_ply imports this module
+
+    if compressed_ply.is_compressed_ply(header):
+        return compressed_ply.parse_compressed_ply(data, name=name)
+    vertex = header.element("vertex")
+    if vertex is None:
+        raise PlyError("the header declares no 'vertex' element", where=name)
+    k = _sh_coefficients(vertex.names, name)
+    body = read_elements(data, header, ("vertex",), name=name)
+    records = body.records["vertex"]
+    rest = sh_column_order(k)
+    columns = gather_columns(records, (*REQUIRED, *rest))
+    notes = body.notes
+    notes.extend(nonfinite_notes(columns, (*REQUIRED, *rest)))
+    extra = unmapped_columns(records, {*REQUIRED, *rest, *NORMALS}, notes)
+    return PlyContents(_split_columns(columns, k), extra, notes, header)
+
+
+def read_ply(path: PathLike) -> PlyContents:
+    """Read and decode a PLY file; I/O failures raise :class:`SourceError`."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise SourceError(f"cannot read the file: {exc.strerror or exc}", where=str(path)) from exc
+    return parse_ply(data, name=str(path))
+
+
+def _sh_coefficients(names: Sequence[str], where: str) -> int:
+    """Check the required properties; return K, the SH coefficients per colour channel."""
+    missing = [n for n in REQUIRED if n not in names]
+    if missing:
+        raise PlyError(f"missing required vertex property {', '.join(missing)}", where=where)
+    indices = sorted(int(m.group(1)) for n in names if (m := _F_REST.fullmatch(n)))
+    if len(indices) not in F_REST_COUNTS:
+        raise PlyError(
+            f"expected 0, 9, 24 or 45 f_rest properties, found {len(indices)}", where=where
+        )
+    for expected, found in zip(range(len(indices)), indices, strict=True):
+        if expected != found:
+            raise PlyError(f"f_rest properties skip f_rest_{expected}", where=where)
+    return len(indices) // 3
+
+
+def sh_column_order(k: int) -> tuple[str, ...]:
+    """f_rest names in (coefficient, channel) order: the file is channel-major, shN is not."""
+    return tuple(f"f_rest_{c * k + i}" for i in range(k) for c in range(3))
+
+
+def gather_columns(records: Records, names: Sequence[str]) -> F32:
+    """Columns ``names`` as one (N, len(names)) float32 matrix, in a single pass when uniform."""
+    base = _uniform_base(records.dtype)
+    if base is not None:
+        fields = records.dtype.names or ()
+        matrix = records.view(base).reshape(len(records), len(fields))
+        position = {n: i for i, n in enumerate(fields)}
+        picked = np.take(matrix, [position[n] for n in names], axis=1)
+        return picked.astype(np.float32, copy=False)
+    out = np.empty((len(records), len(names)), np.float32)
+    for j, column in enumerate(names):
+        out[:, j] = records[column]
+    return out
+
+
+def _uniform_base(dtype: np.dtype[np.void]) -> np.dtype[np.generic] | None:
+    """The field type when a record is a packed run of one scalar type (viewable as 2-D)."""
+    if not dtype.names or dtype.fields is None:
+        return None
+    base: np.dtype[np.generic] = dtype.fields[dtype.names[0]][0]
+    for i, field_name in enumerate(dtype.names):
+        field_type, offset = dtype.fields[field_name][:2]
+        if field_type != base or offset != i * base.itemsize:
+            return None
+    return base if dtype.itemsize == base.itemsize * len(dtype.names) else None
+
+
+def _split_columns(columns: F32, k: int) -> Gaussians:
+    """Cut the gathered matrix (REQUIRED, then f_rest in :func:`sh_column_order`) into Gaussians."""
+    n = columns.shape[0]
+    return Gaussians(
+        means=columns[:, 0:3],
+        scales=columns[:, 3:6],
+        quats=columns[:, 6:10],
+        opacities=columns[:, 10],
+        sh0=columns[:, 11:14],
+        shN=columns[:, 14:].reshape(n, k, 3),
+    )
+
+
+def nonfinite_notes(columns: F32, names: Sequence[str]) -> list[str]:
+    """A note counting NaN/inf per column, or nothing when every value is finite."""
+    if np.isfinite(columns.sum(dtype=np.float64)):  # cheap test: no NaN/inf anywhere
+        return []
+    counts = np.count_nonzero(~np.isfinite(columns), axis=0)
+    where = [f"{n}: {int(c)}" for n, c in zip(names, counts, strict=True) if c]
+    if not where:
+        return []
+    total = int(counts.sum())
+    return [f"kept {total} non-finite values as read ({', '.join(where)})"]
+
+
+def unmapped_columns(
+    records: Records, mapped: set[str], notes: list[str]
+) -> dict[str, npt.NDArray[np.generic]]:
+    """Native-order copies of the columns not in ``mapped`` (copies: they must not pin the
+    input buffer), noted by name."""
+    names = [n for n in records.dtype.names or () if n not in mapped]
+    if names:
+        notes.append(f"unknown properties kept as extras: {', '.join(names)}")
+    return {n: np.array(records[n], dtype=records.dtype[n].newbyteorder("=")) for n in names}
+
+
+def standard_names(k: int) -> list[str]:
+    """Property names of the standard 3DGS vertex layout with ``k`` SH coefficients per channel."""
+    rest = [f"f_rest_{i}" for i in range(3 * k)]
+    return [*POSITION, *NORMALS, *F_DC, *rest, OPACITY, *SCALES, *ROTATION]
+
+
+def ply_bytes(gaussians: Gaussians, extra: Mapping[str, npt.ArrayLike] | None = None) -> bytes:
+    """Encode as a binary little-endian 3DGS PLY, extra float columns appended to each row."""
+    header, matrix = _encode(gaussians, extra)
+    return header + matrix.tobytes()
+
+
+def write_ply(
+    path: PathLike, gaussians: Gaussians, extra: Mapping[str, npt.ArrayLike] | None = None
+) -> None:
+    """Write :func:`ply_bytes` output to ``path`` atomically (nothing half-written on failure)."""
+    header, matrix = _encode(gaussians, extra)
+    publish_atomic(Path(path), (header, matrix.data.cast("B")))
+
+
+def _encode(
+    gaussians: Gaussians, extra: Mapping[str, npt.ArrayLike] | None
+) -> tuple[bytes, npt.NDArray[np.float32]]:
+    """The header bytes and the (N, columns) little-endian float32 body of a 3DGS PLY."""
+    n, k = len(gaussians), gaussians.shN.shape[1]
+    names = standard_names(k)
+    columns = _extra_columns(n, extra, set(names))
+    matrix = np.zeros((n, len(names) + len(columns)), dtype="<f4")
+    matrix[:, 0:3] = gaussians.means  # columns 3:6 are the zero normals
+    matrix[:, 6:9] = gaussians.sh0
+    matrix[:, 9 : 9 + 3 * k] = gaussians.shN.transpose(0, 2, 1).reshape(n, 3 * k)
+    tail = 9 + 3 * k
+    matrix[:, tail] = gaussians.opacities
+    matrix[:, tail + 1 : tail + 4] = gaussians.scales
+    matrix[:, tail + 4 : tail + 8] = gaussians.quats
+    for j, values in enumerate(columns.values(), start=tail + 8):
+        matrix[:, j] = values
+    lines = ["ply", "format binary_little_endian 1.0", f"comment Generated by {GENERATOR}"]
+    lines.append(f"element vertex {n}")
+    lines.extend(f"property float {p}" for p in (*names, *columns))
+    lines.append("end_header\n")
+    return "\n".join(lines).encode("ascii"), matrix
+
+
+def _extra_columns(
+    n: int, extra: Mapping[str, npt.ArrayLike] | None, reserved: set[str]
+) -> dict[str, F32]:
+    """Validate the extra columns: PLY-safe unique names and shape (N,)."""
+    columns: dict[str, F32] = {}
+    for key, value in (extra or {}).items():
+        if not isinstance(key, str) or not _PROPERTY_NAME.fullmatch(key) or key in reserved:
+            raise InputError(f"{key!r} cannot name an extra property", where="extra")
+        try:
+            array = np.asarray(value, dtype=np.float32)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"not convertible to float32: {exc}", where=f"extra.{key}") from None
+        if array.shape != (n,):
+            raise InputError(f"expected shape ({n},), got {array.shape}", where=f"extra.{key}")
+        columns[key] = array
+    return columns
+
+
+def publish_atomic(target: Path, parts: Sequence[bytes | memoryview]) -> None:
+    """Write ``parts`` to a temporary file beside ``target``, fsync, then rename over it."""
+    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    except OSError as exc:
+        msg = f"cannot create a file in {str(target.parent)!r}: {exc.strerror or exc}"
+        raise SourceError(msg, where=str(target)) from exc
+    try:
+        with os.fdopen(fd, "wb") as file:
+            for part in parts:
+                file.write(part)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(tmp, target)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise SourceError(f"cannot write: {exc.strerror or exc}", where=str(target)) from exc
+        raise

@@ -1,0 +1,39 @@
+"""Schemas of TSOG chunk ``meta.json`` (SOG v2 + ``timeline``/``temporal``), pydantic at the edge.
+
+Parse with :func:`parse_meta`, write with :func:`dump_meta`; both raise
+:class:`~tsog_stream.errors.MetaError` naming the failing field. The JSON Schema shipped in
+``docs/schema/meta.schema.json`` is :func:`meta_json_schema` (see scripts/export_schemas.py).
+"""
+
+from __future__ import annotations
+
+from .sog_meta import MeansMeta, QuatsMeta, ScalesMeta, Sh0Meta, ShNMeta, SogMeta
+from .tsog_meta import ChunkMeta, TemporalAttributeMeta, TimelineMeta
+from .validate import (
+    check_image_sizes,
+    dump_meta,
+    listed_files,
+    meta_document,
+    meta_json_schema,
+    meta_json_schema_text,
+    parse_meta,
+)
+
+__all__ = [
+    "ChunkMeta",
+    "MeansMeta",
+    "QuatsMeta",
+    "ScalesMeta",
+    "Sh0Meta",
+    "ShNMeta",
+    "SogMeta",
+    "TemporalAttributeMeta",
+    "TimelineMeta",
+    "check_image_sizes",
+    "dump_meta",
+    "listed_files",
+    "meta_document",
+    "meta_json_schema",
+    "meta_json_schema_text",
+    "parse_meta",
+]

@@ -1,0 +1,189 @@
+"""Public entry points: parse and dump ``meta.json``, check image sizes, export the JSON Schema.
+
+Sans-I/O: bytes and mappings in, models and bytes out. Every failure is a
+:class:`~tsog_stream.errors.MetaError` whose ``field`` is the path of the culprit
+(``timeline.type``, ``means.files[0]``, ``temporal.quats.mins[1][2]``), or ``<document>``
+when the text is not a JSON object at all.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from ..constants import SH_CENTROIDS_PER_ROW, SH_COEFFS_BY_BANDS
+from ..errors import MetaError
+from .sog_meta import DOCUMENT, describe, validate_into
+from .tsog_meta import ChunkMeta
+
+KEY_ORDER = (
+    "version",
+    "asset",
+    "count",
+    "model",
+    "means",
+    "scales",
+    "quats",
+    "sh0",
+    "shN",
+    "timeline",
+    "temporal",
+    "extras",
+)
+"""Top-level key order written by :func:`dump_meta` (splat-transform's order, then ours)."""
+
+SCHEMA_ID = "https://tsog-stream.invalid/schema/meta.schema.json"
+SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+
+
+def _decode_text(data: bytes | bytearray | memoryview, where: str) -> str:
+    """UTF-8 text of ``data``; a bad byte is reported with its offset."""
+    raw = bytes(data)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        found = f"byte 0x{raw[exc.start]:02x} at offset {exc.start}"
+        raise MetaError(
+            f"expected UTF-8 text, found {found}", field=DOCUMENT, where=where
+        ) from None
+    return text
+
+
+def _load_json(text: str, where: str) -> Any:
+    """The JSON value of ``text`` (a leading BOM is dropped, as browsers do).
+
+    NaN/Infinity literals parse here; the schema rejects them with their field path.
+    """
+    try:
+        return json.loads(text.removeprefix("\ufeff"))
+    except json.JSONDecodeError as exc:
+        found = f"{exc.msg} at line {exc.lineno} column {exc.colno}"
+        raise MetaError(
+            f"expected valid JSON, found {found}", field=DOCUMENT, where=where
+        ) from None
+    except (ValueError, RecursionError) as exc:  # int digit limit, absurd nesting
+        raise MetaError(f"expected valid JSON, found {exc}", field=DOCUMENT, where=where) from None
+
+
+def parse_meta(data: bytes | str | Mapping[str, Any], *, where: str = "meta.json") -> ChunkMeta:
+    """Validate a ``meta.json`` (bytes, text or an already-parsed mapping) into a ChunkMeta.
+
+    Raises MetaError naming the first failing field; ``where`` names the file in messages.
+    """
+    if isinstance(data, bytes | bytearray | memoryview):
+        data = _decode_text(data, where)
+    document = _load_json(data, where) if isinstance(data, str) else data
+    if not isinstance(document, Mapping):
+        found = describe(document)
+        raise MetaError(f"expected a JSON object, found {found}", field=DOCUMENT, where=where)
+    if "version" not in document:
+        raise MetaError(
+            "expected 2, found no version key (the SOG v1 layout is not supported)",
+            field="version",
+            where=where,
+        )
+    return validate_into(ChunkMeta, dict(document), where=where)
+
+
+def meta_document(meta: ChunkMeta) -> dict[str, Any]:
+    """``meta`` as a JSON-ready dict: keys in :data:`KEY_ORDER`, absent optional keys omitted."""
+    data = meta.model_dump(mode="json")
+    out: dict[str, Any] = {}
+    for key in KEY_ORDER:
+        value = data.get(key)
+        if value is not None or (key == "extras" and "extras" in meta.model_fields_set):
+            out[key] = value
+    if "timeline" in out:
+        out["timeline"] = {k: v for k, v in out["timeline"].items() if v is not None}
+    for key in meta.model_extra or {}:
+        out[key] = data[key]
+    return out
+
+
+def dump_meta(meta: ChunkMeta) -> bytes:
+    """Compact UTF-8 JSON of ``meta`` (no whitespace, floats as Python repr: exact round trip)."""
+    text = json.dumps(
+        meta_document(meta), separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    )
+    return text.encode("utf-8")
+
+
+def listed_files(meta: ChunkMeta) -> list[tuple[str, str]]:
+    """(field path, file name) of every image ``meta`` references, in canonical order.
+
+    Order: means_l, means_u, quats, scales, sh0, shN centroids, shN labels, timeline l, u,
+    temporal attributes in TEMPORAL_CHANNELS order, orders ascending, l before u.
+    """
+    return meta.listed_files()
+
+
+def _centroid_problem(meta: ChunkMeta, size: tuple[int, int]) -> str | None:
+    """Why the shN centroid image has the wrong size for ``shN.bands``/``shN.count``, or None."""
+    shn = meta.shN
+    if shn is None:
+        return None
+    width = SH_CENTROIDS_PER_ROW * SH_COEFFS_BY_BANDS[shn.bands]
+    rows = math.ceil(shn.count / SH_CENTROIDS_PER_ROW)
+    if size[0] != width:
+        return f"expected width {width} (64 x coefficients of {shn.bands} bands), found {size[0]}"
+    if size[1] < rows:
+        return f"expected height >= {rows} (for {shn.count} palette entries), found {size[1]}"
+    return None
+
+
+def check_image_sizes(
+    meta: ChunkMeta, sizes: Mapping[str, tuple[int, int]], *, where: str = "meta.json"
+) -> None:
+    """Check decoded image sizes (file name -> (width, height)) against ``meta``.
+
+    Every per-Gaussian image has the size W x H of the first means image and
+    ``count <= W*H`` (any larger size is accepted: padding texels are ignored, and the
+    writer's own size formula is not required for reading); the shN centroid image is
+    ``64*coeffs`` wide with at least ``ceil(shN.count / 64)`` rows. Raises MetaError whose
+    ``field`` names the offending ``files`` entry (or ``count``).
+    """
+    files = listed_files(meta)
+    for field, name in files:
+        if name not in sizes:
+            raise MetaError(f"expected an image {name!r}, found none", field=field, where=where)
+    first_field, first = files[0]
+    width, height = sizes[first]
+    if meta.count > width * height:
+        raise MetaError(
+            f"expected at most {width * height} Gaussians ({first!r} is {width}x{height}), "
+            f"found {meta.count}",
+            field="count",
+            where=where,
+        )
+    for field, name in files[1:]:
+        size = tuple(sizes[name])
+        if field == "shN.files[0]":
+            problem = _centroid_problem(meta, (size[0], size[1]))
+        elif size != (width, height):
+            found = f"{size[0]}x{size[1]}"
+            problem = f"expected {width}x{height} like {first_field} ({first!r}), found {found}"
+        else:
+            problem = None
+        if problem is not None:
+            raise MetaError(f"{name!r}: {problem}", field=field, where=where)
+
+
+def meta_json_schema() -> dict[str, Any]:
+    """JSON Schema (2020-12) of a TSOG chunk's meta.json, as shipped in docs/schema/."""
+    schema = ChunkMeta.model_json_schema()
+    schema["$schema"] = SCHEMA_DIALECT
+    schema["$id"] = SCHEMA_ID
+    schema["title"] = "TSOG chunk meta.json"
+    schema["description"] = (
+        "SOG v2 meta.json plus the optional TSOG keys 'timeline' and 'temporal'. Rules a "
+        "schema cannot state (mins <= maxs, channel counts, fps only for types 0 and 1, "
+        "distinct file names) are enforced by tsog_stream.schemas.parse_meta."
+    )
+    return schema
+
+
+def meta_json_schema_text() -> str:
+    """:func:`meta_json_schema` serialised deterministically (sorted keys, indent 2, newline)."""
+    return json.dumps(meta_json_schema(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"

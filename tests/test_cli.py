@@ -1,0 +1,120 @@
+"""The tsog command line: real files in, real files out, friendly errors, no tracebacks."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tsog_stream import TimelineType
+from tsog_stream.cli.main import main
+from tsog_stream.codec.bundle import bundle_bytes
+from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.io.chunks import read_chunk
+from tsog_stream.io.ply import read_ply
+from tsog_stream.synthetic import small_scene
+
+DONUT = "3dgs/v3dg_donut_fused.ply"
+
+
+@pytest.fixture(scope="module")
+def dynamic_chunk(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cli") / "dynamic.sog"
+    scene = small_scene(TimelineType.CENTER_SCALE, dynamic=("means",))
+    path.write_bytes(bundle_bytes(encode_chunk(scene)))
+    return path
+
+
+def test_encode_decode_round_trip(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "donut.sog"
+    assert main(["encode", str(shared_data / DONUT), str(out), "-q"]) == 0
+    assert "45624 Gaussians" in capsys.readouterr().out
+    assert main(["decode", str(out), str(tmp_path / "back.ply"), "-q"]) == 0
+    back = read_ply(tmp_path / "back.ply").gaussians
+    assert len(back) == 45624
+    folder = tmp_path / "donut"
+    assert main(["encode", str(out), str(folder), "-q"]) == 0
+    assert (folder / "meta.json").is_file()
+    np.testing.assert_allclose(read_chunk(folder).gaussians.means, back.means, atol=1e-4)
+
+
+def test_encode_refuses_to_overwrite_without_force(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "x.sog"
+    out.write_bytes(b"keep me")
+    assert main(["encode", str(shared_data / DONUT), str(out), "-q"]) == 1
+    assert "already exists" in capsys.readouterr().err
+    assert out.read_bytes() == b"keep me"
+
+
+def test_info_json(dynamic_chunk: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", str(dynamic_chunk), "--json", "-q"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["format"] == "sog" and info["count"] > 0
+    assert info["timeline"]["type"] == 2 and info["temporal"] == {"means": 2}
+    assert set(info["bytes_per_attribute"]) >= {
+        "means",
+        "timeline",
+        "temporal.means",
+        "sh0+opacity",
+    }
+    w, h = info["images"]["means_l.webp"]
+    assert w * h >= info["count"]
+
+
+def test_frame_export(dynamic_chunk: Path, tmp_path: Path) -> None:
+    scene = read_chunk(dynamic_chunk)
+    out = tmp_path / "f.ply"
+    assert main(["frame", str(dynamic_chunk), "--t", "0.8", "-o", str(out), "-q"]) == 0
+    frame = read_ply(out).gaussians
+    expected = scene.at(0.8)
+    assert len(frame) == len(expected) > 0
+    np.testing.assert_allclose(frame.means, expected.means, rtol=1e-6)
+    assert (
+        main(["frame", str(dynamic_chunk), "--t", "0.8", "-o", str(tmp_path / "f.sog"), "-q"]) == 0
+    )
+    assert read_chunk(tmp_path / "f.sog").timeline is None
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["info", "/nonexistent/file.ply"], "no such file"),
+        (["encode", "{bad}", "{tmp}/o.sog"], "unknown magic"),
+        (["decode", "{trunc}", "{tmp}/o.ply"], "zip"),
+    ],
+)
+def test_bad_inputs_give_one_line_errors(args: list[str], message: str, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(b"\x00garbage" * 10)
+    trunc = tmp_path / "trunc.sog"
+    trunc.write_bytes(b"PK\x03\x04" + b"\x00" * 40)
+    argv = [a.format(bad=bad, tmp=tmp_path, trunc=trunc) for a in args]
+    proc = subprocess.run(
+        [sys.executable, "-m", "tsog_stream.cli.main", *argv, "-q"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert proc.returncode == 1
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_help_teaches() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "tsog_stream.cli.main", "--help"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert proc.returncode == 0
+    for word in ("encode", "decode", "info", "frame", "demo", "examples:", "seconds"):
+        assert word in proc.stdout

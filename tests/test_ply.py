@@ -1,0 +1,376 @@
+"""Plain 3DGS PLY: real files, generated variants (ASCII, big-endian, any order/type), errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tracemalloc
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from tsog_stream.errors import InputError, PlyError, SourceError, UnsupportedError
+from tsog_stream.io.ply import parse_ply, ply_bytes, read_ply, sniff_ply, write_ply
+from tsog_stream.io.ply_header import parse_header
+from tsog_stream.model import Gaussians
+
+NP_CODES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4"}
+NP_CODES |= {"uint": "u4", "float": "f4", "double": "f8", "float32": "f4", "uint8": "u1"}
+ATTRS = ("means", "scales", "quats", "opacities", "sh0", "shN")
+Columns = Mapping[str, tuple[str, npt.NDArray[np.generic]]]
+
+
+# --- helpers -------------------------------------------------------------------------------
+
+
+def make_gaussians(n: int, bands: int, seed: int = 0) -> Gaussians:
+    """Seeded Gaussians whose every column holds distinct values (catches mix-ups)."""
+    rng = np.random.default_rng(seed)
+    k = {0: 0, 1: 3, 2: 8, 3: 15}[bands]
+    f = rng.standard_normal
+    return Gaussians(f((n, 3)), f((n, 3)) - 4, f((n, 4)), f(n), f((n, 3)), f((n, k, 3)) * 0.1)
+
+
+def standard_columns(g: Gaussians, order: Sequence[str] | None = None) -> dict[str, npt.NDArray]:
+    """The standard PLY columns of ``g`` by name (f_rest channel-major), optionally reordered."""
+    k = g.shN.shape[1]
+    cols = {n: g.means[:, i] for i, n in enumerate("xyz")}
+    cols |= {f"f_dc_{i}": g.sh0[:, i] for i in range(3)}
+    cols |= {f"f_rest_{c * k + j}": g.shN[:, j, c] for c in range(3) for j in range(k)}
+    cols |= {"opacity": g.opacities}
+    cols |= {f"scale_{i}": g.scales[:, i] for i in range(3)}
+    cols |= {f"rot_{i}": g.quats[:, i] for i in range(4)}
+    return {n: cols[n] for n in order} if order else cols
+
+
+def build_ply(
+    fmt: str,
+    elements: Sequence[tuple[str, Columns]],
+    *,
+    tail_header: Sequence[str] = (),
+    tail: bytes = b"",
+) -> bytes:
+    """A PLY of ``elements`` (name -> {property: (PLY type, values)}) in any of the 3 formats."""
+    lines, body = ["ply", f"format {fmt} 1.0", "comment test file"], b""
+    for name, props in elements:
+        count = len(next(iter(props.values()))[1]) if props else 0
+        lines.append(f"element {name} {count}")
+        lines += [f"property {ptype} {pname}" for pname, (ptype, _) in props.items()]
+        body += _body(fmt, props, count)
+    lines += [*tail_header, "end_header"]
+    return ("\n".join(lines) + "\n").encode() + body + tail
+
+
+def _body(fmt: str, props: Columns, count: int) -> bytes:
+    """Rows of one element: text lines for ASCII, packed records for binary."""
+    if fmt == "ascii":
+        text = [
+            [repr(float(v)) if NP_CODES[t][0] == "f" else str(int(v)) for v in values]
+            for t, values in props.values()
+        ]
+        return "".join(" ".join(row) + "\n" for row in zip(*text, strict=True)).encode()
+    order = "<" if fmt == "binary_little_endian" else ">"
+    dtype = np.dtype([(n, order + NP_CODES[t]) for n, (t, _) in props.items()])
+    records = np.zeros(count, dtype)
+    for n, (_, values) in props.items():
+        records[n] = values
+    return records.tobytes()
+
+
+def floats(cols: Mapping[str, npt.NDArray]) -> dict[str, tuple[str, npt.NDArray]]:
+    """Every column as a PLY float."""
+    return {n: ("float", v) for n, v in cols.items()}
+
+
+def assert_same(a: Gaussians, b: Gaussians) -> None:
+    """Bit-exact float32 equality of every attribute (NaN equal to NaN)."""
+    for attr in ATTRS:
+        x, y = getattr(a, attr), getattr(b, attr)
+        assert x.dtype == np.float32 and x.shape == y.shape, attr
+        assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), attr
+
+
+def appendix_b(shared_data: Path) -> dict[str, dict[str, object]]:
+    """PROVENANCE.md Appendix B: the checker's ranges for every PLY, by relative path."""
+    text = (shared_data / "PROVENANCE.md").read_text()
+    section = text.split("## Appendix B", 1)[1].split("\n## ", 1)[0]
+    return {m[1]: json.loads(m[2]) for m in re.finditer(r"^- `([^`]+)`: (\{.*\})$", section, re.M)}
+
+
+def assert_range(values: npt.NDArray, expected: object, what: str) -> None:
+    """``values`` span the "[lo, hi]" range the appendix gives to 4 significant digits."""
+    assert isinstance(expected, str)
+    lo, hi = (float(v) for v in expected.strip("[]").split(","))
+    got = (float(np.min(values)), float(np.max(values)))
+    assert np.allclose(got, (lo, hi), rtol=2e-3, atol=1e-6), f"{what}: {got} vs {expected}"
+
+
+# --- real files ----------------------------------------------------------------------------
+
+
+def test_appendix_b_lists_every_real_ply(shared_data: Path) -> None:
+    on_disk = {str(p.relative_to(shared_data)) for p in shared_data.rglob("*.ply")}
+    assert set(appendix_b(shared_data)) == on_disk and len(on_disk) == 16
+
+
+def test_real_plys_match_provenance_ranges(shared_data: Path) -> None:
+    for rel, facts in appendix_b(shared_data).items():
+        contents = read_ply(shared_data / rel)
+        g = contents.gaussians
+        assert len(g) == facts["count"], rel
+        for i, axis in enumerate("xyz"):
+            assert_range(g.means[:, i], facts[axis], f"{rel} {axis}")
+        assert_range(g.scales, facts["log_scale"], f"{rel} log_scale")
+        if "opacity_logit" in facts:  # plain PLY
+            assert_range(g.opacities, facts["opacity_logit"], f"{rel} opacity")
+            assert_range(np.linalg.norm(g.quats, axis=1), facts["quat_norm"], f"{rel} quats")
+            assert g.sh_bands == facts["sh_degree"]
+        else:  # compressed: alpha = sigmoid(opacity)
+            alpha = 1 / (1 + np.exp(-g.opacities.astype(np.float64)))
+            assert_range(alpha, facts["opacity_sigmoid(alpha)"], f"{rel} alpha")
+            assert g.shN.shape[1] * 3 == facts["sh_element"]
+        assert contents.header is not None
+        assert list(contents.header.comments) == facts["comments"]
+        has_trailing_note = any("trailing bytes" in n for n in contents.notes)
+        assert has_trailing_note is (not facts["size_exact"]), rel
+
+
+def test_trailing_bytes_are_a_note(shared_data: Path) -> None:
+    contents = read_ply(shared_data / "3dgs" / "cvlab_pc_short.ply")
+    assert len(contents.gaussians) == 100
+    assert "ignored 14029 trailing bytes after the declared 100 'vertex' rows" in contents.notes
+
+
+def test_extra_property_is_kept(shared_data: Path) -> None:
+    contents = read_ply(shared_data / "3dgs" / "supersplat_pr291_fruit_drops_minimal.ply")
+    assert list(contents.extra) == ["transform"]
+    assert contents.extra["transform"].shape == (4721,)
+    assert contents.extra["transform"].dtype == np.float32
+    assert any("transform" in n for n in contents.notes)
+
+
+# --- round trips ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("bands", [0, 1, 2, 3])
+def test_write_read_is_bit_exact(bands: int) -> None:
+    g = make_gaussians(200, bands, seed=bands)
+    data = ply_bytes(g)
+    rest = [f"f_rest_{i}" for i in range(3 * g.shN.shape[1])]
+    expected = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", *rest, "opacity"]
+    expected += ["scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    header = parse_header(data)
+    assert header.format == "binary_little_endian"
+    assert list(header.elements[0].names) == expected
+    assert all(p.type == "f4" for p in header.elements[0].properties)
+    contents = parse_ply(data)
+    assert_same(contents.gaussians, g)
+    assert contents.extra == {} and contents.notes == []
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_big_endian", "binary_little_endian"])
+def test_formats_round_trip_exactly(fmt: str) -> None:
+    g = make_gaussians(50, 3, seed=7)
+    order = sorted(standard_columns(g), reverse=True)  # any property order
+    data = build_ply(fmt, [("vertex", floats(standard_columns(g, order)))])
+    contents = parse_ply(memoryview(data))
+    assert_same(contents.gaussians, g)
+    assert contents.notes == []
+
+
+def test_write_ply_file_with_extras(tmp_path: Path) -> None:
+    g = make_gaussians(30, 1)
+    t = np.linspace(0, 1, 30, dtype=np.float32)
+    write_ply(tmp_path / "out.ply", g, {"t": t, "motion_0": t * 2})
+    contents = read_ply(tmp_path / "out.ply")
+    assert_same(contents.gaussians, g)
+    assert list(contents.extra) == ["t", "motion_0"]
+    assert np.array_equal(contents.extra["motion_0"], t * 2)
+    assert os.listdir(tmp_path) == ["out.ply"]
+
+
+def test_empty_scene_round_trips() -> None:
+    g = Gaussians.empty(2)
+    assert_same(parse_ply(ply_bytes(g)).gaussians, g)
+
+
+def test_any_numeric_type_and_normals_ignored() -> None:
+    g = make_gaussians(20, 0)
+    cols: dict[str, tuple[str, npt.NDArray]] = floats(standard_columns(g))
+    cols["x"] = ("double", g.means[:, 0].astype(np.float64))
+    cols["opacity"] = ("uchar", np.arange(20))
+    cols["rot_0"] = ("short", -np.arange(20))
+    cols |= {n: ("float", np.ones(20)) for n in ("nx", "ny", "nz")}
+    for fmt in ("ascii", "binary_big_endian"):
+        contents = parse_ply(build_ply(fmt, [("vertex", cols)]))
+        assert np.array_equal(contents.gaussians.means, g.means)
+        assert np.array_equal(contents.gaussians.opacities, np.arange(20, dtype=np.float32))
+        assert np.array_equal(contents.gaussians.quats[:, 0], -np.arange(20, dtype=np.float32))
+        assert contents.extra == {}
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_big_endian", "binary_little_endian"])
+def test_other_elements_are_located_by_offset(fmt: str) -> None:
+    g = make_gaussians(10, 1)
+    chunk = {"min_x": ("float", np.arange(3.0)), "flag": ("uchar", np.arange(3))}
+    face = b"3 0 1 2\n" if fmt == "ascii" else b"\x03" + np.arange(3, dtype="<i4").tobytes()
+    data = build_ply(
+        fmt,
+        [("chunk", chunk), ("vertex", floats(standard_columns(g)))],
+        tail_header=["element face 1", "property list uchar int vertex_indices"],
+        tail=face,
+    )
+    contents = parse_ply(data)
+    assert_same(contents.gaussians, g)
+    assert any("'chunk'" in n for n in contents.notes)
+    assert any("'face'" in n for n in contents.notes)
+
+
+def test_nonfinite_values_are_kept_and_counted() -> None:
+    g = make_gaussians(10, 0)
+    g.means[2, 1] = np.nan
+    g.opacities[[3, 4]] = [np.inf, -np.inf]
+    contents = parse_ply(ply_bytes(g))
+    assert_same(contents.gaussians, g)
+    assert contents.notes == ["kept 3 non-finite values as read (y: 1, opacity: 2)"]
+
+
+# --- errors --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian"])
+def test_truncated_body_is_an_error(fmt: str) -> None:
+    data = build_ply(fmt, [("vertex", floats(standard_columns(make_gaussians(20, 1))))])
+    with pytest.raises(PlyError, match=r"expected \d+ (bytes|values).*found \d+"):
+        parse_ply(data[:-20])
+
+
+def test_trailing_bytes_note_on_generated_file() -> None:
+    contents = parse_ply(ply_bytes(make_gaussians(5, 0)) + b"\0" * 7)
+    assert contents.notes == ["ignored 7 trailing bytes after the declared 5 'vertex' rows"]
+
+
+@pytest.mark.parametrize("fmt", ["ascii", "binary_little_endian", "binary_big_endian"])
+def test_huge_count_in_tiny_file_does_not_allocate(fmt: str) -> None:
+    header = ply_bytes(make_gaussians(1, 3)).split(b"end_header\n")[0].decode()
+    header = header.replace("binary_little_endian", fmt).replace("vertex 1", f"vertex {10**12}")
+    data = (header + "end_header\n").encode() + b"0 " * 50
+    tracemalloc.start()
+    try:
+        with pytest.raises(PlyError, match="1000000000000"):
+            parse_ply(data)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1_000_000
+
+
+GARBAGE = {
+    "empty": b"",
+    "not ply": b"PK\x03\x04 zip file",
+    "no end_header": b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n",
+    "no format": b"ply\nelement vertex 0\nend_header\n",
+    "bad format": b"ply\nformat binary_middle_endian 1.0\nend_header\n",
+    "unknown keyword": b"ply\nformat ascii 1.0\nvertices 3\nend_header\n",
+    "unknown type": b"ply\nformat ascii 1.0\nelement v 1\nproperty half x\nend_header\n",
+    "orphan property": b"ply\nformat ascii 1.0\nproperty float x\nend_header\n",
+    "negative count": b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n",
+    "duplicate property": b"ply\nformat ascii 1.0\nelement v 0\nproperty float x\n"
+    b"property float x\nend_header\n",
+    "non-ascii": b"ply\nformat ascii 1.0\ncomment caf\xe9\nend_header\n",
+    "endless header": b"ply\nformat ascii 1.0\n" + b"comment padding\n" * 5000,
+    "bad ascii value": b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+    b"end_header\nabc\n",
+    "int out of range": b"ply\nformat ascii 1.0\nelement vertex 1\nproperty uchar x\n"
+    b"end_header\n300\n",
+}
+
+
+@pytest.mark.parametrize("data", GARBAGE.values(), ids=GARBAGE.keys())
+def test_garbage_is_a_ply_error(data: bytes) -> None:
+    with pytest.raises(PlyError):
+        parse_ply(data)
+
+
+@pytest.mark.parametrize("missing", ["x", "scale_2", "rot_3", "opacity", "f_dc_1"])
+def test_missing_property_is_named(missing: str) -> None:
+    cols = standard_columns(make_gaussians(4, 0))
+    del cols[missing]
+    with pytest.raises(PlyError, match=rf"missing required vertex property {missing}\b"):
+        parse_ply(build_ply("binary_little_endian", [("vertex", floats(cols))]))
+
+
+def test_bad_f_rest_count_is_named() -> None:
+    cols = standard_columns(make_gaussians(4, 1))
+    del cols["f_rest_8"]
+    with pytest.raises(PlyError, match="found 8"):
+        parse_ply(build_ply("binary_little_endian", [("vertex", floats(cols))]))
+
+
+def test_list_property_in_vertex_is_unsupported() -> None:
+    g = make_gaussians(1, 0)
+    data = build_ply("ascii", [("vertex", floats(standard_columns(g)))])
+    head, body = data.split(b"end_header\n")
+    data = head + b"property list uchar int idx\nend_header\n" + body.rstrip() + b" 2 5 6\n"
+    with pytest.raises(UnsupportedError, match="list properties"):
+        parse_ply(data)
+
+
+def test_sniff() -> None:
+    assert sniff_ply(b"ply\nformat") and sniff_ply(b"ply\r\nformat")
+    assert not sniff_ply(b"plyx\n") and not sniff_ply(b"")
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [{"x": np.zeros(3)}, {"two words": np.zeros(3)}, {"t": np.zeros(4)}, {"t": np.zeros((3, 1))}],
+)
+def test_bad_extras_are_input_errors(extra: dict[str, npt.NDArray]) -> None:
+    with pytest.raises(InputError):
+        ply_bytes(make_gaussians(3, 0), extra)
+
+
+def test_read_missing_file_is_a_source_error(tmp_path: Path) -> None:
+    with pytest.raises(SourceError):
+        read_ply(tmp_path / "nope.ply")
+
+
+def test_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "scene.ply"
+    target.write_bytes(b"old")
+
+    def failing_replace(src: object, dst: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", failing_replace)
+    with pytest.raises(SourceError, match="No space left"):
+        write_ply(target, make_gaussians(10, 1))
+    assert os.listdir(tmp_path) == ["scene.ply"] and target.read_bytes() == b"old"
+    target.unlink()
+    with pytest.raises(SourceError):
+        write_ply(target, make_gaussians(10, 1))
+    assert os.listdir(tmp_path) == []
+
+
+def test_write_failing_mid_write_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def failing_fsync(fd: int) -> None:
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(os, "fsync", failing_fsync)
+    with pytest.raises(SourceError, match="Input/output error"):
+        write_ply(tmp_path / "a.ply", make_gaussians(3, 0))
+    assert os.listdir(tmp_path) == []
+
+
+def test_write_rejects_bad_input_before_touching_disk(tmp_path: Path) -> None:
+    with pytest.raises(InputError):
+        write_ply(tmp_path / "a.ply", make_gaussians(3, 0), {"t": np.zeros(2)})
+    with pytest.raises(SourceError):
+        write_ply(tmp_path / "missing" / "a.ply", make_gaussians(3, 0))
+    assert os.listdir(tmp_path) == []

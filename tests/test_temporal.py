@@ -1,0 +1,95 @@
+"""Temporal evaluation: visibility per timeline type and polynomial attributes at t."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
+from tsog_stream.temporal import evaluate_all, lifespans, time_range, visibility_half_width
+
+
+def _gaussians(n: int) -> Gaussians:
+    z = np.zeros
+    quats = np.tile([1.0, 0, 0, 0], (n, 1))
+    return Gaussians(z((n, 3)), z((n, 3)), quats, np.full(n, 2.0), z((n, 3)))
+
+
+def test_frame_ids_select_their_frame_only() -> None:
+    tl = Timeline(TimelineType.FRAME, [0, 1, 2, 2], np.zeros(4), fps=10)
+    scene = Scene(_gaussians(4), tl)
+    assert len(scene.at(0.0)) == 1
+    assert len(scene.at(0.1)) == 1  # exactly at 1/fps: frame 1 despite float rounding
+    assert len(scene.at(0.2999)) == 2
+    assert len(scene.at(0.3)) == 0
+
+
+def test_start_duration_is_half_open() -> None:
+    tl = Timeline(TimelineType.START_DURATION, [0, 5], [5, 5], fps=10)
+    scene = Scene(_gaussians(2), tl)
+    assert [len(scene.at(t)) for t in (0.0, 0.49, 0.5, 0.99, 1.0)] == [1, 1, 1, 1, 0]
+    assert scene.at(0.5).opacities[0] == pytest.approx(2.0)
+
+
+def test_center_scale_scales_opacity_and_cuts_at_threshold() -> None:
+    tl = Timeline(TimelineType.CENTER_SCALE, [1.0], [0.5])
+    scene = Scene(_gaussians(1), tl)
+    alpha = 1 / (1 + math.exp(-2.0))
+    at = scene.at(1.5)  # one sigma away: factor exp(-1/2)
+    got = 1 / (1 + math.exp(-float(at.opacities[0])))
+    assert got == pytest.approx(alpha * math.exp(-0.5), rel=1e-6)
+    edge = 0.5 * visibility_half_width()
+    assert len(scene.at(1.0 + edge * 0.999)) == 1
+    assert len(scene.at(1.0 + edge * 1.001)) == 0
+    start, end = lifespans(tl)
+    assert start[0] == pytest.approx(1.0 - edge) and end[0] == pytest.approx(1.0 + edge)
+
+
+def test_polynomial_motion_and_quaternion_renormalisation() -> None:
+    tl = Timeline(TimelineType.START_DURATION, [10.0], [100.0], fps=10)  # starts at 1 s
+    means = np.zeros((1, 1, 3), np.float32)
+    means[0, :, 0] = [2.0]  # 2 units per second along x
+    quats = np.zeros((1, 2, 4), np.float32)
+    quats[0, 1, 1] = 1.0  # second order term on x component
+    scene = Scene(
+        _gaussians(1),
+        tl,
+        {"means": np.concatenate([means, np.zeros((1, 1, 3))], 1), "quats": quats},
+    )
+    g = scene.at(3.0)  # dt = 2 s
+    assert g.means[0, 0] == pytest.approx(4.0)
+    q = np.array([1.0, 4.0, 0, 0]) / math.sqrt(17)
+    np.testing.assert_allclose(g.quats[0], q, rtol=1e-6)
+
+
+def test_evaluate_all_keeps_alignment() -> None:
+    tl = Timeline(TimelineType.FRAME, [0, 1], np.zeros(2), fps=1)
+    g, mask = evaluate_all(Scene(_gaussians(2), tl), 0.5)
+    assert len(g) == 2 and mask.tolist() == [True, False]
+
+
+def test_time_range_prefers_declared_length() -> None:
+    tl = Timeline(TimelineType.FRAME, [0, 29], np.zeros(2), fps=30)
+    assert time_range(tl) == (0.0, pytest.approx(1.0))
+    tl2 = Timeline(TimelineType.FRAME, [0, 29], np.zeros(2), fps=30, scene_length=2.0)
+    assert time_range(tl2) == (0.0, 2.0)
+
+
+@pytest.mark.parametrize("t", [math.nan, math.inf])
+def test_non_finite_time_is_an_input_error(t: float) -> None:
+    scene = Scene(_gaussians(1), Timeline(TimelineType.FRAME, [0], [0], fps=1))
+    with pytest.raises(InputError):
+        scene.at(t)
+
+
+def test_bad_timelines_are_refused() -> None:
+    with pytest.raises(InputError, match="fps"):
+        Timeline(TimelineType.CENTER_SCALE, [0], [1], fps=30)
+    with pytest.raises(InputError, match="scales must be positive"):
+        Timeline(TimelineType.CENTER_SCALE, [0], [0])
+    with pytest.raises(InputError, match="temporal"):
+        Scene(_gaussians(1), None, {"means": np.zeros((1, 1, 3))})
+    with pytest.raises(InputError, match=r"temporal\.means"):
+        Scene(_gaussians(1), Timeline(TimelineType.FRAME, [0], [0]), {"means": np.zeros((1, 1, 4))})
