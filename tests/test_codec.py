@@ -15,15 +15,22 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
 from tsog_stream.synthetic import small_scene
-from tsog_stream.temporal import evaluate_all, lifespans, reference_times
+from tsog_stream.temporal import (
+    evaluate_all,
+    lifespans,
+    reference_times,
+    visibility_half_width,
+)
 
-ROTATION_MAX_DEG = 0.7
-"""Smallest-three with 8 bits per component: each stored component is within 1/255/sqrt2."""
+ROTATION_MAX_DEG = 1.1
+"""Smallest-three, 8 bits per component: each stored component within 1/(255 sqrt2) after
+rounding; with the reconstructed fourth component the worst case measured on real data is 0.95."""
+ROTATION_MEAN_DEG = 0.4
 
 
 @pytest.fixture(scope="module")
 def sh3_scene(shared_data: Path) -> Scene:
-    return Scene(read_ply(shared_data / "3dgs/gs3d_pr477_lod2_tile_0.ply").gaussians)
+    return Scene(read_ply(shared_data / "3dgs/supersplat_pr291_fruit_drops_minimal.ply").gaussians)
 
 
 def test_static_round_trip_within_tolerances(sh3_scene: Scene) -> None:
@@ -33,8 +40,10 @@ def test_static_round_trip_within_tolerances(sh3_scene: Scene) -> None:
     got = decoded.gaussians
     meta = json.loads(files["meta.json"])
     step = means_log_step(meta["means"]["mins"], meta["means"]["maxs"])
-    assert np.all(log_space_error(src.means, got.means) <= step * 0.5 + 1e-9)
-    assert rotation_angles_deg(src.quats, got.quats).max() < ROTATION_MAX_DEG
+    float32_rounding = 1e-7  # decoded positions are float32
+    assert np.all(log_space_error(src.means, got.means) <= step * 0.5 + float32_rounding)
+    angles = rotation_angles_deg(src.quats, got.quats)
+    assert angles.max() < ROTATION_MAX_DEG and angles.mean() < ROTATION_MEAN_DEG
     err = attribute_errors(src, got)
     alpha_step = 1 / 255
     assert err.opacity_max <= alpha_step / 2 + 1e-6
@@ -67,8 +76,9 @@ def test_tsog_round_trip_matches_source_at_t(kind: TimelineType, order: int) -> 
     assert decoded.timeline is not None and src.timeline is not None
     assert decoded.timeline.type is kind
     meta = json.loads(files["meta.json"])
-    start, _ = _edges(src)
-    for t in sorted({0.0, 0.37, 1.0, 1.99, *start[:3].tolist()}):
+    start, end = _edges(src)
+    edges = [*start[-3:].tolist(), *end[-3:].tolist()]  # object Gaussians come last
+    for t in sorted({0.0, 0.37, 1.0, 1.99, *edges}):
         _check_at(src, decoded, meta, t)
 
 
@@ -100,9 +110,12 @@ def _check_at(src: Scene, decoded: Scene, meta: dict, t: float) -> None:
     err = np.abs(ref.means - got.means).max(axis=1)
     both = mask & got_mask
     assert np.all(err[both] <= (bound + base + 1e-6)[both]), f"t={t}"
-    # Lifespan edges may move by at most one timeline quantisation step.
-    flips = np.count_nonzero(mask != got_mask)
-    assert flips <= max(1, 0.01 * len(src)), f"{flips} visibility flips at t={t}"
+    # Visibility may differ only where t is within one quantisation error of a lifespan edge.
+    start, end = _edges(src)
+    half_width = visibility_half_width() if src.timeline.type is TimelineType.CENTER_SCALE else 1.0
+    edge_error = (t_step[0] + half_width * t_step[1]) * spu / 2 + 1e-9
+    near_edge = np.minimum(np.abs(t - start), np.abs(t - end)) <= edge_error
+    assert not np.any((mask != got_mask) & ~near_edge), f"visibility changed away from edges, t={t}"
 
 
 def test_frame_ids_survive_exactly() -> None:

@@ -191,21 +191,21 @@ def test_spare_chunk_rows_are_a_note() -> None:
 # --- interop with the reference decoder ----------------------------------------------------
 
 
-def reference_decode(source: Path, tmp_path: Path) -> Gaussians:
+def reference_decode(tool: Path, source: Path, tmp_path: Path) -> Gaussians:
     """Decode ``source`` with splat-transform into a plain float PLY and read that back."""
-    if not SPLAT_TRANSFORM.exists():
-        pytest.skip(f"splat-transform is not installed at {SPLAT_TRANSFORM}")
     out = tmp_path / "reference.ply"  # not *.compressed.ply: that would re-compress
-    cmd = [str(SPLAT_TRANSFORM), "-g", "cpu", "-w", str(source), str(out)]
+    cmd = [str(tool), "-g", "cpu", "-w", str(source), str(out)]
     subprocess.run(cmd, check=True, capture_output=True, timeout=300)
     return read_ply(out).gaussians
 
 
 @pytest.mark.interop
 @pytest.mark.parametrize("rel", [GUITAR, ENGINE])
-def test_matches_splat_transform_bit_for_bit(shared_data: Path, tmp_path: Path, rel: Path) -> None:
+def test_matches_splat_transform_bit_for_bit(
+    shared_data: Path, splat_transform: Path, tmp_path: Path, rel: Path
+) -> None:
     ours = parse_compressed_ply((shared_data / rel).read_bytes()).gaussians
-    ref = reference_decode(shared_data / rel, tmp_path)
+    ref = reference_decode(splat_transform, shared_data / rel, tmp_path)
     assert ours.sh_bands == ref.sh_bands == (3 if rel == ENGINE else 0)
     for attr in ("means", "scales", "quats", "sh0", "shN"):
         assert np.array_equal(getattr(ours, attr), getattr(ref, attr)), attr

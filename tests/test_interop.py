@@ -23,7 +23,7 @@ from tsog_stream.synthetic import small_scene
 
 pytestmark = pytest.mark.interop
 
-INPUTS = ["3dgs/gs3d_pr477_lod2_tile_0.ply", "3dgs/v3dg_donut_fused.ply"]
+INPUTS = ["3dgs/supersplat_pr291_fruit_drops_minimal.ply", "3dgs/v3dg_donut_fused.ply"]
 
 
 def run_tool(tool: Path, *args: str | Path) -> None:

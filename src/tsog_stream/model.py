@@ -73,6 +73,7 @@ class Gaussians:
         quats: npt.ArrayLike,
         opacities: npt.ArrayLike,
         sh0: npt.ArrayLike,
+        *,
         shN: npt.ArrayLike | None = None,
     ) -> Gaussians:
         """Build from any array-likes (any float dtype); shapes are checked, data made float32."""
@@ -107,7 +108,9 @@ class Gaussians:
         """A scene with no Gaussians (and ``sh_bands`` bands, so concatenation stays typed)."""
         k = SH_COEFFS_BY_BANDS[sh_bands]
         z = np.zeros
-        return Gaussians.from_arrays(z((0, 3)), z((0, 3)), z((0, 4)), z(0), z((0, 3)), z((0, k, 3)))
+        return Gaussians.from_arrays(
+            z((0, 3)), z((0, 3)), z((0, 4)), z(0), z((0, 3)), shN=z((0, k, 3))
+        )
 
 
 class TimelineType(IntEnum):

@@ -223,4 +223,4 @@ def static_gaussians(n: int, *, sh_bands: int = 0, seed: int = 0) -> Gaussians:
     means = clusters[rng.integers(0, len(clusters), n)] + rng.normal(0, 0.4, (n, 3))
     g = _static_attributes(rng, means, sh_bands)
     decay = 1.0 / (1.0 + np.arange(g.shN.shape[1]))[None, :, None]  # higher bands are smaller
-    return Gaussians.from_arrays(g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN * decay)
+    return Gaussians.from_arrays(g.means, g.scales, g.quats, g.opacities, g.sh0, shN=g.shN * decay)

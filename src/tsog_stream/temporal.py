@@ -135,7 +135,7 @@ def _evaluate(
     if factor is not None:
         opacity = _scale_opacity(opacity, factor)
     return Gaussians.from_arrays(
-        attrs["means"], attrs["scales"], quats, opacity, attrs["sh0"], g.shN
+        attrs["means"], attrs["scales"], quats, opacity, attrs["sh0"], shN=g.shN
     )
 
 

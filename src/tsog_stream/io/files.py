@@ -4,34 +4,43 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from ..errors import SourceError
 
 
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to a temp file beside ``path``, fsync it, then rename it into place."""
+def atomic_write_bytes(
+    path: str | os.PathLike[str], data: bytes | Sequence[bytes | memoryview]
+) -> None:
+    """Write ``data`` (or its parts, in order) to a temp file beside ``path``, then rename it.
+
+    The temp file is created with the umask's permissions (unlike ``mkstemp``), fsynced, and
+    removed on any failure, so the target is either the old file or the complete new one.
+    """
     target = Path(path)
+    parts = [data] if isinstance(data, bytes | bytearray | memoryview) else data
+    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
     try:
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{target.name}.", suffix=".tmp", dir=target.parent or "."
-        )
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     except OSError as exc:
-        raise SourceError(f"cannot create a file here: {exc.strerror}", where=str(target)) from exc
+        msg = f"cannot create a file in {str(target.parent)!r}: {exc.strerror or exc}"
+        raise SourceError(msg, where=str(target)) from exc
     try:
         with os.fdopen(fd, "wb") as out:
-            out.write(data)
+            for part in parts:
+                out.write(part)
             out.flush()
             os.fsync(out.fileno())
         os.replace(tmp, target)
     except BaseException as exc:
         with contextlib.suppress(OSError):
-            os.unlink(tmp)
+            tmp.unlink(missing_ok=True)
         if isinstance(exc, OSError):
-            raise SourceError(f"cannot write: {exc.strerror}", where=str(target)) from exc
+            raise SourceError(f"cannot write: {exc.strerror or exc}", where=str(target)) from exc
         raise
 
 

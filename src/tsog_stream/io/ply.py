@@ -22,10 +22,8 @@ Decisions:
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
-import secrets
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +35,7 @@ import numpy.typing as npt
 from ..constants import GENERATOR
 from ..errors import InputError, PlyError, SourceError
 from ..model import F32, Gaussians
+from .files import atomic_write_bytes
 from .ply_header import MAGICS, PlyHeader, Records, parse_header, read_elements
 
 POSITION: Final = ("x", "y", "z")
@@ -203,7 +202,7 @@ def write_ply(
 ) -> None:
     """Write :func:`ply_bytes` output to ``path`` atomically (nothing half-written on failure)."""
     header, matrix = _encode(gaussians, extra)
-    publish_atomic(Path(path), (header, matrix.data.cast("B")))
+    atomic_write_bytes(path, (header, matrix.data.cast("B")))
 
 
 def _encode(
@@ -246,26 +245,3 @@ def _extra_columns(
             raise InputError(f"expected shape ({n},), got {array.shape}", where=f"extra.{key}")
         columns[key] = array
     return columns
-
-
-def publish_atomic(target: Path, parts: Sequence[bytes | memoryview]) -> None:
-    """Write ``parts`` to a temporary file beside ``target``, fsync, then rename over it."""
-    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
-    except OSError as exc:
-        msg = f"cannot create a file in {str(target.parent)!r}: {exc.strerror or exc}"
-        raise SourceError(msg, where=str(target)) from exc
-    try:
-        with os.fdopen(fd, "wb") as file:
-            for part in parts:
-                file.write(part)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(tmp, target)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise SourceError(f"cannot write: {exc.strerror or exc}", where=str(target)) from exc
-        raise
