@@ -51,16 +51,26 @@ class SceneSpec:
 
 
 def _static_attributes(rng: np.random.Generator, means: F64, sh_bands: int) -> Gaussians:
-    """Random but plausible scales, rotations, opacities and colours for the given positions."""
+    """Plausible attributes: colours and sizes vary smoothly in space (as in trained scenes),
+    plus noise; opacities are mostly high with a faint tail; rotations are random."""
     n = means.shape[0]
     k = SH_COEFFS_BY_BANDS[sh_bands]
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    pattern = np.sin(means[:, [0, 1, 2]] * 1.3 + phase) + np.cos(means[:, [1, 2, 0]] * 0.7)
+    sh0 = 0.8 * pattern + rng.normal(0, 0.1, (n, 3))
+    scales = -3.8 + 0.4 * pattern[:, [2, 0, 1]] + rng.normal(0, 0.25, (n, 3))
+    faint = rng.uniform(0, 1, n) < 0.25
+    opacities = np.where(faint, rng.normal(-2.5, 1.0, n), rng.normal(3.0, 1.2, n))
+    shn = 0.1 * pattern[:, None, :] / (1 + np.arange(k))[None, :, None] + rng.normal(
+        0, 0.02, (n, k, 3)
+    )
     return Gaussians.from_arrays(
         means=means,
-        scales=rng.normal(-3.5, 0.6, (n, 3)),
+        scales=scales,
         quats=rng.normal(0, 1, (n, 4)),
-        opacities=rng.normal(1.0, 1.5, n),
-        sh0=rng.normal(0, 0.7, (n, 3)),
-        shN=rng.normal(0, 0.08, (n, k, 3)),
+        opacities=opacities,
+        sh0=sh0,
+        shN=shn,
     )
 
 

@@ -19,7 +19,8 @@ from ..demo import run_demo
 from ..errors import InputError, TsogError
 from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.ply import write_ply
-from ..io.readers import FORMATS, detect_format, load_scene
+from ..io.readers import FORMATS, ReadOptions, detect_format, load_scene
+from ..io.sequence import DEFAULT_FPS
 from ..model import Scene
 from ..summary import chunk_summary, scene_summary
 from .progress import Progress
@@ -41,12 +42,32 @@ def _add_common(p: argparse.ArgumentParser) -> None:
 
 
 def _add_input(p: argparse.ArgumentParser) -> None:
-    """The INPUT argument and --format."""
+    """The INPUT argument, --format and the per-format reading options."""
     p.add_argument(
-        "input", type=Path, help="input file or folder (PLY, compressed PLY, .sog, SOG folder)"
+        "input",
+        help="input file, folder or frame pattern: 3DGS PLY, compressed PLY, .sog or SOG folder, "
+        "folder/glob of numbered PLY or SOG frames, FreeTimeGS PLY/npz, .splatv, .4dgs",
     )
     p.add_argument(
         "--format", choices=FORMATS, help="input format (default: detected from content)"
+    )
+    g = p.add_argument_group("reading options (each applies to the formats named)")
+    g.add_argument(
+        "--fps", type=float, help=f"frame rate of PLY/SOG frame sequences (default {DEFAULT_FPS:g})"
+    )
+    g.add_argument(
+        "--duration-s", type=float, help=".splatv: seconds spanned by the clip (default 1)"
+    )
+    g.add_argument(
+        "--scene-length-s",
+        type=float,
+        help="FreeTimeGS: seconds spanned by normalised time (default 1)",
+    )
+    g.add_argument(
+        "--duration-mode",
+        choices=("log", "linear"),
+        default="log",
+        help="FreeTimeGS PLY: durations stored as log sigma (default) or sigma",
     )
 
 
@@ -65,9 +86,6 @@ def build_parser() -> argparse.ArgumentParser:
     _add_input(p)
     p.add_argument(
         "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
-    )
-    p.add_argument(
-        "--fps", type=float, help="frame rate of a frame-sequence input (frames -> seconds)"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the SH palette fit (default 0)")
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
@@ -113,7 +131,13 @@ def _refuse_existing(path: Path, force: bool) -> None:
 def _load(args: argparse.Namespace, progress: Progress) -> Scene:
     """Load the INPUT with progress and reader notes on stderr."""
     progress(f"reading {args.input}")
-    loaded = load_scene(args.input, format=args.format)
+    options = ReadOptions(
+        fps=args.fps,
+        duration_s=args.duration_s,
+        scene_length_s=args.scene_length_s,
+        duration_mode=args.duration_mode,
+    )
+    loaded = load_scene(args.input, format=args.format, options=options, progress=progress)
     for note in loaded.notes:
         print(f"tsog: note: {note}", file=sys.stderr)
     return loaded.scene
@@ -122,10 +146,6 @@ def _load(args: argparse.Namespace, progress: Progress) -> Scene:
 def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
     _refuse_existing(args.output, args.force)
-    if args.fps is not None:
-        raise InputError(
-            "--fps applies to frame-sequence inputs; this input is not one", where="--fps"
-        )
     scene = _load(args, progress)
     files = encode_chunk(scene, seed=args.seed, progress=progress)
     size = write_chunk_files(args.output, files, overwrite=True)
@@ -158,7 +178,7 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
     kind = args.format or detect_format(args.input)
     info: dict[str, Any] = {"file": str(args.input), "format": kind}
     if kind == "sog":
-        files = read_chunk_files(args.input)
+        files = read_chunk_files(Path(args.input))
         info.update(chunk_summary(files, where=str(args.input)))
         progress("decoding")
         decoded = decode_chunk(files, where=str(args.input))

@@ -6,9 +6,16 @@ import sys
 import time
 from typing import TextIO
 
+QUIET_SECONDS = 2.0
+"""Without a terminal, stages are logged only once the work has lasted this long."""
+
 
 class Progress:
-    """Reports named stages with elapsed time; silent when ``quiet``."""
+    """Reports named stages with elapsed time; silent when ``quiet``.
+
+    On a terminal a live status line is redrawn; otherwise (logs, CI) stages are printed one
+    per line, but only for work that has already taken more than a couple of seconds.
+    """
 
     def __init__(self, *, quiet: bool = False, stream: TextIO | None = None) -> None:
         self.quiet = quiet
@@ -21,7 +28,10 @@ class Progress:
         """Announce that ``stage`` has begun."""
         if self.quiet:
             return
-        text = f"[{time.monotonic() - self.start:6.1f}s] {stage}"
+        elapsed = time.monotonic() - self.start
+        if not self.live and elapsed < QUIET_SECONDS:
+            return
+        text = f"[{elapsed:6.1f}s] {stage}"
         if self.live:
             self.stream.write("\r\x1b[2K" + text)
             self._open_line = True

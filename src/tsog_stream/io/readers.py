@@ -1,14 +1,16 @@
 """Input detection and loading: any supported file becomes a :class:`~tsog_stream.model.Scene`.
 
-Formats are recognised by content (magic bytes, PLY header, zip with meta.json), not only by
-extension; ``format=`` overrides detection.
+Formats are recognised by content (magic bytes, PLY header properties, zip members), not by
+extension; ``format=`` overrides detection. Every reader's warnings come back as ``notes``.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 from ..codec.bundle import is_zip
 from ..errors import InputError, UnsupportedError
@@ -16,11 +18,47 @@ from ..model import Scene
 from .chunks import is_unbundled, read_chunk
 from .compressed_ply import is_compressed_ply
 from .files import read_bytes
+from .fourdgs import parse_4dgs, sniff_4dgs
+from .freetimegs import (
+    is_freetimegs_ply,
+    parse_freetimegs_npz,
+    parse_freetimegs_ply,
+    sniff_freetimegs_npz,
+)
+from .loaded import Loaded4D
 from .ply import parse_ply, sniff_ply
 from .ply_header import parse_header
+from .sequence import DEFAULT_FPS, detect_sequence, read_ply_sequence, read_sog_sequence
+from .splatv import parse_splatv, sniff_splatv
 
-FORMATS = ("ply", "compressed-ply", "sog")
+FORMATS = (
+    "ply",
+    "compressed-ply",
+    "sog",
+    "ply-sequence",
+    "sog-sequence",
+    "freetimegs-ply",
+    "freetimegs-npz",
+    "splatv",
+    "4dgs",
+)
 """Input formats this version reads (``--format`` values)."""
+HEAD_BYTES = 64 * 1024
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """Per-format reading options; each applies only to the formats named."""
+
+    fps: float | None = None
+    """Frame rate of PLY/SOG sequences (default DEFAULT_FPS)."""
+    duration_s: float | None = None
+    """Seconds spanned by a .splatv clip's normalised time (default 1 s)."""
+    scene_length_s: float | None = None
+    """Seconds spanned by a FreeTimeGS scene's normalised time (default 1 s)."""
+    duration_mode: Literal["log", "linear"] = "log"
+    """How a FreeTimeGS PLY stores durations."""
 
 
 @dataclass(frozen=True)
@@ -32,31 +70,105 @@ class LoadedScene:
     notes: list[str] = field(default_factory=list)
 
 
-def detect_format(path: str | os.PathLike[str]) -> str:
-    """The format name of the file or folder at ``path``, from its content."""
-    p = Path(path)
-    if is_unbundled(p):
-        return "sog"
-    if p.is_dir():
-        raise UnsupportedError("a folder without meta.json is not a known input", where=str(p))
+def _is_glob(path: str | os.PathLike[str]) -> bool:
+    """True for a sequence pattern such as ``frames/frame_*.ply``."""
+    return any(c in str(path) for c in "*?[")
+
+
+def _detect_file(p: Path) -> str:
+    """Format of a single file, from its first bytes (and its zip members)."""
     with open(p, "rb") as f:
-        head = f.read(64 * 1024)
+        head = f.read(HEAD_BYTES)
+    if sniff_splatv(head):
+        return "splatv"
+    if sniff_4dgs(head):
+        return "4dgs"
     if is_zip(head):
-        return "sog"
+        return "freetimegs-npz" if sniff_freetimegs_npz(read_bytes(p)) else "sog"
     if sniff_ply(head):
-        return "compressed-ply" if is_compressed_ply(parse_header(head, name=str(p))) else "ply"
-    raise UnsupportedError("not a PLY, SOG or TSOG file (unknown magic bytes)", where=str(p))
+        header = parse_header(head, name=str(p))
+        if is_compressed_ply(header):
+            return "compressed-ply"
+        return "freetimegs-ply" if is_freetimegs_ply(header) else "ply"
+    raise UnsupportedError(
+        "not a PLY, SOG/TSOG, .splatv, .4dgs or FreeTimeGS file (unknown magic bytes)",
+        where=str(p),
+    )
 
 
-def load_scene(path: str | os.PathLike[str], *, format: str | None = None) -> LoadedScene:
-    """Read any supported input as a Scene (static inputs have no timeline)."""
+def detect_format(path: str | os.PathLike[str]) -> str:
+    """The format name of the file, folder or glob pattern at ``path``, from its content."""
+    if _is_glob(path):
+        kind = detect_sequence(str(path))
+        if kind is None:
+            raise InputError("the pattern matches no numbered frames", where=str(path))
+        return kind
     p = Path(path)
     if not p.exists():
         raise InputError("no such file or folder", where=str(p))
-    kind = format or detect_format(p)
-    if kind == "sog":
-        return LoadedScene(read_chunk(p), kind)
+    if is_unbundled(p):
+        return "sog"
+    if p.is_dir():
+        kind = detect_sequence(p)
+        if kind is None:
+            raise UnsupportedError(
+                "a folder must hold meta.json (SOG) or numbered PLY/SOG frames", where=str(p)
+            )
+        return kind
+    return _detect_file(p)
+
+
+def _read_4d(kind: str, path: str, options: ReadOptions, progress: Progress | None) -> Loaded4D:
+    """Dispatch the 4D readers."""
+    fps = options.fps if options.fps is not None else DEFAULT_FPS
+    if kind == "ply-sequence":
+        return read_ply_sequence(path, fps=fps, progress=progress)
+    if kind == "sog-sequence":
+        return read_sog_sequence(path, fps=fps, progress=progress)
+    data = read_bytes(path)
+    if kind == "splatv":
+        return parse_splatv(data, name=path, duration_s=options.duration_s)
+    if kind == "freetimegs-ply":
+        return parse_freetimegs_ply(
+            data, name=path, scene_length_s=options.scene_length_s, duration=options.duration_mode
+        )
+    if kind == "freetimegs-npz":
+        return parse_freetimegs_npz(data, name=path, scene_length_s=options.scene_length_s)
+    return parse_4dgs(data, name=path)
+
+
+def _check_options(kind: str, options: ReadOptions) -> None:
+    """Refuse options that do not apply to the input, rather than ignore them silently."""
+    applies = {
+        "fps": ("ply-sequence", "sog-sequence"),
+        "duration_s": ("splatv",),
+        "scene_length_s": ("freetimegs-ply", "freetimegs-npz"),
+    }
+    for option, kinds in applies.items():
+        if getattr(options, option) is not None and kind not in kinds:
+            flag = "--" + option.replace("_", "-")
+            raise InputError(
+                f"applies to {', '.join(kinds)} inputs; this input is {kind}", where=flag
+            )
+
+
+def load_scene(
+    path: str | os.PathLike[str],
+    *,
+    format: str | None = None,
+    options: ReadOptions | None = None,
+    progress: Progress | None = None,
+) -> LoadedScene:
+    """Read any supported input as a Scene (static inputs have no timeline)."""
+    options = options or ReadOptions()
+    kind = format or detect_format(path)
     if kind not in FORMATS:
         raise InputError(f"unknown format {kind!r}; known: {', '.join(FORMATS)}", where="--format")
-    contents = parse_ply(read_bytes(p), name=str(p))  # plain or compressed, told by its header
-    return LoadedScene(Scene(contents.gaussians), kind, list(contents.notes))
+    _check_options(kind, options)
+    if kind == "sog":
+        return LoadedScene(read_chunk(path), kind)
+    if kind in ("ply", "compressed-ply"):
+        contents = parse_ply(read_bytes(path), name=str(path))  # the header tells which kind
+        return LoadedScene(Scene(contents.gaussians), kind, list(contents.notes))
+    loaded = _read_4d(kind, str(path), options, progress)
+    return LoadedScene(loaded.scene, kind, list(loaded.notes))
