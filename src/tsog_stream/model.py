@@ -7,6 +7,7 @@ and 1), seconds otherwise. Readers convert their source's unit once, on input.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -101,6 +102,29 @@ class Gaussians:
             self.opacities[index],
             self.sh0[index],
             self.shN[index],
+        )
+
+    @staticmethod
+    def concat(parts: Sequence[Gaussians], *, sh_bands: int | None = None) -> Gaussians:
+        """All Gaussians of ``parts`` in order; parts with fewer SH bands are zero-padded."""
+        bands = max((p.sh_bands for p in parts), default=0) if sh_bands is None else sh_bands
+        if not parts:
+            return Gaussians.empty(bands)
+        k = SH_COEFFS_BY_BANDS[bands]
+
+        def rest(g: Gaussians) -> F32:
+            out = np.zeros((len(g), k, 3), np.float32)
+            n = min(k, g.shN.shape[1])
+            out[:, :n] = g.shN[:, :n]
+            return out
+
+        return Gaussians(
+            np.concatenate([p.means for p in parts]),
+            np.concatenate([p.scales for p in parts]),
+            np.concatenate([p.quats for p in parts]),
+            np.concatenate([p.opacities for p in parts]),
+            np.concatenate([p.sh0 for p in parts]),
+            np.concatenate([rest(p) for p in parts]),
         )
 
     @staticmethod

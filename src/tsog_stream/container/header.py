@@ -1,0 +1,96 @@
+"""The fixed 128-byte header at offset 0 of a ``.tsogs`` container (docs/spec.md §8).
+
+All integers little-endian. A reader MUST refuse a major version it does not know and any
+flag bit it does not understand in ``required_flags``; it MAY ignore ``optional_flags``.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from typing import ClassVar, Final
+
+from ..errors import FormatError, UnsupportedError
+
+MAGIC: Final = b"TSOGS\x00\r\n"
+"""8 bytes: name, a NUL (not text), CR LF (catches newline translation)."""
+VERSION_MAJOR: Final = 1
+VERSION_MINOR: Final = 0
+HEADER_SIZE: Final = 128
+PREFIX_SIZE: Final = 16 * 1024
+"""Payloads start here; the index sits inside this prefix whenever it fits (one request)."""
+KNOWN_REQUIRED_FLAGS: Final = 0
+INDEX_ZSTD: Final = 1
+"""Index compression codes (only zstd is defined)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Header:
+    """Where the index is and how to check it."""
+
+    STRUCT: ClassVar[struct.Struct] = struct.Struct("<8sHHIIIQQQQ32s40x")
+
+    version_major: int
+    version_minor: int
+    required_flags: int
+    optional_flags: int
+    index_codec: int
+    index_offset: int
+    index_length: int
+    index_raw_length: int
+    file_length: int
+    index_sha256: bytes
+
+    def pack(self) -> bytes:
+        """The 128 header bytes."""
+        return self.STRUCT.pack(
+            MAGIC,
+            self.version_major,
+            self.version_minor,
+            self.required_flags,
+            self.optional_flags,
+            self.index_codec,
+            self.index_offset,
+            self.index_length,
+            self.index_raw_length,
+            self.file_length,
+            self.index_sha256,
+        )
+
+    @classmethod
+    def unpack(cls, data: bytes, *, where: str = "<container>") -> Header:
+        """Parse and check the first 128 bytes of a container."""
+        if len(data) < HEADER_SIZE:
+            raise FormatError(
+                f"file is {len(data)} bytes, shorter than the {HEADER_SIZE}-byte header",
+                where=where,
+            )
+        fields = cls.STRUCT.unpack_from(data)
+        if fields[0] != MAGIC:
+            raise FormatError(f"not a .tsogs container (magic {fields[0]!r})", where=where)
+        header = cls(*fields[1:])
+        header.check(where)
+        return header
+
+    def check(self, where: str) -> None:
+        """Refuse versions and flags this reader does not understand."""
+        if self.version_major != VERSION_MAJOR:
+            raise UnsupportedError(
+                f"container version {self.version_major}.{self.version_minor}; this reader "
+                f"understands {VERSION_MAJOR}.x",
+                where=where,
+            )
+        unknown = self.required_flags & ~KNOWN_REQUIRED_FLAGS
+        if unknown:
+            raise UnsupportedError(f"unknown required flags 0x{unknown:08x}", where=where)
+        if self.index_codec != INDEX_ZSTD:
+            raise UnsupportedError(f"unknown index codec {self.index_codec}", where=where)
+        if (
+            self.index_offset < HEADER_SIZE
+            or self.index_offset + self.index_length > self.file_length
+        ):
+            raise FormatError(
+                f"index [{self.index_offset}, +{self.index_length}) lies outside the "
+                f"{self.file_length}-byte file",
+                where=where,
+            )

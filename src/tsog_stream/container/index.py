@@ -1,0 +1,45 @@
+"""The container index on the wire: zstd-compressed manifest JSON with a SHA-256 of the JSON."""
+
+from __future__ import annotations
+
+import hashlib
+
+import zstandard
+
+from ..errors import FormatError, IntegrityError
+from ..schemas.manifest import Manifest, dump_manifest, parse_manifest
+
+MAX_INDEX_BYTES = 256 * 1024 * 1024
+"""Largest decompressed index accepted (about a million chunks); a bigger claim is refused."""
+ZSTD_LEVEL = 19
+
+
+def encode_index(manifest: Manifest) -> tuple[bytes, bytes, int]:
+    """(compressed index, SHA-256 of the raw JSON, raw length)."""
+    raw = dump_manifest(manifest)
+    compressed = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_content_size=True).compress(raw)
+    return compressed, hashlib.sha256(raw).digest(), len(raw)
+
+
+def decode_index(data: bytes, raw_length: int, sha256: bytes, *, where: str) -> Manifest:
+    """Decompress, check length and hash, and validate the index."""
+    if raw_length > MAX_INDEX_BYTES:
+        raise FormatError(
+            f"index claims {raw_length} bytes, over the {MAX_INDEX_BYTES} limit", where=where
+        )
+    try:
+        declared = zstandard.frame_content_size(data)
+        if declared != raw_length:
+            raise IntegrityError(
+                f"index frame holds {declared} bytes, header says {raw_length}", where=where
+            )
+        raw = zstandard.ZstdDecompressor().decompress(data, max_output_size=raw_length)
+    except zstandard.ZstdError as exc:
+        raise FormatError(f"index is not a valid zstd frame: {exc}", where=where) from exc
+    if len(raw) != raw_length:
+        raise IntegrityError(
+            f"index decompressed to {len(raw)} bytes, header says {raw_length}", where=where
+        )
+    if hashlib.sha256(raw).digest() != sha256:
+        raise IntegrityError("index SHA-256 does not match the header", where=where)
+    return parse_manifest(raw, where=f"{where} (index)")

@@ -1,0 +1,134 @@
+"""Opening a container and reading what time t needs, over any :class:`ByteSource`.
+
+Opening costs one request of at most 16 KiB (header + index) unless the index is larger, in
+which case a second request fetches it. ``StreamIndex`` is pure: it answers which chunks a
+time or an interval needs and where their bytes are; the async functions do the reading.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..codec.bundle import read_bundle
+from ..codec.chunk import decode_chunk
+from ..errors import IntegrityError
+from ..model import Gaussians, Scene
+from ..schemas.manifest import ChunkEntry, Manifest, check_layout
+from .header import HEADER_SIZE, PREFIX_SIZE, Header
+from .index import decode_index
+from .ranges import ByteRange
+from .sources import ByteSource
+
+
+@dataclass(frozen=True)
+class StreamIndex:
+    """An opened container: its header, validated index and identity (index SHA-256, hex)."""
+
+    header: Header
+    manifest: Manifest
+    name: str
+
+    @property
+    def identity(self) -> str:
+        """Content identity of the whole container (the SHA-256 of its index JSON)."""
+        return self.header.index_sha256.hex()
+
+    @property
+    def size(self) -> int:
+        """Length of the container file."""
+        return self.header.file_length
+
+    def chunk_range(self, chunk: ChunkEntry) -> ByteRange:
+        """Where a chunk's bytes are."""
+        return ByteRange.sized(chunk.offset, chunk.length)
+
+    def chunks_for_interval(self, start: float, end: float) -> list[ChunkEntry]:
+        """Chunks holding Gaussians visible at some time in [start, end], in file order.
+
+        A chunk is needed when its node's interval and its own visible interval both meet the
+        query (the end of the scene counts as inside the last window).
+        """
+        last = self.manifest.scene.end_s
+        chosen: set[int] = set()
+        for node in self.manifest.nodes:
+            node_end = node.end_s if node.end_s < last else np.inf
+            if node.start_s > end or node_end <= start:
+                continue
+            for cid in node.chunks:
+                c = self.manifest.chunks[cid]
+                if c.start_s <= end and c.end_s >= start:
+                    chosen.add(cid)
+        return sorted((self.manifest.chunks[i] for i in chosen), key=lambda c: c.offset)
+
+    def chunks_for(self, t: float) -> list[ChunkEntry]:
+        """Chunks needed to show time ``t`` (empty before the first or after the last Gaussian)."""
+        return self.chunks_for_interval(t, t)
+
+
+async def open_stream(source: ByteSource) -> StreamIndex:
+    """Read and check the header and index of the container behind ``source``."""
+    size = await source.size()
+    first = await source.read(ByteRange(0, min(size, PREFIX_SIZE)))
+    header = Header.unpack(first, where=source.name)
+    if header.file_length != size:
+        raise IntegrityError(
+            f"header says the file has {header.file_length} bytes, it has {size} (truncated or "
+            "appended to)",
+            where=source.name,
+        )
+    span = ByteRange.sized(header.index_offset, header.index_length)
+    data = first[span.start : span.end] if span.end <= len(first) else await source.read(span)
+    manifest = decode_index(data, header.index_raw_length, header.index_sha256, where=source.name)
+    payload_end = header.index_offset if header.index_offset >= PREFIX_SIZE else size
+    check_layout(
+        manifest,
+        PREFIX_SIZE if size >= PREFIX_SIZE else HEADER_SIZE,
+        payload_end,
+        where=source.name,
+    )
+    return StreamIndex(header, manifest, source.name)
+
+
+def verify_chunk(chunk: ChunkEntry, data: bytes, *, where: str) -> bytes:
+    """``data`` if its SHA-256 matches the index, else IntegrityError naming the chunk."""
+    if hashlib.sha256(data).hexdigest() != chunk.sha256:
+        raise IntegrityError(
+            f"chunk {chunk.id} does not match its SHA-256 in the index", where=where
+        )
+    return data
+
+
+async def read_chunk_bytes(source: ByteSource, index: StreamIndex, chunk: ChunkEntry) -> bytes:
+    """The verified bytes (a standalone .sog) of one chunk."""
+    data = await source.read(index.chunk_range(chunk))
+    return verify_chunk(chunk, data, where=f"{source.name} chunk {chunk.id}")
+
+
+def decode_chunk_bytes(data: bytes, *, where: str) -> Scene:
+    """Decode one chunk's .sog bytes (CPU work: run it in a thread from async code)."""
+    return decode_chunk(read_bundle(data, where=where), where=where)
+
+
+async def read_scene_chunk(source: ByteSource, index: StreamIndex, chunk: ChunkEntry) -> Scene:
+    """Fetch, verify and decode one chunk."""
+    data = await read_chunk_bytes(source, index, chunk)
+    return await asyncio.to_thread(
+        decode_chunk_bytes, data, where=f"{source.name} chunk {chunk.id}"
+    )
+
+
+def frame_from_chunks(scenes: Sequence[Scene], t: float, sh_bands: int) -> Gaussians:
+    """The Gaussians visible at ``t`` across decoded chunks, concatenated in chunk order."""
+    return Gaussians.concat([s.at(t) for s in scenes], sh_bands=sh_bands)
+
+
+async def frame_at(source: ByteSource, index: StreamIndex, t: float) -> Gaussians:
+    """The scene at ``t``, reading only the chunks ``t`` needs."""
+    chunks = index.chunks_for(t)
+    scenes = await asyncio.gather(*(read_scene_chunk(source, index, c) for c in chunks))
+    return frame_from_chunks(scenes, t, index.manifest.scene.sh_bands)

@@ -1,0 +1,102 @@
+"""Byte sources: the one interface (size, read a range) every container reader runs on.
+
+An async protocol so that HTTP (the client) fits the same reader as memory and local files;
+local files read in a worker thread. Each source counts requests and bytes for reporting.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from ..errors import SourceError
+from .ranges import ByteRange
+
+
+@dataclass
+class ReadStats:
+    """Requests made and bytes received through a source."""
+
+    requests: int = 0
+    bytes: int = 0
+
+    def add(self, n: int) -> None:
+        """Record one request that returned ``n`` bytes."""
+        self.requests += 1
+        self.bytes += n
+
+
+class ByteSource(Protocol):
+    """Random access to the bytes of one file."""
+
+    name: str
+    stats: ReadStats
+
+    async def size(self) -> int:
+        """Length of the file in bytes."""
+        ...
+
+    async def read(self, span: ByteRange) -> bytes:
+        """Exactly the bytes of ``span`` (SourceError if the file is shorter)."""
+        ...
+
+
+def _checked(data: bytes, span: ByteRange, name: str) -> bytes:
+    """``data`` if it has the span's length, else a SourceError saying what was short."""
+    if len(data) != span.length:
+        raise SourceError(
+            f"asked for bytes [{span.start}, {span.end}), got {len(data)} bytes", where=name
+        )
+    return data
+
+
+class MemorySource:
+    """A byte source over bytes already in memory."""
+
+    def __init__(self, data: bytes, name: str = "<memory>") -> None:
+        self.data = data
+        self.name = name
+        self.stats = ReadStats()
+
+    async def size(self) -> int:
+        """Length of the data."""
+        return len(self.data)
+
+    async def read(self, span: ByteRange) -> bytes:
+        """A slice of the data."""
+        out = _checked(self.data[span.start : span.end], span, self.name)
+        self.stats.add(len(out))
+        return out
+
+
+class FileSource:
+    """A byte source over a local file, read with ``pread`` in a worker thread."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.name = str(path)
+        self.stats = ReadStats()
+
+    async def size(self) -> int:
+        """Current size of the file."""
+        try:
+            return (await asyncio.to_thread(os.stat, self.path)).st_size
+        except OSError as exc:
+            raise SourceError(f"cannot read: {exc.strerror}", where=self.name) from exc
+
+    def _pread(self, span: ByteRange) -> bytes:
+        with open(self.path, "rb") as f:
+            return os.pread(f.fileno(), span.length, span.start)
+
+    async def read(self, span: ByteRange) -> bytes:
+        """The bytes of ``span`` from the file."""
+        try:
+            data = await asyncio.to_thread(self._pread, span)
+        except OSError as exc:
+            raise SourceError(f"cannot read: {exc.strerror}", where=self.name) from exc
+        out = _checked(data, span, self.name)
+        self.stats.add(len(out))
+        return out

@@ -1,0 +1,337 @@
+"""FreeTimeGS inputs (extended 3DGS PLY, FreeTimeGsVanilla ``.npz``) -> a type-2 :class:`Scene`.
+
+FreeTimeGS (Wang et al., CVPR 2025) gives each Gaussian a canonical time mu_t, a temporal
+standard deviation sigma and a velocity v, all on a timeline normalised to [0, 1]:
+
+    position(t) = mean + v (t - mu_t),  alpha(t) = sigmoid(opacity) exp(-1/2 ((t - mu_t) / sigma)^2)
+
+which is exactly TSOG timeline type 2 (centre mu_t, scale sigma) with order-1 temporal means
+and t_ref = centre (``mean`` is the position *at* mu_t). Decisions (see
+docs/inputs-4d-splatv-freetimegs.md):
+
+* **Time unit.** Normalised time becomes seconds through ``scene_length_s`` (default 1.0 s,
+  since neither source stores a frame rate): centre and sigma are multiplied by it and
+  velocities divided by it. It is also the scene length.
+* **Durations are log sigma by default**, as FreeTimeGsVanilla stores them (``log_duration``
+  in its ``.ftgs.ply``, ``durations`` in its checkpoint, both with ``exp`` activation and the
+  training floor sigma >= ``min_duration`` = 0.02) and like 3DGS scales; ``duration="linear"``
+  reads a property called ``duration`` or ``t_scale`` as sigma itself.
+* PLY spellings: time ``time``/``t``; duration ``log_duration``/``duration``/``t_scale``;
+  velocity ``velocity_0..2``/``velocity_x..z``/``vx vy vz``/``motion_0..2``. Header comments of
+  the ``.ftgs.ply`` layout are honoured: ``use_velocity 0`` (static positions),
+  ``min_duration`` (sigma floor), ``time_units`` (must be ``normalized``).
+* Rows with a non-finite time, duration or velocity, or sigma <= 0, are dropped with a note.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import zipfile
+import zlib
+from collections.abc import Mapping
+from typing import Final, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import FormatError, InputError, UnsupportedError
+from ..model import Gaussians, Scene, Timeline, TimelineType
+from .loaded import Loaded4D
+from .ply import PlyContents, parse_ply
+from .ply_header import PlyHeader
+
+TIME_NAMES: Final = ("time", "t")
+DURATION_NAMES: Final = ("log_duration", "duration", "t_scale")
+VELOCITY_NAMES: Final = (
+    ("velocity_0", "velocity_1", "velocity_2"),
+    ("velocity_x", "velocity_y", "velocity_z"),
+    ("vx", "vy", "vz"),
+    ("motion_0", "motion_1", "motion_2"),
+)
+MIN_DURATION: Final = 0.02
+"""FreeTimeGsVanilla's floor on sigma (normalised time), applied to checkpoints on load."""
+NPZ_REQUIRED: Final = (
+    "means",
+    "scales",
+    "quats",
+    "opacities",
+    "sh0",
+    "times",
+    "durations",
+    "velocities",
+)
+NPZ_TAILS: Final[Mapping[str, tuple[tuple[int, ...], ...]]] = {
+    "means": ((3,),),
+    "scales": ((3,),),
+    "quats": ((4,),),
+    "opacities": ((), (1,)),
+    "sh0": ((1, 3), (3,)),
+    "times": ((1,), ()),
+    "durations": ((1,), ()),
+    "velocities": ((3,),),
+}
+"""Accepted per-row shapes of each checkpoint array (shN is (K, 3), checked by Gaussians)."""
+_EXTRAS_NOTE: Final = "unknown properties kept as extras"
+
+DurationMode = Literal["log", "linear"]
+F64 = npt.NDArray[np.float64]
+
+
+# --- PLY -------------------------------------------------------------------------------------
+
+
+def is_freetimegs_ply(contents_or_header: PlyContents | PlyHeader) -> bool:
+    """True when the vertex element has a time and a duration property (any known spelling)."""
+    header = (
+        contents_or_header.header
+        if isinstance(contents_or_header, PlyContents)
+        else contents_or_header
+    )
+    vertex = header.element("vertex")
+    names = set(vertex.names) if vertex is not None else set()
+    return bool(names & set(TIME_NAMES)) and bool(names & set(DURATION_NAMES))
+
+
+def parse_freetimegs_ply(
+    data: bytes | memoryview,
+    *,
+    name: str = "<bytes>",
+    scene_length_s: float | None = None,
+    duration: DurationMode = "log",
+) -> Loaded4D:
+    """Decode a FreeTimeGS-style PLY; one normalised time unit = ``scene_length_s`` seconds."""
+    _scene_length(scene_length_s)  # reject a bad option before reading anything
+    if duration not in ("log", "linear"):
+        raise InputError(f"must be 'log' or 'linear', got {duration!r}", where="duration")
+    contents = parse_ply(data, name=name)
+    comments = _comments(contents.header)
+    if comments.get("time_units", "normalized") != "normalized":
+        raise UnsupportedError(f"time_units {comments['time_units']!r}", where=name)
+    extra = dict(contents.extra)
+    if duration == "linear" and "log_duration" in extra:
+        raise InputError("'log_duration' holds log sigma: duration='linear' contradicts it")
+    times = _pop_one(extra, TIME_NAMES, name)
+    sigma = _pop_one(extra, DURATION_NAMES, name)
+    if times is None or sigma is None:
+        raise FormatError("not a FreeTimeGS PLY: needs a time and a duration property", where=name)
+    if duration == "log":
+        sigma = _exp(sigma)
+    velocity = _velocity(extra, name)
+    notes = [n for n in contents.notes if not n.startswith(_EXTRAS_NOTE)]
+    if extra:
+        notes.append(f"{_EXTRAS_NOTE}: {', '.join(extra)} (not part of the 4D model)")
+    if comments.get("use_velocity") == "0" and velocity is not None:
+        notes.append("use_velocity 0: velocities ignored, positions are static")
+        velocity = None
+    floor = _float_comment(comments, "min_duration", name)
+    if floor is not None:
+        sigma = np.maximum(sigma, floor)
+    if scene_length_s is None and "n_frames" in comments:
+        frames = comments["n_frames"]
+        notes.append(f"n_frames {frames}: scene_length_s = ({frames} - 1) / fps gives real time")
+    if "opacity_floor" in comments:
+        notes.append(f"opacity_floor {comments['opacity_floor']} not represented")
+    return _build(
+        contents.gaussians, times, sigma, velocity, scene_length_s=scene_length_s, notes=notes
+    )
+
+
+def _comments(header: PlyHeader) -> dict[str, str]:
+    """``comment <key> <value>`` lines as a dict (the .ftgs.ply metadata)."""
+    pairs = (c.split(maxsplit=1) for c in header.comments)
+    return {p[0]: p[1].strip() for p in pairs if len(p) == 2}
+
+
+def _float_comment(comments: Mapping[str, str], key: str, name: str) -> float | None:
+    """A positive numeric comment value, or None when absent."""
+    if key not in comments:
+        return None
+    try:
+        value = float(comments[key])
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise FormatError(f"comment {key} must be a positive number", where=name)
+    return value
+
+
+def _pop_one(
+    extra: dict[str, npt.NDArray[np.generic]], names: tuple[str, ...], where: str
+) -> F64 | None:
+    """Remove and return the one present spelling of a property (an error if several are)."""
+    present = [n for n in names if n in extra]
+    if len(present) > 1:
+        raise FormatError(f"ambiguous: both {present[0]!r} and {present[1]!r} present", where=where)
+    return extra.pop(present[0]).astype(np.float64) if present else None
+
+
+def _velocity(extra: dict[str, npt.NDArray[np.generic]], where: str) -> F64 | None:
+    """(N, 3) velocity from the first complete spelling, or None when there is none."""
+    if "motion_3" in extra:
+        msg = "motion_3.. present: a polynomial motion (Spacetime Gaussians), not a velocity"
+        raise UnsupportedError(msg, where=where)
+    found = [names for names in VELOCITY_NAMES if all(n in extra for n in names)]
+    if len(found) > 1:
+        raise FormatError(f"ambiguous velocity: {found[0][0]}.. and {found[1][0]}..", where=where)
+    if not found:
+        return None
+    return np.stack([extra.pop(n).astype(np.float64) for n in found[0]], axis=1)
+
+
+# --- npz -------------------------------------------------------------------------------------
+
+
+def sniff_freetimegs_npz(data: bytes | memoryview) -> bool:
+    """True for a zip holding ``means.npy``, ``times.npy`` and ``durations.npy`` (whole file:
+    the zip directory is at its end)."""
+    if bytes(data[:4]) != b"PK\x03\x04":
+        return False
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            names = set(zf.namelist())
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+        return False
+    return {"means.npy", "times.npy", "durations.npy"} <= names
+
+
+def parse_freetimegs_npz(
+    data: bytes | memoryview, *, name: str = "<bytes>", scene_length_s: float | None = None
+) -> Loaded4D:
+    """Decode a FreeTimeGsVanilla checkpoint saved as ``.npz`` (splats' arrays by key)."""
+    _scene_length(scene_length_s)  # reject a bad option before reading anything
+    arrays = _load_npz(data, name)
+    n = arrays["means"].shape[0] if arrays["means"].ndim else -1
+    for key in NPZ_REQUIRED:
+        if arrays[key].shape[:1] != (n,) or arrays[key].shape[1:] not in NPZ_TAILS[key]:
+            tails = " or ".join(str((n, *t)) for t in NPZ_TAILS[key])
+            raise FormatError(
+                f"expected shape {tails}, found {arrays[key].shape}", where=f"{name}: {key}"
+            )
+    shn = arrays.get("shN", np.zeros((n, 0, 3)))
+    try:
+        gaussians = Gaussians.from_arrays(
+            arrays["means"],
+            arrays["scales"],
+            arrays["quats"],
+            arrays["opacities"].reshape(n),
+            arrays["sh0"].reshape(n, 3),
+            shN=shn,
+        )
+    except InputError as exc:
+        raise FormatError(exc.message, where=f"{name}: {exc.where}") from None
+    sigma = np.maximum(_exp(arrays["durations"].reshape(n)), MIN_DURATION)
+    velocity: F64 | None = arrays["velocities"]
+    notes: list[str] = []
+    base = (arrays[k].reshape(n, -1) for k in ("means", "scales", "quats", "opacities", "sh0"))
+    if bad := int(np.count_nonzero(~np.isfinite(np.hstack(list(base))).all(axis=1))):
+        notes.append(f"kept {bad} Gaussians with non-finite base values as read")
+    if "use_velocity" in arrays and not arrays["use_velocity"].any():
+        notes.append("use_velocity 0: velocities ignored, positions are static")
+        velocity = None
+    times = arrays["times"].reshape(n)
+    return _build(gaussians, times, sigma, velocity, scene_length_s=scene_length_s, notes=notes)
+
+
+def _load_npz(data: bytes | memoryview, name: str) -> dict[str, F64]:
+    """The checkpoint's arrays as float64, read header-first so sizes are checked before use."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            members = {i.filename.removesuffix(".npy"): i for i in zf.infolist()}
+            missing = [k for k in NPZ_REQUIRED if k not in members]
+            if missing:
+                raise FormatError(f"missing array {', '.join(missing)}", where=name)
+            wanted = [k for k in (*NPZ_REQUIRED, "shN", "use_velocity") if k in members]
+            return {k: _read_npy(zf, members[k], f"{name}: {k}", k in NPZ_REQUIRED) for k in wanted}
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, NotImplementedError) as exc:
+        raise FormatError(f"not a readable npz (zip) file: {exc}", where=name) from None
+    except RuntimeError as exc:  # encrypted members
+        raise UnsupportedError(f"cannot read the zip: {exc}", where=name) from None
+
+
+def _read_npy(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, floats: bool) -> F64:
+    """One ``.npy`` member: float (else any numeric) dtype, a declared size that fits it."""
+    with zf.open(info) as f:
+        try:
+            version = np.lib.format.read_magic(f)
+            if version == (1, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+            elif version == (2, 0):
+                shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+            else:
+                raise UnsupportedError(f"npy format version {version}", where=where)
+        except ValueError as exc:
+            raise FormatError(f"not a valid .npy array: {exc}", where=where) from None
+        if dtype.kind not in ("f" if floats else "fiub"):
+            kind = "floating-point" if floats else "numeric"
+            raise FormatError(f"expected a {kind} array, found dtype {dtype}", where=where)
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > info.file_size:
+            raise FormatError(
+                f"shape {shape} needs {nbytes} bytes, the member has fewer", where=where
+            )
+        raw = f.read(nbytes)
+    if len(raw) != nbytes:
+        raise FormatError(f"truncated: {len(raw)} of {nbytes} bytes", where=where)
+    array = np.frombuffer(raw, dtype).reshape(shape, order="F" if fortran else "C")
+    return array.astype(np.float64)
+
+
+# --- shared ----------------------------------------------------------------------------------
+
+
+def _scene_length(scene_length_s: float | None) -> float:
+    """Seconds in one normalised time unit (1.0 when not given)."""
+    if scene_length_s is None:
+        return 1.0
+    ok = isinstance(scene_length_s, int | float) and math.isfinite(scene_length_s)
+    if not (ok and scene_length_s > 0):
+        raise InputError(
+            f"must be a positive number, got {scene_length_s!r}", where="scene_length_s"
+        )
+    return float(scene_length_s)
+
+
+def _exp(log_sigma: F64) -> F64:
+    """exp without overflow warnings (an overflow is an infinite sigma, dropped later)."""
+    with np.errstate(over="ignore"):
+        return np.exp(log_sigma)
+
+
+def _build(
+    gaussians: Gaussians,
+    times: F64,
+    sigma: F64,
+    velocity: F64 | None,
+    *,
+    scene_length_s: float | None,
+    notes: list[str],
+) -> Loaded4D:
+    """Drop unusable rows, convert normalised time to seconds and assemble the Scene."""
+    length = _scene_length(scene_length_s)
+    n = len(gaussians)
+    keep = np.isfinite(times) & np.isfinite(sigma) & (sigma > 0)
+    if velocity is not None:
+        keep &= np.isfinite(velocity).all(axis=1)
+    if dropped := int(n - keep.sum()):
+        notes.append(
+            f"dropped {dropped} of {n} Gaussians with a non-finite time, duration "
+            "or velocity, or a duration <= 0"
+        )
+    timeline = Timeline(
+        TimelineType.CENTER_SCALE, times[keep] * length, sigma[keep] * length, scene_length=length
+    )
+    temporal: dict[str, npt.NDArray[np.float32]] = {}
+    if velocity is not None:
+        temporal["means"] = (velocity[keep] / length)[:, None, :].astype(np.float32)
+    if scene_length_s is None:
+        notes.append("time is normalised to [0, 1]: 1 unit read as 1.0 s (scene_length_s)")
+    return Loaded4D(Scene(gaussians.subset(keep), timeline, temporal), notes)
+
+
+__all__ = [
+    "is_freetimegs_ply",
+    "parse_freetimegs_npz",
+    "parse_freetimegs_ply",
+    "sniff_freetimegs_npz",
+]

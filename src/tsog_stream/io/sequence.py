@@ -1,0 +1,371 @@
+"""Frame sequences: numbered per-frame PLY or SOG files -> one type-0 (frame id) Scene.
+
+A sequence is a folder (or a glob pattern such as ``"frames/frame_*.ply"``) of files whose
+names carry a frame number. Frames are ordered by a *natural* sort of their names (``frame_2``
+before ``frame_10``), and frame id = position in that order, so ids are always 0..F-1.
+The kind of each file is told by its magic bytes (``ply`` or a zip), not by its extension;
+a subfolder holding ``meta.json`` counts as an unbundled SOG frame.
+
+Decisions:
+
+* **Gaps in the numbering are noted, not kept.** ``frame_7`` followed by ``frame_10`` gives
+  consecutive ids 6 and 7: a missing file is far more often a dropped export than an intended
+  pause, and keeping the numbers would make empty frames that render nothing.
+* **Mixed SH degrees are padded to the highest degree** with zero coefficients (and noted):
+  a Scene and a SOG chunk hold one degree for all Gaussians, zero higher bands render exactly
+  like the lower degree, and truncating would throw away the richer frames' view dependence.
+* **fps is not stored in PLY or SOG files**; it comes from the caller (default
+  :data:`DEFAULT_FPS`), is recorded in the timeline, and scene_length = F / fps.
+* **Memory**: counts and SH degrees come from a header pass (PLY headers, SOG meta.json), the
+  output arrays are allocated once and filled frame by frame, so the peak is the result plus
+  one frame being decoded. Per-frame extra PLY properties are not kept.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import zipfile
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from itertools import pairwise
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from ..codec.bundle import is_zip
+from ..codec.chunk import read_meta
+from ..constants import META_JSON, SH_BANDS_BY_COEFFS, SH_COEFFS_BY_BANDS
+from ..errors import InputError, IntegrityError, SogError, SourceError, UnsupportedError
+from ..model import Gaussians, Scene, Timeline, TimelineType
+from .chunks import read_chunk
+from .compressed_ply import is_compressed_ply
+from .files import read_bytes
+from .loaded import Loaded4D
+from .ply import read_ply, sniff_ply
+from .ply_header import MAX_HEADER_BYTES, parse_header
+
+DEFAULT_FPS: Final = 30.0
+"""Frame rate assumed when the caller gives none (PLY and SOG files carry no frame rate)."""
+PLY_SEQUENCE: Final = "ply-sequence"
+SOG_SEQUENCE: Final = "sog-sequence"
+
+Progress = Callable[[str], None]
+Source = str | os.PathLike[str]
+
+_DIGITS = re.compile(r"(\d+)")
+_GLOB_MAGIC = re.compile(r"[*?[]")
+_SNIFF_BYTES = 8
+
+
+def natural_key(name: str) -> tuple[tuple[object, ...], str]:
+    """Sort key comparing digit runs as numbers: ``frame_2`` < ``frame_10``."""
+    parts = _DIGITS.split(name.lower())
+    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
+
+
+def frame_number(path: Path) -> int | None:
+    """The last number in a frame's name (extension excluded), or None when it has none."""
+    stem = path.name if path.is_dir() else path.stem
+    numbers = _DIGITS.findall(stem)
+    return int(numbers[-1]) if numbers else None
+
+
+def sniff_frame(path: Path) -> str | None:
+    """ "ply" or "sog" from a file's magic bytes (or a folder's meta.json), else None."""
+    if path.is_dir():
+        return "sog" if (path / META_JSON).is_file() else None
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except OSError as exc:
+        raise SourceError(f"cannot read: {exc.strerror or exc}", where=str(path)) from exc
+    if sniff_ply(head):
+        return "ply"
+    return "sog" if is_zip(head) else None
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """A scanned sequence: frame paths in order, their numbers, kind and the files skipped."""
+
+    paths: list[Path]
+    numbers: list[int]
+    kind: str
+    ignored: list[Path]
+
+
+def _is_glob(source: Source) -> bool:
+    """True for a string with glob wildcards that is not itself an existing path."""
+    return (
+        isinstance(source, str) and bool(_GLOB_MAGIC.search(source)) and not Path(source).exists()
+    )
+
+
+def _candidates(source: Source) -> list[Path]:
+    """Entries with a number in their name, from a folder or a glob pattern, naturally sorted."""
+    text = os.fspath(source)
+    p = Path(text)
+    if _is_glob(source):
+        entries = [Path(m) for m in glob.glob(text)]
+    elif p.is_dir():
+        if (p / META_JSON).is_file():
+            raise InputError("is one unbundled SOG chunk, not a sequence of frames", where=text)
+        try:
+            entries = [e for e in p.iterdir() if not e.name.startswith(".")]
+        except OSError as exc:
+            raise SourceError(f"cannot list: {exc.strerror or exc}", where=text) from exc
+    elif p.exists():
+        raise InputError("expected a folder of numbered frames or a glob pattern", where=text)
+    else:
+        raise InputError("no such folder (and not a glob pattern)", where=text)
+    numbered = [e for e in entries if frame_number(e) is not None]
+    return sorted(numbered, key=lambda e: natural_key(e.name))
+
+
+def _scan(source: Source) -> _Frames:
+    """Find the frames of ``source``; refuse an empty, mixed or ambiguous sequence."""
+    where = os.fspath(source)
+    frames: dict[str, list[Path]] = {"ply": [], "sog": []}
+    ignored: list[Path] = []
+    for entry in _candidates(source):
+        kind = sniff_frame(entry)
+        (frames[kind] if kind else ignored).append(entry)
+    if frames["ply"] and frames["sog"]:
+        raise InputError(
+            f"mixes PLY frames ({frames['ply'][0].name}, ...) and SOG frames "
+            f"({frames['sog'][0].name}, ...); expected one kind",
+            where=where,
+        )
+    kind = "ply" if frames["ply"] else "sog"
+    paths = frames[kind]
+    if not paths:
+        raise InputError("holds no numbered PLY or SOG frames", where=where)
+    numbers = [n for n in map(frame_number, paths) if n is not None]
+    for (a, na), (b, nb) in pairwise(zip(paths, numbers, strict=True)):
+        if na == nb:
+            raise InputError(f"frames {a.name!r} and {b.name!r} both have number {na}", where=where)
+    return _Frames(paths, numbers, kind, ignored)
+
+
+def list_frames(source: Source) -> list[Path]:
+    """The frame files of a folder or glob pattern, in natural numeric order."""
+    return _scan(source).paths
+
+
+def detect_sequence(path: Source) -> str | None:
+    """ "ply-sequence" or "sog-sequence" when ``path`` holds >= 2 numbered frames of one kind.
+
+    The kind is that of the first numbered entry with PLY or SOG magic bytes; the frames are
+    the entries sharing its extension. Anything else (including a single chunk folder) is None.
+    """
+    p = Path(path)
+    if not _is_glob(path) and (not p.is_dir() or (p / META_JSON).is_file()):
+        return None
+    candidates = _candidates(path)
+    for entry in candidates:
+        kind = sniff_frame(entry)
+        if kind is None:
+            continue
+        suffix = entry.suffix.lower()
+        same = [
+            e for e in candidates if e.suffix.lower() == suffix and e.is_dir() == entry.is_dir()
+        ]
+        if len(same) < 2:
+            return None
+        return PLY_SEQUENCE if kind == "ply" else SOG_SEQUENCE
+    return None
+
+
+class _FrameStack:
+    """Output arrays allocated once from per-frame (count, SH coefficients), filled in order."""
+
+    def __init__(self, counts: Sequence[int], coeffs: Sequence[int]) -> None:
+        self.counts = list(counts)
+        self.offsets = np.concatenate([[0], np.cumsum(self.counts, dtype=np.int64)])
+        total, k = int(self.offsets[-1]), max(coeffs, default=0)
+        self.means = np.empty((total, 3), np.float32)
+        self.scales = np.empty((total, 3), np.float32)
+        self.quats = np.empty((total, 4), np.float32)
+        self.opacities = np.empty(total, np.float32)
+        self.sh0 = np.empty((total, 3), np.float32)
+        self.shN = np.zeros((total, k, 3), np.float32)
+
+    def put(self, index: int, g: Gaussians, where: str) -> None:
+        """Copy frame ``index``; its size must match what its header declared."""
+        a, b = int(self.offsets[index]), int(self.offsets[index + 1])
+        if len(g) != b - a or g.shN.shape[1] > self.shN.shape[1]:
+            raise IntegrityError(
+                f"header declared {b - a} Gaussians, decoding gave {len(g)} "
+                f"(SH coefficients {g.shN.shape[1]})",
+                where=where,
+            )
+        self.means[a:b] = g.means
+        self.scales[a:b] = g.scales
+        self.quats[a:b] = g.quats
+        self.opacities[a:b] = g.opacities
+        self.sh0[a:b] = g.sh0
+        self.shN[a:b, : g.shN.shape[1]] = g.shN
+
+    def scene(self, fps: float) -> Scene:
+        """The type-0 scene: frame id = position, scene_length = frames / fps."""
+        g = Gaussians(self.means, self.scales, self.quats, self.opacities, self.sh0, self.shN)
+        frames = len(self.counts)
+        ids = np.repeat(np.arange(frames, dtype=np.float64), self.counts)
+        timeline = Timeline(
+            TimelineType.FRAME, ids, np.zeros_like(ids), fps=fps, scene_length=frames / fps
+        )
+        return Scene(g, timeline)
+
+
+def _check_fps(fps: float) -> float:
+    """A positive finite frame rate, or InputError."""
+    try:
+        rate = float(fps)
+    except (TypeError, ValueError):
+        rate = float("nan")
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputError(f"fps must be a positive number, got {fps!r}", where="fps")
+    return rate
+
+
+def _ply_shape(path: Path) -> tuple[int, int]:
+    """(Gaussians, SH coefficients per channel) declared by a PLY frame's header."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(MAX_HEADER_BYTES)
+    except OSError as exc:
+        raise SourceError(f"cannot read: {exc.strerror or exc}", where=str(path)) from exc
+    header = parse_header(head, name=str(path))
+    vertex = header.element("vertex")
+    count = vertex.count if vertex else 0
+    if is_compressed_ply(header):
+        sh = header.element("sh")
+        return count, len(sh.names) // 3 if sh else 0
+    rest = [n for n in (vertex.names if vertex else ()) if n.startswith("f_rest_")]
+    return count, len(rest) // 3
+
+
+def _sog_shape(path: Path) -> tuple[int, int]:
+    """(Gaussians, SH coefficients per channel) from a SOG frame's meta.json alone."""
+    where = str(path)
+    if path.is_dir():
+        data = read_bytes(path / META_JSON)
+    else:
+        try:
+            with zipfile.ZipFile(path) as archive:
+                data = archive.read(META_JSON)
+        except KeyError:
+            raise SogError("archive has no meta.json at its root", where=where) from None
+        except (zipfile.BadZipFile, ValueError, EOFError) as exc:
+            raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
+        except OSError as exc:
+            raise SourceError(f"cannot read: {exc.strerror or exc}", where=where) from exc
+    meta = read_meta({META_JSON: data}, where=where)
+    if meta.timeline is not None:
+        raise UnsupportedError(
+            "is a TSOG chunk with a timeline; a SOG sequence holds static frames", where=where
+        )
+    return int(meta.count), SH_COEFFS_BY_BANDS[meta.shN.bands] if meta.shN else 0
+
+
+def _sequence_notes(frames: _Frames, shapes: Sequence[tuple[int, int]]) -> list[str]:
+    """Notes on skipped files, numbering gaps, differing sizes and mixed SH degrees."""
+    notes: list[str] = []
+    if frames.ignored:
+        names = ", ".join(p.name for p in frames.ignored[:5])
+        more = "" if len(frames.ignored) <= 5 else f" and {len(frames.ignored) - 5} more"
+        notes.append(
+            f"ignored {len(frames.ignored)} numbered entries that are not frames: {names}{more}"
+        )
+    gaps = [(a, b) for a, b in zip(frames.numbers, frames.numbers[1:], strict=False) if b - a > 1]
+    if gaps:
+        spans = ", ".join(f"{a + 1}-{b - 1}" if b - a > 2 else str(a + 1) for a, b in gaps[:5])
+        missing = sum(b - a - 1 for a, b in gaps)
+        notes.append(
+            f"frame numbering skips {spans} ({missing} missing); frame ids are consecutive "
+            "positions, so the gaps take no time"
+        )
+    counts = [c for c, _ in shapes]
+    if len(set(counts)) > 1:
+        notes.append(f"frames differ in size: {min(counts)} to {max(counts)} Gaussians")
+    degrees = sorted({SH_BANDS_BY_COEFFS.get(k, k) for _, k in shapes})
+    if len(degrees) > 1:
+        top = SH_COEFFS_BY_BANDS.get(degrees[-1], 0)
+        padded = sum(1 for _, k in shapes if k != top)
+        notes.append(
+            f"frames mix SH degrees {degrees}: {padded} frames padded to degree {degrees[-1]} "
+            "with zero coefficients (one scene holds one degree; zeros render as before)"
+        )
+    return notes
+
+
+def _merge_notes(per_frame: Iterable[tuple[str, list[str]]]) -> list[str]:
+    """One line per distinct reader note, naming the frames it came from."""
+    seen: dict[str, list[str]] = {}
+    for name, notes in per_frame:
+        for note in notes:
+            seen.setdefault(note, []).append(name)
+    merged = []
+    for note, names in seen.items():
+        which = names[0] if len(names) == 1 else f"{len(names)} frames, {names[0]}..{names[-1]}"
+        merged.append(f"{which}: {note}")
+    return merged
+
+
+def read_ply_sequence(
+    source: Source, *, fps: float = DEFAULT_FPS, progress: Progress | None = None
+) -> Loaded4D:
+    """Read numbered per-frame 3DGS PLYs as one type-0 scene (frame k's Gaussians in file order)."""
+    rate = _check_fps(fps)
+    frames = _scan(source)
+    if frames.kind != "ply":
+        raise InputError("holds SOG frames; use read_sog_sequence", where=os.fspath(source))
+    shapes = [_ply_shape(p) for p in frames.paths]
+    stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes])
+    per_frame: list[tuple[str, list[str]]] = []
+    extras: set[str] = set()
+    for i, path in enumerate(frames.paths):
+        if progress:
+            progress(f"frame {i + 1}/{len(frames.paths)}")
+        contents = read_ply(path)
+        stack.put(i, contents.gaussians, str(path))
+        per_frame.append((path.name, contents.notes))
+        extras.update(contents.extra)
+    notes = _sequence_notes(frames, shapes) + _merge_notes(per_frame)
+    if extras:
+        notes.append(f"per-frame extra properties are not kept: {', '.join(sorted(extras))}")
+    return Loaded4D(stack.scene(rate), notes)
+
+
+def read_sog_sequence(
+    source: Source, *, fps: float = DEFAULT_FPS, progress: Progress | None = None
+) -> Loaded4D:
+    """Read numbered SOG frames (.sog zips or chunk folders) as one type-0 scene."""
+    rate = _check_fps(fps)
+    frames = _scan(source)
+    if frames.kind != "sog":
+        raise InputError("holds PLY frames; use read_ply_sequence", where=os.fspath(source))
+    shapes = [_sog_shape(p) for p in frames.paths]
+    stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes])
+    for i, path in enumerate(frames.paths):
+        if progress:
+            progress(f"frame {i + 1}/{len(frames.paths)}")
+        stack.put(i, read_chunk(path).gaussians, str(path))
+    return Loaded4D(stack.scene(rate), _sequence_notes(frames, shapes))
+
+
+__all__ = [
+    "DEFAULT_FPS",
+    "PLY_SEQUENCE",
+    "SOG_SEQUENCE",
+    "detect_sequence",
+    "frame_number",
+    "list_frames",
+    "natural_key",
+    "read_ply_sequence",
+    "read_sog_sequence",
+    "sniff_frame",
+]

@@ -1,0 +1,308 @@
+"""splaTV ``.splatv`` files (Spacetime Gaussians for the web) -> a type-2 :class:`Scene`.
+
+Layout (all little-endian): uint32 magic ``0x674B``, uint32 JSON length, a UTF-8 JSON list of
+chunks ``{"type", "size", ...}`` whose bodies follow the JSON in list order. The ``splat`` chunk
+is the viewer's RGBA32UI texture, 64 bytes (4 texels) per Gaussian:
+
+====== =========== ===========================================================================
+offset type        field
+====== =========== ===========================================================================
+0      f32 x3      position x, y, z
+12     f16 x4      rotation w, x, y, z (raw, not unit length)
+20     f16 x3 + 2  scale (linear sigma: the converter stores ``exp(scale_i)``), padding
+28     u8 x4       r, g, b (= clamp(f_dc * 255): the viewer's colour), a = sigmoid(opacity)*255
+32     f16 x9 + 2  motion: linear x, y, z, then quadratic x, y, z, then cubic x, y, z; padding
+52     f16 x4      omega: rotation rate (w, x, y, z) per unit time
+60     f16 x2      trbf centre, ``exp(trbf_scale)`` = s
+====== =========== ===========================================================================
+
+The viewer (antimatter15/splaTV ``main.js``/``hybrid.js`` vertex shader) evaluates, with
+dt = t - centre and t in [0, 1]: position + m1 dt + m2 dt^2 + m3 dt^3, normalize(rotation +
+omega dt), alpha * exp(-(dt / s)^2), and skips the Gaussian below 0.02. Spacetime Gaussians'
+training code uses the same equations. Mapping to TSOG (docs: inputs-4d-splatv-freetimegs.md):
+
+* **Time unit.** splaTV time is normalised to [0, 1] over the clip and no clip length is
+  stored (the viewer plays ``0.5 + 0.5 sin(seconds)``). One normalised unit becomes
+  ``duration_s`` seconds (default 1.0), which is also the scene length; times and coefficients
+  are converted once: centre * D, coefficient_k / D^k.
+* **Temporal opacity.** exp(-(dt/s)^2) = exp(-1/2 (dt/sigma)^2) with sigma = s / sqrt(2).
+* Base values are the values at the centre (timeline type 2, t_ref = centre): means with
+  temporal order 3, quats with temporal order 1 (4 channels); an all-zero attribute is omitted.
+* Scales become ln(scale); colour c = byte / 255 becomes f_dc = (c - 0.5) / SH_C0; alpha
+  bytes become logits, clamped to [ALPHA_EPS, 1 - ALPHA_EPS] like compressed PLY.
+
+Dropped, each counted in a note: non-finite positions (a known quirk of the macaburguera
+files) or other non-finite fields; ``s <= 0`` (never visible, e.g. zero padding records).
+Repaired, counted: ``s = +inf`` (f16 overflow of exp) becomes the largest f16; zero scales
+become the smallest f16 (2^-24); a zero rotation (20-95 % of three macaburguera files, kept
+at zero by training, where it renders as the identity) becomes the identity, or its rotation
+rate when it has one (q(t) = omega dt is then the same rotation at every t != 0).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from ..constants import SH_C0
+from ..errors import FormatError, InputError
+from ..model import F32, Gaussians, Scene, Timeline, TimelineType
+from .compressed_ply import ALPHA_EPS
+from .files import read_bytes
+from .loaded import Loaded4D
+
+MAGIC: Final = 0x674B
+PREAMBLE: Final = struct.Struct("<II")
+"""magic, JSON length."""
+MAX_JSON_BYTES: Final = 16 * 1024 * 1024
+"""A JSON header longer than this is rejected before it is read."""
+RECORD: Final = np.dtype(
+    [
+        ("position", "<f4", (3,)),
+        ("rotation", "<f2", (4,)),
+        ("scale", "<f2", (3,)),
+        ("pad0", "<u2"),
+        ("rgba", "u1", (4,)),
+        ("motion", "<f2", (9,)),
+        ("pad1", "<u2"),
+        ("omega", "<f2", (4,)),
+        ("trbf_center", "<f2"),
+        ("trbf_scale", "<f2"),
+    ]
+)
+"""One Gaussian of the ``splat`` chunk (64 bytes)."""
+F16_MAX: Final = 65504.0
+F16_TINY: Final = 2.0**-24
+"""Smallest positive float16 (subnormal): the floor for zero scales."""
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class SplatChunk:
+    """Where the ``splat`` chunk's records are: byte offset, record count, declared slots."""
+
+    offset: int
+    count: int
+    slots: int
+
+
+def sniff_splatv(head: bytes | memoryview) -> bool:
+    """True when ``head`` starts with the splatv magic (uint32 0x674B, little-endian)."""
+    return len(head) >= 4 and bytes(head[:4]) == MAGIC.to_bytes(4, "little")
+
+
+def read_splatv(path: str | os.PathLike[str], *, duration_s: float | None = None) -> Loaded4D:
+    """Read and decode a ``.splatv`` file (see :func:`parse_splatv`)."""
+    return parse_splatv(read_bytes(path), name=str(path), duration_s=duration_s)
+
+
+def parse_splatv(
+    data: bytes | memoryview, *, name: str = "<bytes>", duration_s: float | None = None
+) -> Loaded4D:
+    """Decode a ``.splatv`` held in memory; one normalised time unit = ``duration_s`` seconds."""
+    duration = _duration(duration_s)
+    chunks, body = _read_header(data, name)
+    notes: list[str] = []
+    chunk = _locate_splat(chunks, body, len(data), name, notes)
+    records = np.frombuffer(data, RECORD, count=chunk.count, offset=chunk.offset)
+    keep = _keep_mask(records, notes)
+    scene = _to_scene(records[keep], duration, notes)
+    if duration_s is None:
+        notes.append("splatv time is normalised to [0, 1]: 1 unit read as 1.0 s (duration_s)")
+    return Loaded4D(scene, notes)
+
+
+def _duration(duration_s: float | None) -> float:
+    """The seconds in one normalised time unit (1.0 when not given)."""
+    if duration_s is None:
+        return 1.0
+    if not (isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0):
+        msg = f"must be a positive number of seconds, got {duration_s!r}"
+        raise InputError(msg, where="duration_s")
+    return float(duration_s)
+
+
+def _read_header(data: bytes | memoryview, name: str) -> tuple[list[dict[str, Any]], int]:
+    """The JSON chunk list and the byte offset where the first chunk body starts."""
+    if len(data) < PREAMBLE.size:
+        raise FormatError(f"expected at least 8 bytes, found {len(data)}", where=name)
+    magic, length = PREAMBLE.unpack_from(data)
+    if magic != MAGIC:
+        raise FormatError(f"expected magic 0x674B, found {magic:#x}", where=name)
+    if length > min(MAX_JSON_BYTES, len(data) - PREAMBLE.size):
+        raise FormatError(
+            f"JSON length {length} exceeds the {len(data) - PREAMBLE.size} bytes that follow "
+            f"(limit {MAX_JSON_BYTES})",
+            where=name,
+        )
+    raw = bytes(data[PREAMBLE.size : PREAMBLE.size + length])
+    try:
+        parsed = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise FormatError(f"the JSON header is not valid UTF-8 JSON: {exc}", where=name) from None
+    return _check_chunks(parsed, name), PREAMBLE.size + length
+
+
+def _check_chunks(parsed: object, name: str) -> list[dict[str, Any]]:
+    """Validate the chunk list: objects with a string ``type`` and a non-negative int ``size``."""
+    if not isinstance(parsed, list):
+        raise FormatError(
+            f"expected a JSON list of chunks, found {type(parsed).__name__}", where=name
+        )
+    for i, chunk in enumerate(parsed):
+        where = f"{name}: JSON chunk {i}"
+        if not isinstance(chunk, dict):
+            raise FormatError(f"expected an object, found {type(chunk).__name__}", where=where)
+        if not isinstance(chunk.get("type"), str):
+            raise FormatError("'type' must be a string", where=where)
+        size = chunk.get("size")
+        if not isinstance(size, int) or isinstance(size, bool) or size < 0:
+            raise FormatError(f"'size' must be a non-negative integer, found {size!r}", where=where)
+    return parsed
+
+
+def _locate_splat(
+    chunks: list[dict[str, Any]], offset: int, total: int, name: str, notes: list[str]
+) -> SplatChunk:
+    """Find the first ``splat`` chunk and count its whole records (the file may stop early).
+
+    Chunks before it must lie wholly in the file (else its offset is unknown); chunks after
+    it are ignored, so a splat chunk shorter than declared is fine.
+    """
+    found: SplatChunk | None = None
+    for i, chunk in enumerate(chunks):
+        size: int = chunk["size"]
+        if found is None and chunk["type"] == "splat":
+            found = _splat_records(offset, size, total, f"{name}: chunk {i}")
+        else:
+            notes.append(f"ignored chunk {i} of type {chunk['type']!r}")
+            if found is None and offset + size > total:
+                msg = f"chunk {i} ends at byte {offset + size}, past the end ({total})"
+                raise FormatError(msg, where=name)
+        offset += size
+    if found is None:
+        raise FormatError("no 'splat' chunk in the JSON header", where=name)
+    if offset < total:
+        notes.append(f"ignored {total - offset} bytes after the last chunk")
+    if found.slots - found.count >= 1024:  # more than one 4096-texel texture row missing
+        notes.append(f"the splat chunk declares {found.slots} slots but holds {found.count}")
+    return found
+
+
+def _splat_records(offset: int, size: int, total: int, where: str) -> SplatChunk:
+    """Records of a splat chunk: the declared size is the padded texture; files may hold fewer."""
+    if size % RECORD.itemsize:
+        raise FormatError(f"size {size} is not a multiple of {RECORD.itemsize}", where=where)
+    present = min(size, total - offset)
+    if present % RECORD.itemsize:
+        raise FormatError(
+            f"the file ends inside a record: {present} bytes are not a multiple of "
+            f"{RECORD.itemsize} (truncated?)",
+            where=where,
+        )
+    return SplatChunk(offset, present // RECORD.itemsize, size // RECORD.itemsize)
+
+
+def _keep_mask(records: npt.NDArray[np.void], notes: list[str]) -> npt.NDArray[np.bool_]:
+    """Gaussians worth keeping; each dropped group is counted once, first reason wins."""
+    n = len(records)
+    f32 = {k: records[k].astype(np.float32) for k in ("rotation", "scale", "motion", "omega")}
+    scale = records["trbf_scale"].astype(np.float32)
+    bad_position = ~np.isfinite(records["position"]).all(axis=1)
+    bad_other = ~np.isfinite(records["trbf_center"].astype(np.float32)) | np.isnan(scale)
+    for values in f32.values():
+        bad_other |= ~np.isfinite(values).all(axis=1)
+    reasons = (
+        (bad_position, "non-finite positions"),
+        (bad_other, "non-finite rotation, scale, motion or time values"),
+        (~(scale > 0), "a temporal scale <= 0 (never visible)"),
+    )
+    dropped = np.zeros(n, bool)
+    for mask, reason in reasons:
+        count = int(np.count_nonzero(mask & ~dropped))
+        if count:
+            notes.append(f"dropped {count} of {n} Gaussians with {reason}")
+        dropped |= mask
+    return ~dropped
+
+
+def _to_scene(records: npt.NDArray[np.void], duration: float, notes: list[str]) -> Scene:
+    """Map kept records to base Gaussians, a type-2 timeline and temporal coefficients."""
+    quats, omega = _rotations(records, notes)
+    gaussians = Gaussians.from_arrays(
+        records["position"],
+        _log_scales(records, notes),
+        quats,
+        _logits(records["rgba"][:, 3], notes),
+        (records["rgba"][:, :3].astype(np.float64) / 255.0 - 0.5) / SH_C0,
+    )
+    timeline = Timeline(
+        TimelineType.CENTER_SCALE,
+        records["trbf_center"].astype(np.float64) * duration,
+        _trbf_scales(records, notes) * duration / math.sqrt(2.0),
+        scene_length=duration,
+    )
+    motion = records["motion"].astype(np.float64).reshape(-1, 3, 3)  # (N, order, xyz)
+    motion /= (duration ** np.arange(1, 4))[None, :, None]
+    temporal = {"means": motion.astype(np.float32), "quats": (omega / duration)[:, None, :]}
+    temporal = {k: v for k, v in temporal.items() if np.any(v)}
+    return Scene(gaussians, timeline, temporal)
+
+
+def _rotations(records: npt.NDArray[np.void], notes: list[str]) -> tuple[F32, F32]:
+    """(w, x, y, z) base rotations and rates, with zero base rotations made representable.
+
+    q = 0 is what training leaves when a Gaussian starts at zero: the rasteriser's rotation
+    matrix is quadratic in q, so its gradient there is zero and R stays the identity. A zero
+    base without a rate becomes the identity; with a rate w it becomes w, since q(t) = w dt is
+    that same rotation at every t != 0.
+    """
+    quats = records["rotation"].astype(np.float32)
+    omega = records["omega"].astype(np.float32)
+    zero = ~quats.any(axis=1)
+    moving = zero & omega.any(axis=1)
+    quats[zero & ~moving] = (1.0, 0.0, 0.0, 0.0)
+    quats[moving], omega[moving] = omega[moving], 0.0
+    if still := int(np.count_nonzero(zero & ~moving)):
+        notes.append(f"set {still} zero rotations to the identity (the splaTV shader divides 0/0)")
+    if int(moving.sum()):
+        notes.append(f"set {int(moving.sum())} zero rotations to their constant rotation rate")
+    return quats, omega
+
+
+def _log_scales(records: npt.NDArray[np.void], notes: list[str]) -> F64:
+    """ln of the linear scales; |scale| (the covariance only sees its square), 0 -> 2^-24."""
+    scales = np.abs(records["scale"].astype(np.float64))
+    tiny = scales < F16_TINY
+    if tiny.any():
+        notes.append(f"raised {int(tiny.sum())} zero scale values to 2^-24")
+    return np.log(np.maximum(scales, F16_TINY))
+
+
+def _logits(alpha: npt.NDArray[np.uint8], notes: list[str]) -> F64:
+    """logit(alpha / 255), alpha clamped so bytes 0 and 255 stay finite."""
+    clamped = int(np.count_nonzero((alpha == 0) | (alpha == 255)))
+    if clamped:
+        notes.append(f"clamped {clamped} opacities of alpha byte 0 or 255 to finite logits")
+    a = np.clip(alpha.astype(np.float64) / 255.0, ALPHA_EPS, 1.0 - ALPHA_EPS)
+    return np.log(a) - np.log1p(-a)
+
+
+def _trbf_scales(records: npt.NDArray[np.void], notes: list[str]) -> F64:
+    """The viewer's s = exp(trbf_scale); +inf (an f16 overflow) becomes the largest f16."""
+    scales = records["trbf_scale"].astype(np.float64)
+    inf = np.isinf(scales)
+    if inf.any():
+        notes.append(f"replaced {int(inf.sum())} infinite temporal scales by {F16_MAX:g}")
+    return np.where(inf, F16_MAX, scales)
+
+
+__all__ = ["MAGIC", "RECORD", "parse_splatv", "read_splatv", "sniff_splatv"]

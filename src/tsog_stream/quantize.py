@@ -1,0 +1,241 @@
+"""256-entry scalar codebooks of SOG v2 (scales, sh0, shN), after splat-transform's quantizer.
+
+:func:`dp_codebook` is the reference algorithm of docs/spec.md §6.1 (splat-transform
+``quantize-1d-core.ts``): pool the samples, keep ±Infinity out (each present sign reserves an
+end slot holding finite min − 20 / finite max + 20), drop NaN, bin the sorted finite values
+into H = min(1024, n) bins whose position blends rank and value, weight each bin by
+count^0.5 and split the bins into at most 256 contiguous groups by an exact dynamic program
+that minimises the weighted sum of squared deviations.
+
+:func:`build_codebook` starts from that codebook and lowers the real quantisation error:
+with at most as many distinct finite values as slots it stores them exactly; otherwise it
+runs 1-D Lloyd passes on the full sorted samples (O(256 log n) each, through prefix sums)
+and keeps whichever codebook has the smaller mean squared error over the samples, so it is
+never worse than the reference. :func:`assign_codebook` maps values to their nearest entry.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from .constants import CODEBOOK_SIZE, INFINITY_SENTINEL_OFFSET
+from .errors import InputError
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+U8 = npt.NDArray[np.uint8]
+
+HIST_BINS: Final = 1024
+"""Upper bound on histogram bins (splat-transform's H)."""
+DENSITY_ALPHA: Final = 0.5
+"""Bin weight = count ** DENSITY_ALPHA ("sub-linear density weighting")."""
+BETA_MIN: Final = 0.5
+BETA_MAX: Final = 0.999
+REFINE_PASSES: Final = 200
+"""Upper bound on 1-D Lloyd passes in :func:`build_codebook`; it stops when nothing moves."""
+
+
+def dp_codebook(samples: npt.ArrayLike) -> F32:
+    """The plain reference codebook of spec §6.1 (histogram + DP), without refinement."""
+    return _codebook(samples, refine=False)
+
+
+def build_codebook(samples: npt.ArrayLike) -> F32:
+    """A 256-entry ascending float32 codebook for the pooled ``samples`` (any shape).
+
+    Same slots and sentinels as :func:`dp_codebook`; its mean squared error over the finite
+    samples is never larger. Empty or all-NaN input gives zeros.
+    """
+    return _codebook(samples, refine=True)
+
+
+def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
+    """Index of the nearest codebook entry for every value (same shape as ``values``).
+
+    Binary search over the float64 midpoints of consecutive entries; a value exactly on a
+    midpoint goes to the upper entry, -inf to 0 and +inf to the last index. NaN goes to the
+    last index too, as in splat-transform, whose comparisons with NaN are all false.
+    """
+    table = np.asarray(codebook)
+    if table.ndim != 1 or not 1 <= table.size <= CODEBOOK_SIZE:
+        raise InputError(f"codebook must be 1-D with 1..{CODEBOOK_SIZE} entries, got {table.shape}")
+    table = table.astype(np.float64)
+    if not np.all(np.isfinite(table)) or np.any(np.diff(table) < 0):
+        raise InputError("codebook must hold finite values in ascending order")
+    data = np.asarray(values, dtype=np.float64)
+    mids = (table[:-1] + table[1:]) * 0.5
+    return np.searchsorted(mids, data, side="right").astype(np.uint8)
+
+
+def codebook_mse(samples: npt.ArrayLike, codebook: npt.ArrayLike) -> float:
+    """Mean squared error of the finite ``samples`` against their nearest codebook entry."""
+    data = np.asarray(samples, dtype=np.float64).reshape(-1)
+    data = data[np.isfinite(data)]
+    if data.size == 0:
+        return 0.0
+    table = np.asarray(codebook, dtype=np.float64)
+    err = data - table[assign_codebook(data, table)]
+    return float(np.dot(err, err) / data.size)
+
+
+def _codebook(samples: npt.ArrayLike, *, refine: bool) -> F32:
+    """Shared driver: split off non-finite values, quantise the finite ones, add sentinels."""
+    data = np.asarray(samples)
+    if not (np.issubdtype(data.dtype, np.floating) or np.issubdtype(data.dtype, np.integer)):
+        raise InputError(f"samples must be numeric, got dtype {data.dtype}")
+    if data.dtype != np.float32:
+        data = data.astype(np.float64)
+    data = data.reshape(-1)
+    finite = np.sort(data[np.isfinite(data)]).astype(np.float64)  # sort before widening: faster
+    has_neg = bool(np.any(data == -np.inf))
+    has_pos = bool(np.any(data == np.inf))
+    if finite.size == 0 and not (has_neg or has_pos):
+        return np.zeros(CODEBOOK_SIZE, np.float32)
+    if not (has_neg or has_pos) and finite[-1] - finite[0] < 1e-20:
+        return np.full(CODEBOOK_SIZE, finite[0], np.float32)
+    slots = CODEBOOK_SIZE - int(has_neg) - int(has_pos)
+    centroids = _finite_centroids(finite, slots, refine)
+    return _compose(centroids, finite, has_neg, has_pos)
+
+
+def _finite_centroids(finite: F64, slots: int, refine: bool) -> F32:
+    """Ascending centroids (at most ``slots``) for the sorted finite values."""
+    if finite.size == 0 or slots == 0:
+        return np.zeros(0, np.float32)
+    if finite[-1] - finite[0] < 1e-20:
+        return finite[:1].astype(np.float32)
+    if refine and np.count_nonzero(np.diff(finite)) < slots:
+        return np.unique(finite.astype(np.float32))  # few distinct values: store them exactly
+    centers, weights = _histogram(finite)
+    centroids = _dp_centroids(centers, weights, slots)
+    if refine:
+        centroids = _lloyd_1d(finite, centroids)
+    return np.sort(centroids)
+
+
+def _compose(centroids: F32, finite: F64, has_neg: bool, has_pos: bool) -> F32:
+    """[-inf sentinel] + centroids padded with the last one + [+inf sentinel], 256 entries."""
+    lo = (float(finite[0]) if finite.size else 0.0) - INFINITY_SENTINEL_OFFSET
+    hi = (float(finite[-1]) if finite.size else 0.0) + INFINITY_SENTINEL_OFFSET
+    first = int(has_neg)
+    pad = centroids[-1] if centroids.size else np.float32(lo if has_neg else hi)
+    table = np.full(CODEBOOK_SIZE, pad, np.float32)
+    table[first : first + centroids.size] = centroids
+    if has_neg:
+        table[0] = lo
+    if has_pos:
+        table[-1] = hi
+    return table
+
+
+def _histogram(finite: F64) -> tuple[F64, F64]:
+    """Bin centres and count^0.5 weights of the rank/value-blended histogram (spec §6.1)."""
+    n = finite.size
+    bins = min(HIST_BINS, n)
+    vmin, vrange = finite[0], finite[-1] - finite[0]
+    iqr = finite[int(n * 0.75)] - finite[int(n * 0.25)]
+    beta = max(BETA_MIN, min(BETA_MAX, 1.0 - iqr / vrange))
+    position = beta * (np.arange(n) / n) + (1.0 - beta) * ((finite - vmin) / vrange)
+    index = np.minimum(bins - 1, np.floor(bins * position)).astype(np.intp)
+    counts = np.bincount(index, minlength=bins).astype(np.float64)
+    sums = np.bincount(index, weights=finite, minlength=bins)
+    empty_centre = vmin + (np.arange(bins) + 0.5) / bins * vrange
+    with np.errstate(invalid="ignore", divide="ignore"):
+        centers = np.where(counts > 0, sums / counts, empty_centre)
+    return centers, counts**DENSITY_ALPHA
+
+
+def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:
+    """Prefix sums of w, w·x, w·x² so any group's weighted SSE is O(1)."""
+    zero = np.zeros(1)
+    pw = np.concatenate([zero, np.cumsum(weights)])
+    pwx = np.concatenate([zero, np.cumsum(weights * centers)])
+    pwxx = np.concatenate([zero, np.cumsum(weights * centers * centers)])
+    return pw, pwx, pwxx, centers
+
+
+def _cost_matrix(pw: F64, pwx: F64, pwxx: F64) -> F64:
+    """cost[end, start] = weighted SSE of bins start..end (inf where start > end)."""
+    end = np.arange(pw.size - 1)[:, None]
+    start = np.arange(pw.size - 1)[None, :]
+    w = pw[end + 1] - pw[start]
+    wx = pwx[end + 1] - pwx[start]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cost = np.where(w > 0, (pwxx[end + 1] - pwxx[start]) - (wx * wx) / w, 0.0)
+    cost[start > end] = np.inf
+    return cost
+
+
+def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
+    """Optimal partition into min(target, non-empty bins) groups; their weighted means.
+
+    Row m of the DP only needs ends j in a band of width H - K + 1 (the other K - m groups
+    need a bin each), so each row is one (band × band) masked minimum; ties go to the
+    smallest split, as in the reference.
+    """
+    h = centers.size
+    groups = min(target, int(np.count_nonzero(weights)))
+    pw, pwx, pwxx, _ = _group_costs(centers, weights)
+    cost = _cost_matrix(pw, pwx, pwxx)
+    band = h - groups + 1
+    row = cost[:band, 0].copy()  # m = 1: one group over bins 0..j, j in [0, band)
+    splits = np.zeros((groups + 1, band), np.intp)
+    rows = np.arange(band)
+    for m in range(2, groups + 1):
+        total = cost[m - 1 : m - 1 + band, m - 1 : m - 1 + band] + row[None, :]
+        best = np.argmin(total, axis=1)
+        row = total[rows, best]
+        splits[m] = best + (m - 2)
+    out = np.empty(groups, np.float64)
+    end = h - 1
+    for m in range(groups, 0, -1):
+        split = int(splits[m, end - (m - 1)]) if m > 1 else -1
+        w = pw[end + 1] - pw[split + 1]
+        wx = pwx[end + 1] - pwx[split + 1]
+        out[m - 1] = wx / w if w > 0 else (centers[split + 1] + centers[end]) * 0.5
+        end = split
+    return out.astype(np.float32)
+
+
+def _lloyd_1d(finite: F64, start: F32) -> F32:
+    """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE wins."""
+    shift = finite[finite.size // 2]
+    centred = finite - shift
+    zero = np.zeros(1)
+    p1 = np.concatenate([zero, np.cumsum(centred)])
+    p2 = np.concatenate([zero, np.cumsum(centred * centred)])
+    best, best_sse = start, _sse_1d(finite, p1, p2, shift, start)
+    current = start
+    for _ in range(REFINE_PASSES):
+        edges = _edges(finite, current)
+        counts = np.diff(edges)
+        sums = p1[edges[1:]] - p1[edges[:-1]]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            moved = np.where(counts > 0, sums / counts + shift, current).astype(np.float32)
+        moved.sort()
+        if np.array_equal(moved, current):
+            break
+        current = moved
+        sse = _sse_1d(finite, p1, p2, shift, current)
+        if sse < best_sse:
+            best, best_sse = current, sse
+    return best
+
+
+def _edges(finite: F64, table: F32) -> npt.NDArray[np.intp]:
+    """Group boundaries of the sorted samples under nearest-entry assignment."""
+    wide = table.astype(np.float64)
+    cuts = np.searchsorted(finite, (wide[:-1] + wide[1:]) * 0.5, side="left")
+    return np.concatenate([[0], cuts, [finite.size]]).astype(np.intp)
+
+
+def _sse_1d(finite: F64, p1: F64, p2: F64, shift: float, table: F32) -> float:
+    """Exact sum of squared errors of the sorted samples against ``table``, via prefix sums."""
+    edges = _edges(finite, table)
+    c = table.astype(np.float64) - shift
+    s1 = p1[edges[1:]] - p1[edges[:-1]]
+    s2 = p2[edges[1:]] - p2[edges[:-1]]
+    return float(np.sum(s2 - 2.0 * c * s1 + c * c * np.diff(edges)))

@@ -1,0 +1,156 @@
+"""The container index (``manifest.json`` when unpacked): pydantic models and their checks.
+
+The index says what the scene is, how time is cut into nodes (windows and, for layered
+policies, coarser levels) and, for every chunk, where its bytes are, what it holds (count, time
+interval, bounding box) and its SHA-256. See docs/spec.md §9.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from ..constants import TEMPORAL_CHANNELS
+from ..errors import IntegrityError, MetaError
+from .sog_meta import to_meta_error
+
+MANIFEST_VERSION = 1
+POLICIES = ("duplicate", "hierarchy", "hybrid")
+Policy = Literal["duplicate", "hierarchy", "hybrid"]
+NonNegInt = Annotated[int, Field(ge=0, strict=True)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Vec3 = tuple[Finite, Finite, Finite]
+_CHUNK_FILE = re.compile(r"chunks/[0-9]{6}\.sog")
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Box(_Model):
+    """Axis-aligned bounding box in scene units."""
+
+    min: Vec3
+    max: Vec3
+
+
+class SceneInfo(_Model):
+    """What the whole stream holds."""
+
+    gaussians: NonNegInt = Field(description="Gaussians in the source scene")
+    stored: NonNegInt = Field(description="Gaussians stored, duplicates included")
+    start_s: Finite = Field(description="first second of the scene")
+    end_s: Finite = Field(description="last second of the scene")
+    fps: Finite | None = Field(default=None, description="frame rate of type-0/1 timelines")
+    timeline_type: Literal[0, 1, 2] | None = Field(description="TSOG timeline type; null = static")
+    temporal: dict[str, NonNegInt] = Field(description="dynamic attribute -> polynomial order")
+    sh_bands: Literal[0, 1, 2, 3]
+    bbox: Box
+
+    @model_validator(mode="after")
+    def _check(self) -> SceneInfo:
+        if self.end_s < self.start_s:
+            raise ValueError("end_s is before start_s")
+        unknown = set(self.temporal) - set(TEMPORAL_CHANNELS)
+        if unknown:
+            raise ValueError(f"unknown dynamic attributes {sorted(unknown)}")
+        return self
+
+
+class Node(_Model):
+    """A time interval of the segmentation: a window (level 0) or a coarser level's node."""
+
+    level: NonNegInt
+    index: NonNegInt
+    start_s: Finite
+    end_s: Finite
+    chunks: list[NonNegInt]
+
+
+class ChunkEntry(_Model):
+    """One chunk: a standalone ``.sog`` at ``[offset, offset + length)`` of the container."""
+
+    id: NonNegInt
+    file: str = Field(description="path of the chunk in the unpacked layout")
+    offset: NonNegInt = Field(description="byte offset in the packed container")
+    length: NonNegInt
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    count: NonNegInt = Field(description="Gaussians in the chunk")
+    level: NonNegInt
+    node: NonNegInt
+    start_s: Finite = Field(description="first second any of its Gaussians is visible")
+    end_s: Finite = Field(description="second after which none is visible")
+    bbox: Box
+
+
+class Manifest(_Model):
+    """The index of a ``.tsogs`` container."""
+
+    format: Literal["tsogs"] = "tsogs"
+    version: Literal[1] = 1
+    generator: str
+    policy: Policy
+    window_s: Finite = Field(gt=0)
+    max_pixels: NonNegInt
+    scene: SceneInfo
+    nodes: list[Node]
+    chunks: list[ChunkEntry]
+    payload_bytes: NonNegInt
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Manifest:
+        for i, chunk in enumerate(self.chunks):
+            if chunk.id != i:
+                raise ValueError(f"chunks[{i}] has id {chunk.id}")
+            if not _CHUNK_FILE.fullmatch(chunk.file):
+                raise ValueError(f"chunks[{i}].file {chunk.file!r} is not chunks/NNNNNN.sog")
+        for j, node in enumerate(self.nodes):
+            for c in node.chunks:
+                if c >= len(self.chunks):
+                    raise ValueError(
+                        f"nodes[{j}] names chunk {c}, past the {len(self.chunks)} chunks"
+                    )
+        return self
+
+
+def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manifest:
+    """Validate index JSON; a bad document raises MetaError naming the field."""
+    try:
+        doc: Any = json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise MetaError(f"not valid JSON: {exc}", field="<document>", where=where) from exc
+    try:
+        return Manifest.model_validate(doc)
+    except ValidationError as exc:
+        raise to_meta_error(exc, where=where) from exc
+
+
+def dump_manifest(manifest: Manifest) -> bytes:
+    """Compact, deterministic JSON of the index."""
+    return json.dumps(
+        manifest.model_dump(mode="json"), separators=(",", ":"), sort_keys=False
+    ).encode()
+
+
+def check_layout(manifest: Manifest, payload_start: int, payload_end: int, *, where: str) -> None:
+    """Chunks must lie inside [payload_start, payload_end) and must not overlap."""
+    spans = sorted((c.offset, c.offset + c.length, c.id) for c in manifest.chunks)
+    previous_end = payload_start
+    for start, end, cid in spans:
+        if start < previous_end or end > payload_end:
+            raise IntegrityError(
+                f"chunk {cid} at [{start}, {end}) overlaps another chunk or lies outside the "
+                f"payload [{payload_start}, {payload_end})",
+                where=where,
+            )
+        previous_end = end
+
+
+def manifest_json_schema() -> dict[str, Any]:
+    """JSON Schema of the index (for docs/schema/)."""
+    schema = Manifest.model_json_schema()
+    schema["title"] = "tsog-stream container index (manifest.json)"
+    return schema

@@ -1,0 +1,357 @@
+"""The SH palette: vector quantisation of the f_rest vectors (SOG v2 ``shN``, spec §4.5, §6.2).
+
+splat-transform runs 10 Lloyd iterations from K random Gaussians (single-threaded JS on a
+CPU). We solve the same problem — K palette vectors and one label per Gaussian, minimising
+the squared error — with a lower error in a small fraction of the time
+(docs/design/quantizers.md):
+
+1. identical vectors collapse to weighted unique rows; if those fit, the palette is exact;
+2. Ward agglomeration in parallel rounds: every cluster finds its cheapest partner (Ward
+   cost) among approximate nearest neighbours — brute force inside the leaves of two
+   balanced kd-trees in PCA coordinates, as BLAS matrix products — and the cheapest merges
+   that do not conflict are applied together, until K clusters remain;
+3. Lloyd refinement where each vector compares only its centroid's nearest centroids,
+   stopping early when the error improvement falls under a tolerance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from .constants import SH_PALETTE_MAX
+from .errors import InputError
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+Ints = npt.NDArray[np.intp]
+Labels = npt.NDArray[np.uint16] | npt.NDArray[np.uint32]
+Progress = Callable[[float], None]
+
+BLOCK_BYTES: Final = 256 << 20
+"""Upper bound on the bytes of one distance block."""
+LEAF_SIZE: Final = 256
+"""Points per kd-tree leaf searched by brute force."""
+TREES: Final = 2
+"""Independent kd-trees whose leaf neighbours are pooled."""
+SPLIT_DIMS: Final = 16
+"""Leading principal axes the kd-trees split on."""
+WIDTH_SAMPLE: Final = 64
+"""Points per segment sampled to pick the widest coordinate."""
+MIXED_DIMS: Final = 8
+"""Leading axes randomly rotated for every tree after the first."""
+REFINE_CANDIDATES: Final = 4
+"""Nearest centroids per tree a vector may move to during refinement."""
+REFINE_TOLERANCE: Final = 1e-3
+"""Refinement stops when a pass lowers the squared error by less than this fraction."""
+MERGE_SHARE: Final = 0.7
+"""Share of the progress range spent in agglomeration."""
+
+
+def palette_size(n: int) -> int:
+    """splat-transform's K for ``n`` Gaussians: the largest power of two ≤ n, capped at 65536.
+
+    Its formula min(64, 2^floor(log2(n/1024)))·1024 equals this for every n ≥ 1 (also below
+    1024, e.g. 500 -> 256), so K is always in [1, n].
+    """
+    if n < 1:
+        raise InputError(f"palette size needs at least one Gaussian, got n={n}")
+    return min(SH_PALETTE_MAX, 1 << (int(n).bit_length() - 1))
+
+
+def fit_palette(
+    vectors: npt.ArrayLike,
+    k: int | None = None,
+    *,
+    seed: int = 0,
+    iterations: int = 10,
+    progress: Progress | None = None,
+) -> tuple[F32, Labels]:
+    """Palette (M, D) float32 with M ≤ k rows and one label per vector (uint16 if M ≤ 65536).
+
+    ``k`` defaults to :func:`palette_size`. M < k only when there are fewer than k distinct
+    vectors; the palette is then exact. ``iterations`` bounds the refinement passes (like
+    splat-transform's ``--sh-iterations``). The result depends only on the input and ``seed``.
+    """
+    data = _as_vectors(vectors)
+    target = palette_size(len(data)) if k is None else int(k)
+    if target < 1:
+        raise InputError(f"palette size k must be at least 1, got {k}")
+    if iterations < 0:
+        raise InputError(f"iterations must be >= 0, got {iterations}")
+    report = progress or (lambda _fraction: None)
+    unique, inverse, weights = _unique_rows(data)
+    if len(unique) <= target:
+        report(1.0)
+        return unique, _labels(inverse, len(unique))
+    rng = np.random.default_rng(seed)
+    axes = _principal_axes(unique, weights)
+    centroids, labels = _agglomerate(unique, weights, target, axes=axes, rng=rng, report=report)
+    centroids, labels = _refine(
+        unique, weights, centroids, labels, axes=axes, iterations=iterations, rng=rng, report=report
+    )
+    report(1.0)
+    return centroids, _labels(labels[inverse], target)
+
+
+def palette_mse(vectors: npt.ArrayLike, centroids: npt.ArrayLike, labels: npt.ArrayLike) -> float:
+    """Mean over vectors of the squared distance to their assigned palette vector."""
+    data = np.asarray(vectors, dtype=np.float64)
+    diff = data - np.asarray(centroids, dtype=np.float64)[np.asarray(labels, dtype=np.intp)]
+    return float(np.einsum("ij,ij->", diff, diff) / max(1, len(data)))
+
+
+def _as_vectors(vectors: npt.ArrayLike) -> F32:
+    """C-contiguous float32 (N, D) with N, D ≥ 1 and finite values, or InputError."""
+    data = np.asarray(vectors)
+    if data.ndim != 2 or data.shape[0] == 0 or data.shape[1] == 0:
+        raise InputError(f"SH vectors must be a non-empty (N, D) array, got shape {data.shape}")
+    data = np.ascontiguousarray(data, dtype=np.float32)
+    if not np.all(np.isfinite(data)):
+        raise InputError("SH vectors must be finite (found NaN or infinity)")
+    return data
+
+
+def _labels(labels: Ints, count: int) -> Labels:
+    """Smallest unsigned label type that addresses ``count`` palette entries."""
+    if count <= SH_PALETTE_MAX:
+        return labels.astype(np.uint16)
+    return labels.astype(np.uint32)
+
+
+def _unique_rows(data: F32) -> tuple[F32, Ints, F64]:
+    """Distinct rows (byte-wise), the row of each input vector, and multiplicities."""
+    rows = data.view(np.dtype((np.void, data.dtype.itemsize * data.shape[1]))).reshape(-1)
+    _, first, inverse, counts = np.unique(
+        rows, return_index=True, return_inverse=True, return_counts=True
+    )
+    return data[first], inverse.reshape(-1).astype(np.intp), counts.astype(np.float64)
+
+
+def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
+    """Weighted mean and the leading principal axes (D, ≤ SPLIT_DIMS) of the points."""
+    mean = weights @ points.astype(np.float64) / weights.sum()
+    centred = points - mean.astype(np.float32)
+    cov = (centred * weights[:, None].astype(np.float32)).T @ centred
+    _, vecs = np.linalg.eigh(cov.astype(np.float64))
+    axes = np.ascontiguousarray(vecs[:, ::-1][:, : min(SPLIT_DIMS, points.shape[1])])
+    return mean.astype(np.float32), axes.astype(np.float32)
+
+
+def _tree_coords(points: F32, axes: tuple[F32, F32], tree: int, rng: np.random.Generator) -> F32:
+    """Split coordinates of tree ``tree``: PCA coordinates, leading ones rotated after tree 0."""
+    coords: F32 = ((points - axes[0]) @ axes[1]).astype(np.float32, copy=False)
+    mixed = min(MIXED_DIMS, coords.shape[1])
+    if tree > 0 and mixed > 1:
+        rotation, _ = np.linalg.qr(rng.standard_normal((mixed, mixed)))
+        coords[:, :mixed] = coords[:, :mixed] @ rotation.astype(np.float32)
+    return coords
+
+
+def _leaves(coords: F32, leaf: int) -> tuple[Ints, npt.NDArray[np.bool_]]:
+    """Balanced kd-tree leaves as (C, L) point ids; padding slots repeat points, flagged False.
+
+    Each level splits every segment at its median along its widest coordinate with one
+    ``argpartition`` over equal-length rows, so a level costs O(n).
+    """
+    n = len(coords)
+    levels = max(0, int(np.ceil(np.log2(max(1.0, n / leaf)))))
+    cells = 1 << levels
+    length = -(-n // cells)
+    pad = cells * length - n
+    ids = np.concatenate([np.arange(n), np.arange(pad) % n])
+    real = np.concatenate([np.ones(n, bool), np.zeros(pad, bool)])
+    for level in range(levels):
+        rows = ids.reshape(1 << level, -1)
+        sample = coords[rows[:, :: max(1, rows.shape[1] // WIDTH_SAMPLE)]]
+        widest = np.argmax(sample.max(axis=1) - sample.min(axis=1), axis=1)
+        key = coords[rows, widest[:, None]]
+        order = np.argpartition(key, rows.shape[1] // 2 - 1, axis=1)
+        ids = np.take_along_axis(rows, order, axis=1).reshape(-1)
+        real = np.take_along_axis(real.reshape(rows.shape), order, axis=1).reshape(-1)
+    return ids.reshape(cells, length), real.reshape(cells, length)
+
+
+def _leaf_neighbours(points: F32, ids: Ints, real: npt.NDArray[np.bool_], count: int) -> Ints:
+    """For every point, its ``count`` nearest other points in its leaf, (n, count).
+
+    Scores x·y − |y|²/2 come from one augmented product per leaf. ``einsum`` rather than
+    ``matmul``: thousands of small multi-threaded BLAS calls stall when the cores are busy
+    (measured 60x slower under load), while einsum stays single-threaded and predictable.
+    """
+    cells, length = ids.shape
+    dim = points.shape[1]
+    lhs = np.ones((cells, length, dim + 1), np.float32)
+    lhs[:, :, :dim] = points[ids]
+    rhs = np.ascontiguousarray(lhs.transpose(0, 2, 1))
+    norms = np.einsum("cld,cld->cl", lhs[..., :dim], lhs[..., :dim])
+    rhs[:, dim, :] = np.where(real, -0.5 * norms, -1e30)
+    best = np.empty((cells, length, count), np.intp)
+    step = max(1, BLOCK_BYTES // (4 * length * length))
+    diag = np.arange(length)
+    for start in range(0, cells, step):
+        scores = np.einsum("cld,cdm->clm", lhs[start : start + step], rhs[start : start + step])
+        scores[:, diag, diag] = -np.inf
+        if count == 1:
+            best[start : start + step, :, 0] = np.argmax(scores, axis=2)
+        else:
+            best[start : start + step] = np.argpartition(-scores, count - 1, axis=2)[..., :count]
+    found = np.take_along_axis(ids, best.reshape(cells, -1), axis=1).reshape(cells, length, count)
+    out = np.empty((len(points), count), np.intp)
+    out[ids[real]] = found[real]
+    return out
+
+
+def _neighbours(points: F32, axes: tuple[F32, F32], count: int, rng: np.random.Generator) -> Ints:
+    """Approximate nearest neighbours: ``count`` per tree, pooled over TREES trees."""
+    if len(points) < 2:
+        return np.zeros((len(points), 1), np.intp)
+    found = []
+    for tree in range(TREES):
+        ids, real = _leaves(_tree_coords(points, axes, tree, rng), max(LEAF_SIZE, 2 * count))
+        found.append(_leaf_neighbours(points, ids, real, min(count, ids.shape[1] - 1)))
+    return np.concatenate(found, axis=1)
+
+
+def _agglomerate(
+    points: F32,
+    weights: F64,
+    k: int,
+    *,
+    axes: tuple[F32, F32],
+    rng: np.random.Generator,
+    report: Progress,
+) -> tuple[F32, Ints]:
+    """Parallel Ward merging from one cluster per unique point down to ``k`` clusters."""
+    means = points.copy()
+    mass = weights.copy()
+    labels = np.arange(len(points))
+    excess = len(points) - k
+    while len(means) > k:
+        partner, cost = _cheapest_partner(means, mass, _neighbours(means, axes, 1, rng))
+        movers = _pick_moves(partner, cost, len(means) - k)
+        means, mass, new_id = _merge(means, mass, movers, partner)
+        labels = new_id[labels]
+        report(MERGE_SHARE * (1.0 - (len(means) - k) / excess))
+    return means, labels
+
+
+def _cheapest_partner(means: F32, mass: F64, candidates: Ints) -> tuple[Ints, F64]:
+    """Each cluster's candidate with the smallest Ward merge cost, and that cost."""
+    costs = np.empty(candidates.shape, np.float64)
+    for col in range(candidates.shape[1]):
+        other = candidates[:, col]
+        diff = means - means[other]
+        dist = np.einsum("nd,nd->n", diff, diff).astype(np.float64)
+        costs[:, col] = mass * mass[other] / (mass + mass[other]) * dist
+    costs[candidates == np.arange(len(means))[:, None]] = np.inf
+    pick = np.argmin(costs, axis=1)
+    rows = np.arange(len(means))
+    return candidates[rows, pick], costs[rows, pick]
+
+
+def _pick_moves(partner: Ints, cost: F64, need: int) -> Ints:
+    """Clusters that merge into their partner this round: cheap, and never into a mover.
+
+    Only the ``need`` cheapest costs qualify. Of a mutual pair the higher index moves; a
+    cluster may move into a partner that stays or that is the staying half of a pair.
+    """
+    ids = np.arange(len(partner))
+    limit = np.partition(cost, need - 1)[need - 1]
+    mover = (cost <= limit) & np.isfinite(cost)
+    mutual = mover & (partner[partner] == ids)
+    stays = mutual & (ids < partner)
+    moves = (mutual & (ids > partner)) | (mover & ~mutual & (~mover[partner] | stays[partner]))
+    chosen = np.flatnonzero(moves)
+    if len(chosen) > need:
+        chosen = chosen[np.argsort(cost[chosen], kind="stable")[:need]]
+    if len(chosen) == 0:
+        chosen = np.array([int(np.argmin(cost))], np.intp)
+    return chosen
+
+
+def _merge(means: F32, mass: F64, movers: Ints, partner: Ints) -> tuple[F32, F64, Ints]:
+    """Fold every mover into its partner; returns new means, masses and the old->new id map."""
+    target = np.arange(len(means))
+    target[movers] = partner[movers]
+    keep = np.ones(len(means), bool)
+    keep[movers] = False
+    new_id = (np.cumsum(keep) - 1)[target]
+    weighted = means.astype(np.float64) * mass[:, None]
+    np.add.at(weighted, target[movers], weighted[movers])
+    total = mass.copy()
+    np.add.at(total, target[movers], mass[movers])
+    return (weighted[keep] / total[keep, None]).astype(np.float32), total[keep], new_id
+
+
+def _refine(
+    points: F32,
+    weights: F64,
+    centroids: F32,
+    labels: Ints,
+    *,
+    axes: tuple[F32, F32],
+    iterations: int,
+    rng: np.random.Generator,
+    report: Progress,
+) -> tuple[F32, Ints]:
+    """Lloyd passes restricted to each centroid's nearest centroids; stop when gains stall."""
+    errors = _errors(points, centroids, labels)
+    for step in range(iterations):
+        near = _neighbours(centroids, axes, REFINE_CANDIDATES, rng)
+        options = np.concatenate([np.arange(len(centroids))[:, None], near], axis=1)
+        labels = _assign(points, centroids, options, labels)
+        centroids, labels = _update(points, weights, centroids, labels)
+        before, errors = errors, _errors(points, centroids, labels)
+        report(MERGE_SHARE + (1.0 - MERGE_SHARE) * (step + 1) / iterations)
+        if weights @ before - weights @ errors <= REFINE_TOLERANCE * (weights @ before):
+            break
+    return centroids, labels
+
+
+def _assign(points: F32, centroids: F32, options: Ints, labels: Ints) -> Ints:
+    """Nearest centroid among the options of each point's current centroid, in blocks."""
+    step = max(1, BLOCK_BYTES // (4 * options.shape[1] * points.shape[1]))
+    norms = np.einsum("kd,kd->k", centroids, centroids)
+    out = np.empty_like(labels)
+    for start in range(0, len(points), step):
+        choice = options[labels[start : start + step]]
+        dots = np.einsum("bd,bkd->bk", points[start : start + step], centroids[choice])
+        best = np.argmin(norms[choice] - 2.0 * dots, axis=1)
+        out[start : start + step] = choice[np.arange(len(choice)), best]
+    return out
+
+
+def _update(points: F32, weights: F64, centroids: F32, labels: Ints) -> tuple[F32, Ints]:
+    """Weighted means of the clusters; empty clusters move onto the worst-served points."""
+    count = len(centroids)
+    mass = np.bincount(labels, weights, minlength=count)
+    sums = np.stack(
+        [
+            np.bincount(labels, weights * points[:, j], minlength=count)
+            for j in range(points.shape[1])
+        ],
+        axis=1,
+    )
+    filled = mass > 0
+    out = centroids.copy()
+    out[filled] = (sums[filled] / mass[filled, None]).astype(np.float32)
+    empty = np.flatnonzero(~filled)
+    if len(empty):
+        errors = _errors(points, out, labels) * weights
+        worst = np.argsort(-errors, kind="stable")[: len(empty)]
+        worst = worst[errors[worst] > 0]
+        out[empty[: len(worst)]] = points[worst]
+        labels = labels.copy()
+        labels[worst] = empty[: len(worst)]
+    return out, labels
+
+
+def _errors(points: F32, centroids: F32, labels: Ints) -> F64:
+    """Squared distance of every point to its assigned centroid."""
+    diff = points - centroids[labels]
+    out: F64 = np.einsum("nd,nd->n", diff, diff).astype(np.float64)
+    return out

@@ -1,0 +1,215 @@
+"""Scalar codebooks: the spec §6.1 reference algorithm, our refinement, and nearest assignment."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from tsog_stream import quantize
+from tsog_stream.constants import CODEBOOK_SIZE
+from tsog_stream.errors import InputError
+from tsog_stream.quantize import assign_codebook, build_codebook, codebook_mse, dp_codebook
+
+F64 = npt.NDArray[np.float64]
+
+
+def _literal_quantize_finite(s: list[float], k_target: int) -> list[float]:
+    """splat-transform's quantizeFinite transliterated line by line (plain loops; tiny inputs)."""
+    n = len(s)
+    vmin, vmax = s[0], s[-1]
+    h = min(1024, n)
+    vrange = vmax - vmin
+    iqr = s[math.floor(n * 0.75)] - s[math.floor(n * 0.25)]
+    beta = max(0.5, min(0.999, 1 - iqr / vrange))
+    counts, sums = [0.0] * h, [0.0] * h
+    for i, v in enumerate(s):
+        b = min(h - 1, math.floor(h * (beta * (i / n) + (1 - beta) * ((v - vmin) / vrange))))
+        counts[b] += 1
+        sums[b] += v
+    centers = [
+        sums[i] / counts[i] if counts[i] > 0 else vmin + (i + 0.5) / h * vrange for i in range(h)
+    ]
+    weights = [math.sqrt(c) for c in counts]
+    pw, pwx, pwxx = [0.0] * (h + 1), [0.0] * (h + 1), [0.0] * (h + 1)
+    for i in range(h):
+        pw[i + 1] = pw[i] + weights[i]
+        pwx[i + 1] = pwx[i] + weights[i] * centers[i]
+        pwxx[i + 1] = pwxx[i] + weights[i] * centers[i] * centers[i]
+
+    def cost(a: int, b: int) -> float:
+        w = pw[b + 1] - pw[a]
+        if w <= 0:
+            return 0.0
+        wx = pwx[b + 1] - pwx[a]
+        return (pwxx[b + 1] - pwxx[a]) - (wx * wx) / w
+
+    groups = min(k_target, sum(1 for c in counts if c > 0))
+    prev = [cost(0, j) for j in range(h)]
+    splits: dict[int, list[int]] = {}
+    for m in range(2, groups + 1):
+        cur, split = [1e30] * h, [0] * h
+        for j in range(m - 1, h):
+            best, best_s = 1e30, m - 2
+            for s_ in range(m - 2, j):
+                c = prev[s_] + cost(s_ + 1, j)
+                if c < best:
+                    best, best_s = c, s_
+            cur[j], split[j] = best, best_s
+        splits[m], prev = split, cur
+    out, j = [0.0] * groups, h - 1
+    for m in range(groups, 0, -1):
+        s_ = splits[m][j] if m > 1 else -1
+        w = pw[j + 1] - pw[s_ + 1]
+        out[m - 1] = (pwx[j + 1] - pwx[s_ + 1]) / w if w > 0 else (centers[s_ + 1] + centers[j]) / 2
+        j = s_
+    return out
+
+
+def _literal_codebook(samples: F64, k: int) -> npt.NDArray[np.float32]:
+    """Reference finite-only codebook with k slots (no infinities), padded like the tool."""
+    finite = np.sort(samples.astype(np.float32)).astype(np.float64).tolist()
+    cents = np.sort(np.array(_literal_quantize_finite(finite, k), np.float32))
+    table = np.full(CODEBOOK_SIZE, cents[-1], np.float32)
+    table[: cents.size] = cents
+    return table
+
+
+DISTRIBUTIONS: dict[str, Callable[[np.random.Generator], F64]] = {
+    "normal": lambda r: r.normal(0.0, 1.0, 60_000),
+    "log_scales": lambda r: np.concatenate(
+        [r.normal(-5.0, 1.5, 90_000), r.uniform(-1.0, 4.0, 300), r.normal(-14.0, 0.5, 200)]
+    ),
+    "heavy_tail": lambda r: r.standard_t(1.5, 50_000) * 0.1,
+    "sh_dc": lambda r: np.concatenate([r.normal(0.0, 0.6, 40_000), r.normal(1.8, 0.2, 5_000)]),
+    "discrete": lambda r: r.integers(-600, 600, 40_000) * 0.01,
+    "few_distinct": lambda r: r.choice([-1.0, 0.0, 0.25, 3.0], 10_000),
+    "with_inf": lambda r: np.concatenate([r.normal(-5.0, 1.5, 30_000), [-np.inf] * 50, [np.inf]]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(DISTRIBUTIONS))
+def test_codebook_shape_and_order(name: str) -> None:
+    samples = DISTRIBUTIONS[name](np.random.default_rng(3)).astype(np.float32)
+    for table in (build_codebook(samples), dp_codebook(samples)):
+        assert table.dtype == np.float32
+        assert table.shape == (CODEBOOK_SIZE,)
+        assert np.all(np.isfinite(table))
+        assert np.all(np.diff(table) >= 0)
+
+
+@pytest.mark.parametrize("name", sorted(DISTRIBUTIONS))
+def test_refined_mse_never_worse_than_reference(name: str) -> None:
+    samples = DISTRIBUTIONS[name](np.random.default_rng(4)).astype(np.float32)
+    ours = codebook_mse(samples, build_codebook(samples))
+    reference = codebook_mse(samples, dp_codebook(samples))
+    assert ours <= reference
+
+
+def test_refinement_helps_on_realistic_scales() -> None:
+    samples = DISTRIBUTIONS["log_scales"](np.random.default_rng(5)).astype(np.float32)
+    assert codebook_mse(samples, build_codebook(samples)) < 0.99 * codebook_mse(
+        samples, dp_codebook(samples)
+    )
+
+
+def dp_codebook_with_slots(samples: F64, k: int) -> npt.NDArray[np.float32]:
+    """dp_codebook restricted to k centroids, padded to 256 like the tool pads."""
+    finite = np.sort(samples.astype(np.float32)).astype(np.float64)
+    cents = quantize._finite_centroids(finite, k, refine=False)
+    table = np.full(CODEBOOK_SIZE, cents[-1], np.float32)
+    table[: cents.size] = cents
+    return table
+
+
+@pytest.mark.parametrize(("seed", "n", "k"), [(0, 90, 12), (1, 300, 40), (2, 700, 9)])
+def test_dp_matches_literal_transliteration(seed: int, n: int, k: int) -> None:
+    rng = np.random.default_rng(seed)
+    samples = np.concatenate([rng.normal(0, 1, n), rng.standard_t(2, n // 5) * 3])
+    ours = dp_codebook_with_slots(samples, k)
+    np.testing.assert_array_equal(ours, _literal_codebook(samples, k))
+
+
+def test_dp_full_size_matches_literal_on_few_bins() -> None:
+    # 200 samples -> 200 bins and 256 slots: every non-empty bin is its own centroid.
+    samples = np.random.default_rng(6).normal(0, 1, 200).astype(np.float32)
+    np.testing.assert_array_equal(dp_codebook(samples), _literal_codebook(samples, 256))
+
+
+def test_infinities_reserve_sentinel_slots() -> None:
+    rng = np.random.default_rng(7)
+    finite = rng.normal(-5.0, 1.5, 5000).astype(np.float32)
+    samples = np.concatenate([finite, [-np.inf, np.inf, np.nan]]).astype(np.float32)
+    table = build_codebook(samples)
+    assert table[0] == np.float32(float(finite.min()) - 20.0)
+    assert table[-1] == np.float32(float(finite.max()) + 20.0)
+    assert table[1] >= finite.min() and table[-2] <= finite.max()
+    labels = assign_codebook(np.array([-np.inf, np.inf], np.float32), table)
+    assert labels.tolist() == [0, CODEBOOK_SIZE - 1]
+    assert assign_codebook(finite, table).min() >= 1
+    assert assign_codebook(finite, table).max() <= CODEBOOK_SIZE - 2
+
+
+def test_only_negative_infinity_reserves_slot_zero() -> None:
+    samples = np.array([1.0, 2.0, 3.0, -np.inf], np.float32)
+    table = build_codebook(samples)
+    assert table[0] == np.float32(-19.0)
+    np.testing.assert_array_equal(table[1:4], [1.0, 2.0, 3.0])
+    assert np.all(table[4:] == 3.0)
+
+
+def test_nan_is_ignored() -> None:
+    rng = np.random.default_rng(8)
+    values = rng.normal(0, 1, 4000).astype(np.float32)
+    with_nan = np.concatenate([values, np.full(100, np.nan, np.float32)])
+    np.testing.assert_array_equal(build_codebook(with_nan), build_codebook(values))
+    assert assign_codebook(np.array([np.nan]), build_codebook(values)).tolist() == [255]
+
+
+def test_degenerate_inputs() -> None:
+    np.testing.assert_array_equal(build_codebook(np.zeros(0, np.float32)), np.zeros(256))
+    np.testing.assert_array_equal(build_codebook(np.full(9, np.nan)), np.zeros(256))
+    np.testing.assert_array_equal(build_codebook(np.full(50, 0.25)), np.full(256, 0.25))
+    np.testing.assert_array_equal(build_codebook(np.full(3, -np.inf)), np.full(256, -20.0))
+    both = build_codebook(np.array([-np.inf, np.inf]))
+    assert both[0] == -20.0 and both[-1] == 20.0
+
+
+def test_few_distinct_values_are_exact() -> None:
+    samples = DISTRIBUTIONS["few_distinct"](np.random.default_rng(9))
+    table = build_codebook(samples)
+    assert codebook_mse(samples, table) == 0.0
+    np.testing.assert_array_equal(table[:4], [-1.0, 0.0, 0.25, 3.0])
+
+
+def test_assignment_is_nearest_entry() -> None:
+    rng = np.random.default_rng(10)
+    samples = DISTRIBUTIONS["log_scales"](rng).astype(np.float32)
+    table = build_codebook(samples)
+    values = rng.uniform(-20.0, 8.0, 3000).astype(np.float32)
+    labels = assign_codebook(values, table)
+    err = np.abs(values.astype(np.float64) - table[labels])
+    best = np.abs(values[:, None].astype(np.float64) - table[None, :].astype(np.float64)).min(1)
+    np.testing.assert_allclose(err, best, rtol=0, atol=1e-12)
+    inside = (values >= table[0]) & (values <= table[-1])
+    assert np.all(err[inside] <= np.diff(table.astype(np.float64)).max() / 2 + 1e-12)
+
+
+def test_midpoint_goes_up_and_shape_is_kept() -> None:
+    table = np.arange(256, dtype=np.float32)
+    values = np.array([[0.5, 1.49], [254.5, 1e9]], np.float32)
+    labels = assign_codebook(values, table)
+    assert labels.dtype == np.uint8
+    assert labels.tolist() == [[1, 1], [255, 255]]
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(InputError):
+        assign_codebook([1.0], [2.0, 1.0])
+    with pytest.raises(InputError):
+        assign_codebook([1.0], np.zeros(257))
+    with pytest.raises(InputError):
+        build_codebook(np.array(["a", "b"]))

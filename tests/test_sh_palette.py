@@ -1,0 +1,142 @@
+"""SH palette: splat-transform's K, exactness, determinism and error vs the reference Lloyd."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from tsog_stream.errors import InputError
+from tsog_stream.sh_palette import fit_palette, palette_mse, palette_size
+
+F32 = npt.NDArray[np.float32]
+
+
+def _reference_lloyd(
+    points: F32, k: int, seed: int, iterations: int = 10
+) -> tuple[F32, npt.NDArray[np.intp]]:
+    """splat-transform's CPU k-means: k distinct random points, then plain Lloyd iterations.
+
+    Its unseeded Math.random is replaced by a seeded generator; an empty cluster is re-seeded
+    with a random point; labels are the last assignment, centroids the means after it.
+    """
+    rng = np.random.default_rng(seed)
+    centroids = points[rng.choice(len(points), k, replace=False)].astype(np.float64)
+    labels = np.zeros(len(points), np.intp)
+    for _ in range(iterations):
+        dots = points @ centroids.T.astype(np.float32)
+        labels = np.argmin(0.5 * (centroids**2).sum(1)[None, :] - dots, axis=1)
+        mass = np.bincount(labels, minlength=k)
+        sums = np.stack([np.bincount(labels, points[:, j], k) for j in range(points.shape[1])], 1)
+        centroids = sums / np.maximum(mass, 1)[:, None]
+        empty = mass == 0
+        centroids[empty] = points[rng.integers(0, len(points), int(empty.sum()))]
+    return centroids.astype(np.float32), labels
+
+
+def _sh_like(n: int, dim: int, seed: int) -> F32:
+    """f_rest-like vectors: correlated channels, heavy-tailed magnitude, zeros and clones."""
+    rng = np.random.default_rng(seed)
+    coeffs = dim // 3
+    decay = 0.08 / np.sqrt(1.0 + np.arange(coeffs))
+    shared = rng.standard_normal((n, coeffs)) * decay
+    per_channel = [shared + 0.4 * rng.standard_normal((n, coeffs)) * decay for _ in range(3)]
+    scale = rng.lognormal(0.0, 0.6, (n, 1))
+    vectors = (np.concatenate(per_channel, axis=1) * scale).astype(np.float32)
+    vectors[rng.random(n) < 0.05] = 0.0
+    clones = np.flatnonzero(rng.random(n) < 0.05)
+    vectors[clones] = vectors[rng.integers(0, n, len(clones))]
+    return vectors
+
+
+@pytest.mark.parametrize(
+    ("n", "k"),
+    [(1, 1), (2, 2), (3, 2), (500, 256), (1023, 512), (1024, 1024), (5000, 4096)]
+    + [(50_000, 32_768), (65_536, 65_536), (100_000, 65_536), (10**7, 65_536)],
+)
+def test_palette_size_examples(n: int, k: int) -> None:
+    assert palette_size(n) == k
+
+
+def test_palette_size_matches_tool_formula() -> None:
+    for n in range(1, 300_000, 997):
+        tool = int(min(64, 2 ** math.floor(math.log2(n / 1024))) * 1024)
+        assert palette_size(n) == tool, n
+    with pytest.raises(InputError):
+        palette_size(0)
+
+
+@pytest.mark.parametrize(("n", "dim", "k"), [(5000, 45, 4096), (3000, 9, None), (6000, 24, 512)])
+def test_error_not_worse_than_reference_lloyd(n: int, dim: int, k: int | None) -> None:
+    points = _sh_like(n, dim, seed=n + dim)
+    size = palette_size(n) if k is None else k
+    centroids, labels = fit_palette(points, k, seed=1)
+    ref_centroids, ref_labels = _reference_lloyd(points, size, seed=1)
+    ours = palette_mse(points, centroids, labels)
+    reference = palette_mse(points, ref_centroids, ref_labels)
+    assert ours <= reference, (ours, reference)
+    assert centroids.shape == (size, dim) and centroids.dtype == np.float32
+    assert labels.shape == (n,) and labels.dtype == np.uint16
+    assert int(labels.max()) < size
+
+
+def test_deterministic_for_a_seed() -> None:
+    points = _sh_like(4000, 45, seed=11)
+    first = fit_palette(points, 1024, seed=5)
+    second = fit_palette(points.copy(), 1024, seed=5)
+    np.testing.assert_array_equal(first[0], second[0])
+    np.testing.assert_array_equal(first[1], second[1])
+
+
+def test_exact_when_palette_holds_every_distinct_vector() -> None:
+    rng = np.random.default_rng(12)
+    distinct = rng.normal(0, 0.05, (300, 24)).astype(np.float32)
+    points = distinct[rng.integers(0, 300, 5000)]
+    centroids, labels = fit_palette(points, 512)
+    assert len(centroids) == len(np.unique(points, axis=0))
+    assert palette_mse(points, centroids, labels) == 0.0
+    np.testing.assert_array_equal(centroids[labels], points)
+
+
+def test_small_k_gives_the_weighted_mean() -> None:
+    points = _sh_like(2000, 9, seed=13)
+    centroids, labels = fit_palette(points, 1)
+    assert labels.max() == 0
+    np.testing.assert_allclose(centroids[0], points.mean(0, dtype=np.float64), atol=1e-6)
+
+
+@pytest.mark.parametrize("k", [2, 7, 100])
+def test_labels_point_at_nearby_centroids(k: int) -> None:
+    points = _sh_like(3000, 9, seed=14)
+    centroids, labels = fit_palette(points, k)
+    assert len(centroids) == k and int(labels.max()) < k
+    assert palette_mse(points, centroids, labels) < palette_mse(points, centroids[:1], labels * 0)
+
+
+def test_progress_is_monotone_and_finishes() -> None:
+    seen: list[float] = []
+    fit_palette(_sh_like(3000, 45, seed=15), 1024, progress=seen.append)
+    assert seen and seen[-1] == 1.0
+    assert all(0.0 <= a <= b <= 1.0 for a, b in zip(seen, seen[1:], strict=False))
+
+
+def test_zero_iterations_still_returns_a_palette() -> None:
+    points = _sh_like(3000, 24, seed=16)
+    centroids, labels = fit_palette(points, 256, iterations=0)
+    assert len(centroids) == 256 and int(labels.max()) < 256
+
+
+def test_bad_arguments() -> None:
+    good = np.zeros((10, 9), np.float32)
+    with pytest.raises(InputError):
+        fit_palette(np.zeros(9, np.float32))
+    with pytest.raises(InputError):
+        fit_palette(np.zeros((0, 9), np.float32))
+    with pytest.raises(InputError):
+        fit_palette(np.full((4, 9), np.nan, np.float32))
+    with pytest.raises(InputError):
+        fit_palette(good, 0)
+    with pytest.raises(InputError):
+        fit_palette(good, 4, iterations=-1)
