@@ -24,6 +24,16 @@ from ..io.sequence import DEFAULT_FPS
 from ..model import Scene
 from ..summary import chunk_summary, scene_summary
 from .progress import Progress
+from .stream_commands import (
+    add_stream_commands,
+    cmd_extract,
+    cmd_pack,
+    cmd_unpack,
+    cmd_verify,
+    stream_frame,
+    stream_info,
+)
+from .stream_commands import cmd_segment as segment_command
 
 EPILOG = """examples:
   tsog demo                                   generate, encode, decode and report
@@ -110,7 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
         "-o", "--output", type=Path, required=True, help="frame.ply or frame.sog (or a folder)"
     )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    p.add_argument("-v", "--verbose", action="store_true", help="report the bytes read")
     _add_common(p)
+
+    add_stream_commands(sub, _add_input, _add_common)
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
@@ -173,11 +186,25 @@ def _print_text(info: dict[str, Any], indent: str = "") -> None:
             print(f"{indent}{key}: {value}")
 
 
+def _print_seek_table(rows: list[dict[str, Any]]) -> None:
+    """The seek-cost rows of a stream as a text table."""
+    head = ("t (s)", "chunks", "requests", "bytes", "% file", "visible", "vis bytes", "overfetch")
+    print("seek costs:")
+    print("  " + " ".join(f"{h:>10}" for h in head))
+    for r in rows:
+        cells = (r["t"], r["chunks"], r["requests"], r["bytes"], r["percent_of_file"])
+        more = (r["visible"], r["visible_bytes"], r["overfetch"])
+        print("  " + " ".join(f"{c:>10}" for c in (*cells, *more)))
+
+
 def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
     """tsog info."""
     kind = args.format or detect_format(args.input)
     info: dict[str, Any] = {"file": str(args.input), "format": kind}
-    if kind == "sog":
+    if kind == "tsogs":
+        progress("measuring seek costs")
+        info = stream_info(Path(args.input))
+    elif kind == "sog":
         files = read_chunk_files(Path(args.input))
         info.update(chunk_summary(files, where=str(args.input)))
         progress("decoding")
@@ -188,14 +215,21 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
     progress.done()
     if args.json:
         print(json.dumps(info, indent=2))
-    else:
-        _print_text(info)
+        return 0
+    seek = info.pop("seek_costs", None)
+    _print_text(info)
+    if seek:
+        _print_seek_table(seek)
     return 0
 
 
 def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     """tsog frame."""
     _refuse_existing(args.output, args.force)
+    if (args.format or detect_format(args.input)) == "tsogs":
+        if args.output.suffix.lower() != ".ply":
+            raise InputError("frames of a stream are written as .ply", where=str(args.output))
+        return stream_frame(Path(args.input), args.t, args.output, args.verbose)
     scene = _load(args, progress)
     progress(f"evaluating t = {args.t} s")
     frame = scene.at(args.t)
@@ -243,12 +277,33 @@ def _print_demo(report: dict[str, Any]) -> None:
         print(" ".join(cells))
 
 
+def _input_bytes(path: str) -> int:
+    """Size of an input file, or of the files in an input folder (0 for a pattern)."""
+    p = Path(path)
+    if p.is_file():
+        return p.stat().st_size
+    if p.is_dir():
+        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+    return 0
+
+
+def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog segment."""
+    scene = _load(args, progress)
+    return segment_command(args, progress, scene, _input_bytes(args.input))
+
+
 COMMANDS = {
     "encode": cmd_encode,
     "decode": cmd_decode,
     "info": cmd_info,
     "frame": cmd_frame,
     "demo": cmd_demo,
+    "segment": cmd_segment,
+    "verify": cmd_verify,
+    "extract": cmd_extract,
+    "unpack": cmd_unpack,
+    "pack": cmd_pack,
 }
 
 

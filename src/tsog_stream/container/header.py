@@ -24,6 +24,11 @@ INDEX_ZSTD: Final = 1
 """Index compression codes (only zstd is defined)."""
 
 
+def is_container(head: bytes) -> bool:
+    """True when ``head`` starts with the container magic."""
+    return head[: len(MAGIC)] == MAGIC
+
+
 @dataclass(frozen=True, slots=True)
 class Header:
     """Where the index is and how to check it."""

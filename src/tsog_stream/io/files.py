@@ -60,6 +60,7 @@ def atomic_write_folder(
         ) from exc
     try:
         for name, data in files.items():
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
             (tmp / name).write_bytes(data)
         if target.exists():
             shutil.rmtree(target)

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 from ..codec.bundle import is_zip
+from ..container.header import is_container
 from ..errors import InputError, UnsupportedError
 from ..model import Scene
 from .chunks import is_unbundled, read_chunk
@@ -43,6 +44,8 @@ FORMATS = (
     "4dgs",
 )
 """Input formats this version reads (``--format`` values)."""
+STREAMS = ("tsogs", "tsogs-dir")
+"""Segmented streams (a container file or its unpacked folder); detected, not loaded whole."""
 HEAD_BYTES = 64 * 1024
 Progress = Callable[[str], None]
 
@@ -79,6 +82,8 @@ def _detect_file(p: Path) -> str:
     """Format of a single file, from its first bytes (and its zip members)."""
     with open(p, "rb") as f:
         head = f.read(HEAD_BYTES)
+    if is_container(head):
+        return "tsogs"
     if sniff_splatv(head):
         return "splatv"
     if sniff_4dgs(head):
@@ -108,6 +113,8 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         raise InputError("no such file or folder", where=str(p))
     if is_unbundled(p):
         return "sog"
+    if (p / "manifest.json").is_file():
+        return "tsogs-dir"
     if p.is_dir():
         kind = detect_sequence(p)
         if kind is None:
@@ -162,6 +169,10 @@ def load_scene(
     """Read any supported input as a Scene (static inputs have no timeline)."""
     options = options or ReadOptions()
     kind = format or detect_format(path)
+    if kind in STREAMS:
+        raise InputError(
+            "is a segmented stream: use tsog frame/extract/unpack on it", where=str(path)
+        )
     if kind not in FORMATS:
         raise InputError(f"unknown format {kind!r}; known: {', '.join(FORMATS)}", where="--format")
     _check_options(kind, options)

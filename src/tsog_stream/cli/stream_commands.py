@@ -1,0 +1,229 @@
+"""CLI commands on segmented streams: segment, verify, extract, pack, unpack, info, frame."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..container.sync import StreamReader
+from ..container.unpacked import pack
+from ..errors import InputError
+from ..io.files import atomic_write_bytes
+from ..io.ply import write_ply
+from ..model import Scene
+from ..segment.plan import POLICIES
+from ..segment.segmenter import (
+    DEFAULT_MAX_PIXELS,
+    DEFAULT_POLICY,
+    DEFAULT_WINDOW_S,
+    SegmentOptions,
+    segment_scene,
+)
+from .progress import Progress
+
+_WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
+
+
+def parse_window(text: str, fps: float | None) -> float:
+    """'1s', '0.5', '30f' -> seconds; frames need the scene's fps."""
+    m = _WINDOW.match(text)
+    if not m:
+        raise InputError(
+            f"expected seconds like 1s or frames like 30f, got {text!r}", where="--window"
+        )
+    value = float(m.group(1))
+    if m.group(2) == "f":
+        if not fps:
+            raise InputError(
+                "a window in frames needs a frame rate (the input has none)", where="--window"
+            )
+        value /= fps
+    if value <= 0:
+        raise InputError("must be positive", where="--window")
+    return value
+
+
+def add_stream_commands(sub: Any, add_input: Any, add_common: Any) -> None:
+    """Register the stream subcommands on the main parser."""
+    p = sub.add_parser("segment", help="segment a 4D scene into a streamable .tsogs container")
+    add_input(p)
+    p.add_argument(
+        "-o", "--output", type=Path, required=True, help="the container to write (.tsogs)"
+    )
+    p.add_argument(
+        "--window", default=f"{DEFAULT_WINDOW_S:g}s", help="time window: 1s, 0.5, or 30f (frames)"
+    )
+    p.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default=DEFAULT_POLICY,
+        help="how Gaussians crossing windows are stored",
+    )
+    p.add_argument(
+        "--max-pixels",
+        type=int,
+        default=DEFAULT_MAX_PIXELS,
+        help="pixel budget per image (default 4096x4096)",
+    )
+    p.add_argument("--workers", type=int, default=2, help="encoder processes (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the SH palette fits")
+    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_common(p)
+
+    p = sub.add_parser("verify", help="check a container: hashes, decoding, pixel budget, index")
+    p.add_argument("input", type=Path)
+    add_common(p)
+
+    p = sub.add_parser("extract", help="copy one chunk of a container out as a standalone .sog")
+    p.add_argument("input", type=Path)
+    p.add_argument("chunk", type=int, help="chunk id (see tsog info)")
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("-f", "--force", action="store_true")
+    add_common(p)
+
+    p = sub.add_parser("unpack", help="container -> folder with manifest.json and chunks/*.sog")
+    p.add_argument("input", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("-f", "--force", action="store_true")
+    add_common(p)
+
+    p = sub.add_parser(
+        "pack", help="unpacked folder -> container (the exact bytes unpack started from)"
+    )
+    p.add_argument("input", type=Path)
+    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("-f", "--force", action="store_true")
+    add_common(p)
+
+
+def _refuse_existing(path: Path, force: bool) -> None:
+    """Stop before any work if the output exists and --force was not given."""
+    if path.exists() and not force:
+        raise InputError("already exists (pass --force to replace it)", where=str(path))
+
+
+def cmd_segment(
+    args: argparse.Namespace, progress: Progress, scene: Scene, input_bytes: int
+) -> int:
+    """tsog segment (the scene is loaded by the caller)."""
+    _refuse_existing(args.output, args.force)
+    fps = scene.timeline.fps if scene.timeline is not None else None
+    options = SegmentOptions(
+        window_s=parse_window(args.window, fps),
+        policy=args.policy,
+        max_pixels=args.max_pixels,
+        workers=max(1, args.workers),
+        seed=args.seed,
+    )
+    started = time.monotonic()
+
+    def on_chunk(done: int, total: int) -> None:
+        elapsed = time.monotonic() - started
+        eta = elapsed / done * (total - done)
+        progress.bar(f"chunk {done}/{total}, ETA {eta:4.0f}s", done / total)
+
+    report = segment_scene(scene, args.output, options, on_chunk=on_chunk)
+    progress.done()
+    saving = 100.0 * (1 - report.bytes / input_bytes) if input_bytes else 0.0
+    print(f"{report.path}: {report.bytes} bytes, {saving:.1f}% smaller than the input")
+    print(f"  {report.windows} windows of {options.window_s:g} s, {report.chunks} chunks")
+    print(f"  policy {options.policy}: {report.stored} of {report.gaussians} Gaussians stored")
+    print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
+    for level, size in sorted(report.bytes_per_level.items()):
+        print(f"  level {level}: {size} bytes")
+    return 0
+
+
+def seek_table(reader: StreamReader, samples: int = 8) -> list[dict[str, Any]]:
+    """Seek costs at evenly spaced times of the scene."""
+    scene = reader.index.manifest.scene
+    times = np.linspace(scene.start_s, scene.end_s, samples)
+    return [reader.seek_cost(round(float(t), 4)).as_dict() for t in times]
+
+
+def stream_info(path: Path) -> dict[str, Any]:
+    """Header, index summary and a seek-cost table of a container."""
+    with StreamReader.open(path) as reader:
+        h, m = reader.index.header, reader.index.manifest
+        return {
+            "file": str(path),
+            "format": "tsogs",
+            "bytes": h.file_length,
+            "version": f"{h.version_major}.{h.version_minor}",
+            "identity": reader.index.identity,
+            "index": {
+                "offset": h.index_offset,
+                "bytes": h.index_length,
+                "json_bytes": h.index_raw_length,
+            },
+            "policy": m.policy,
+            "window_s": m.window_s,
+            "max_pixels": m.max_pixels,
+            "scene": m.scene.model_dump(),
+            "nodes": len(m.nodes),
+            "chunks": len(m.chunks),
+            "seek_costs": seek_table(reader),
+        }
+
+
+def stream_frame(path: Path, t: float, output: Path, verbose: bool) -> int:
+    """tsog frame on a container: only the chunks t needs are read."""
+    with StreamReader.open(path) as reader:
+        frame = reader.frame_at(t)
+        stats = reader.source.stats
+    write_ply(output, frame)
+    print(f"{output}: {len(frame)} Gaussians visible at t = {t} s")
+    if verbose:
+        print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
+    return 0
+
+
+def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog verify: exit 0 when clean, 3 hash, 4 decode, 5 budget, 6 index mismatch."""
+    with StreamReader.open(args.input) as reader:
+        progress("verifying chunks")
+        report = reader.verify()
+    progress.done()
+    for kind, chunk, message in report.problems:
+        print(f"chunk {chunk}: {kind.name.lower()}: {message}")
+    status = "OK" if not report.problems else f"{len(report.problems)} problem(s)"
+    print(f"{args.input}: {report.chunks} chunks checked, {status}")
+    return report.exit_code
+
+
+def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog extract."""
+    _refuse_existing(args.output, args.force)
+    with StreamReader.open(args.input) as reader:
+        data = reader.chunk_bytes(args.chunk)
+    atomic_write_bytes(args.output, data)
+    print(f"{args.output}: chunk {args.chunk}, {len(data)} bytes")
+    return 0
+
+
+def cmd_unpack(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog unpack."""
+    with StreamReader.open(args.input) as reader:
+        count = reader.unpack(args.output, overwrite=args.force)
+    print(f"{args.output}: manifest.json and {count} chunks")
+    return 0
+
+
+def cmd_pack(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog pack."""
+    _refuse_existing(args.output, args.force)
+    size = pack(args.input, args.output)
+    print(f"{args.output}: {size} bytes")
+    return 0
+
+
+def print_json(info: dict[str, Any]) -> None:
+    """Print a summary as indented JSON."""
+    print(json.dumps(info, indent=2))

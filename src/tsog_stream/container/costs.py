@@ -1,0 +1,60 @@
+"""Seek cost: what showing time t costs (chunks, requests, bytes) against what is visible."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from ..temporal import evaluate_all
+from .ranges import coalesce
+from .reader import StreamIndex, read_scene_chunk
+from .sources import ByteSource
+
+
+@dataclass(frozen=True)
+class SeekCost:
+    """Cost of showing one time: fetched bytes versus the bytes of visible Gaussians."""
+
+    t: float
+    chunks: int
+    requests: int
+    bytes: int
+    percent_of_file: float
+    visible: int
+    visible_bytes: int
+
+    @property
+    def overfetch(self) -> float:
+        """Fetched bytes per byte of visible Gaussians (1.0 is ideal; inf for nothing visible)."""
+        return self.bytes / self.visible_bytes if self.visible_bytes else float("inf")
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON and tables."""
+        return {**asdict(self), "overfetch": round(self.overfetch, 3)}
+
+
+async def seek_cost(source: ByteSource, index: StreamIndex, t: float) -> SeekCost:
+    """Fetch what ``t`` needs and measure it (requests = coalesced adjacent ranges)."""
+    chunks = index.chunks_for(t)
+    scenes = await asyncio.gather(*(read_scene_chunk(source, index, c) for c in chunks))
+    visible = 0
+    visible_bytes = 0.0
+    for chunk, scene in zip(chunks, scenes, strict=True):
+        _, mask = evaluate_all(scene, t)
+        n = int(np.count_nonzero(mask))
+        visible += n
+        visible_bytes += chunk.length * n / max(1, chunk.count)
+    fetched = sum(c.length for c in chunks)
+    requests = len(coalesce(index.chunk_range(c) for c in chunks))
+    return SeekCost(
+        t,
+        len(chunks),
+        requests,
+        fetched,
+        round(100.0 * fetched / index.size, 2),
+        visible,
+        round(visible_bytes),
+    )
