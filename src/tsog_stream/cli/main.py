@@ -20,7 +20,7 @@ from ..errors import InputError, TsogError
 from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.ply import write_ply
 from ..io.readers import FORMATS, ReadOptions, detect_format, load_scene
-from ..io.sequence import DEFAULT_FPS
+from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
 from ..model import Scene
 from ..summary import chunk_summary, scene_summary
 from .progress import Progress
@@ -288,9 +288,17 @@ def _input_bytes(path: str) -> int:
 
 
 def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
-    """tsog segment."""
-    scene = _load(args, progress)
-    return segment_command(args, progress, scene, _input_bytes(args.input))
+    """tsog segment: frame sequences stream window by window, other inputs load whole."""
+    kind = args.format or detect_format(args.input)
+    if kind in ("ply-sequence", "sog-sequence"):
+        fps = args.fps if args.fps is not None else DEFAULT_FPS
+        seq = open_sequence(args.input, fps=fps, kind=kind.split("-")[0])
+        for note in seq.notes():
+            print(f"tsog: note: {note}", file=sys.stderr)
+        source: Scene | FrameSequence = seq
+    else:
+        source = _load(args, progress)
+    return segment_command(args, progress, source, _input_bytes(args.input))
 
 
 COMMANDS = {

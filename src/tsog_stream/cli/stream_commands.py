@@ -17,6 +17,7 @@ from ..container.unpacked import pack
 from ..errors import InputError
 from ..io.files import atomic_write_bytes
 from ..io.ply import write_ply
+from ..io.sequence import FrameSequence
 from ..model import Scene
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
@@ -25,6 +26,7 @@ from ..segment.segmenter import (
     DEFAULT_WINDOW_S,
     SegmentOptions,
     segment_scene,
+    segment_sequence,
 )
 from .progress import Progress
 
@@ -110,11 +112,14 @@ def _refuse_existing(path: Path, force: bool) -> None:
 
 
 def cmd_segment(
-    args: argparse.Namespace, progress: Progress, scene: Scene, input_bytes: int
+    args: argparse.Namespace, progress: Progress, source: Scene | FrameSequence, input_bytes: int
 ) -> int:
-    """tsog segment (the scene is loaded by the caller)."""
+    """tsog segment (the caller loads the scene, or opens a frame sequence to stream)."""
     _refuse_existing(args.output, args.force)
-    fps = scene.timeline.fps if scene.timeline is not None else None
+    if isinstance(source, FrameSequence):
+        fps: float | None = source.fps
+    else:
+        fps = source.timeline.fps if source.timeline is not None else None
     options = SegmentOptions(
         window_s=parse_window(args.window, fps),
         policy=args.policy,
@@ -129,7 +134,10 @@ def cmd_segment(
         eta = elapsed / done * (total - done)
         progress.bar(f"chunk {done}/{total}, ETA {eta:4.0f}s", done / total)
 
-    report = segment_scene(scene, args.output, options, on_chunk=on_chunk)
+    if isinstance(source, FrameSequence):
+        report = segment_sequence(source, args.output, options, on_chunk=on_chunk)
+    else:
+        report = segment_scene(source, args.output, options, on_chunk=on_chunk)
     progress.done()
     saving = 100.0 * (1 - report.bytes / input_bytes) if input_bytes else 0.0
     print(f"{report.path}: {report.bytes} bytes, {saving:.1f}% smaller than the input")

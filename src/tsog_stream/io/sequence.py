@@ -182,10 +182,10 @@ def detect_sequence(path: Source) -> str | None:
 class _FrameStack:
     """Output arrays allocated once from per-frame (count, SH coefficients), filled in order."""
 
-    def __init__(self, counts: Sequence[int], coeffs: Sequence[int]) -> None:
+    def __init__(self, counts: Sequence[int], coeffs: Sequence[int], pad_to: int = 0) -> None:
         self.counts = list(counts)
         self.offsets = np.concatenate([[0], np.cumsum(self.counts, dtype=np.int64)])
-        total, k = int(self.offsets[-1]), max(coeffs, default=0)
+        total, k = int(self.offsets[-1]), max([*coeffs, pad_to])
         self.means = np.empty((total, 3), np.float32)
         self.scales = np.empty((total, 3), np.float32)
         self.quats = np.empty((total, 4), np.float32)
@@ -209,13 +209,14 @@ class _FrameStack:
         self.sh0[a:b] = g.sh0
         self.shN[a:b, : g.shN.shape[1]] = g.shN
 
-    def scene(self, fps: float) -> Scene:
-        """The type-0 scene: frame id = position, scene_length = frames / fps."""
+    def scene(self, fps: float, first: int = 0, total: int | None = None) -> Scene:
+        """The type-0 scene: frame id = first + position, scene_length = total frames / fps."""
         g = Gaussians(self.means, self.scales, self.quats, self.opacities, self.sh0, self.shN)
         frames = len(self.counts)
-        ids = np.repeat(np.arange(frames, dtype=np.float64), self.counts)
+        ids = np.repeat(np.arange(first, first + frames, dtype=np.float64), self.counts)
+        length = (frames if total is None else total) / fps
         timeline = Timeline(
-            TimelineType.FRAME, ids, np.zeros_like(ids), fps=fps, scene_length=frames / fps
+            TimelineType.FRAME, ids, np.zeros_like(ids), fps=fps, scene_length=length
         )
         return Scene(g, timeline)
 
@@ -315,56 +316,109 @@ def _merge_notes(per_frame: Iterable[tuple[str, list[str]]]) -> list[str]:
     return merged
 
 
+@dataclass(frozen=True)
+class FrameSequence:
+    """An opened sequence: frame files, their declared sizes, and the frame rate.
+
+    Nothing but headers is read until :meth:`read`, which loads any run of frames, so a
+    segmenter can hold one window of a long sequence at a time.
+    """
+
+    frames: _Frames
+    shapes: list[tuple[int, int]]
+    fps: float
+    where: str
+
+    @property
+    def count(self) -> int:
+        """Number of frames."""
+        return len(self.frames.paths)
+
+    @property
+    def sh_coeffs(self) -> int:
+        """SH coefficients per channel every frame is padded to (the highest present)."""
+        return max((k for _, k in self.shapes), default=0)
+
+    @property
+    def gaussians(self) -> int:
+        """Gaussians over all frames."""
+        return sum(c for c, _ in self.shapes)
+
+    def notes(self) -> list[str]:
+        """Notes on skipped files, numbering gaps, sizes and SH degrees."""
+        return _sequence_notes(self.frames, self.shapes)
+
+    def _read_frame(self, path: Path) -> tuple[Gaussians, list[str], set[str]]:
+        """One frame's Gaussians, reader notes and unkept extra properties."""
+        if self.frames.kind == "ply":
+            contents = read_ply(path)
+            return contents.gaussians, contents.notes, set(contents.extra)
+        return read_chunk(path).gaussians, [], set()
+
+    def read(
+        self, first: int = 0, stop: int | None = None, progress: Progress | None = None
+    ) -> Loaded4D:
+        """Frames [first, stop) as one type-0 scene with absolute frame ids."""
+        stop = self.count if stop is None else stop
+        shapes = self.shapes[first:stop]
+        stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes], self.sh_coeffs)
+        per_frame: list[tuple[str, list[str]]] = []
+        extras: set[str] = set()
+        for i, path in enumerate(self.frames.paths[first:stop]):
+            if progress:
+                progress(f"frame {first + i + 1}/{self.count}")
+            g, notes, extra = self._read_frame(path)
+            stack.put(i, g, str(path))
+            per_frame.append((path.name, notes))
+            extras.update(extra)
+        notes = _merge_notes(per_frame)
+        if extras:
+            notes.append(f"per-frame extra properties are not kept: {', '.join(sorted(extras))}")
+        return Loaded4D(stack.scene(self.fps, first, self.count), notes)
+
+
+def open_sequence(
+    source: Source, *, fps: float = DEFAULT_FPS, kind: str | None = None
+) -> FrameSequence:
+    """Scan a folder or glob of numbered frames and read their headers only."""
+    rate = _check_fps(fps)
+    frames = _scan(source)
+    where = os.fspath(source)
+    if kind is not None and frames.kind != kind:
+        reader = f"read_{frames.kind}_sequence"
+        raise InputError(f"holds {frames.kind.upper()} frames; use {reader}", where=where)
+    shape_of = _ply_shape if frames.kind == "ply" else _sog_shape
+    return FrameSequence(frames, [shape_of(p) for p in frames.paths], rate, where)
+
+
 def read_ply_sequence(
     source: Source, *, fps: float = DEFAULT_FPS, progress: Progress | None = None
 ) -> Loaded4D:
     """Read numbered per-frame 3DGS PLYs as one type-0 scene (frame k's Gaussians in file order)."""
-    rate = _check_fps(fps)
-    frames = _scan(source)
-    if frames.kind != "ply":
-        raise InputError("holds SOG frames; use read_sog_sequence", where=os.fspath(source))
-    shapes = [_ply_shape(p) for p in frames.paths]
-    stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes])
-    per_frame: list[tuple[str, list[str]]] = []
-    extras: set[str] = set()
-    for i, path in enumerate(frames.paths):
-        if progress:
-            progress(f"frame {i + 1}/{len(frames.paths)}")
-        contents = read_ply(path)
-        stack.put(i, contents.gaussians, str(path))
-        per_frame.append((path.name, contents.notes))
-        extras.update(contents.extra)
-    notes = _sequence_notes(frames, shapes) + _merge_notes(per_frame)
-    if extras:
-        notes.append(f"per-frame extra properties are not kept: {', '.join(sorted(extras))}")
-    return Loaded4D(stack.scene(rate), notes)
+    seq = open_sequence(source, fps=fps, kind="ply")
+    loaded = seq.read(progress=progress)
+    return Loaded4D(loaded.scene, seq.notes() + loaded.notes)
 
 
 def read_sog_sequence(
     source: Source, *, fps: float = DEFAULT_FPS, progress: Progress | None = None
 ) -> Loaded4D:
     """Read numbered SOG frames (.sog zips or chunk folders) as one type-0 scene."""
-    rate = _check_fps(fps)
-    frames = _scan(source)
-    if frames.kind != "sog":
-        raise InputError("holds PLY frames; use read_ply_sequence", where=os.fspath(source))
-    shapes = [_sog_shape(p) for p in frames.paths]
-    stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes])
-    for i, path in enumerate(frames.paths):
-        if progress:
-            progress(f"frame {i + 1}/{len(frames.paths)}")
-        stack.put(i, read_chunk(path).gaussians, str(path))
-    return Loaded4D(stack.scene(rate), _sequence_notes(frames, shapes))
+    seq = open_sequence(source, fps=fps, kind="sog")
+    loaded = seq.read(progress=progress)
+    return Loaded4D(loaded.scene, seq.notes() + loaded.notes)
 
 
 __all__ = [
     "DEFAULT_FPS",
     "PLY_SEQUENCE",
     "SOG_SEQUENCE",
+    "FrameSequence",
     "detect_sequence",
     "frame_number",
     "list_frames",
     "natural_key",
+    "open_sequence",
     "read_ply_sequence",
     "read_sog_sequence",
     "sniff_frame",

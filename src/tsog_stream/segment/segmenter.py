@@ -9,9 +9,10 @@ from __future__ import annotations
 import multiprocessing
 import os
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -20,12 +21,13 @@ from .. import __version__
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
-from ..constants import GENERATOR, WEBP_MAX_SIDE
+from ..constants import GENERATOR, SH_BANDS_BY_COEFFS, WEBP_MAX_SIDE
 from ..container.writer import ContainerFile
 from ..errors import InputError
+from ..io.sequence import FrameSequence
 from ..model import Scene
 from ..morton import morton_order
-from ..schemas.manifest import Box, ChunkEntry, Manifest, Node, SceneInfo
+from ..schemas.manifest import Box, ChunkEntry, Manifest, Node
 from ..temporal import evaluate_all, lifespans, time_range
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan
 
@@ -151,48 +153,102 @@ def _interval(scene: Scene, node: tuple[float, float]) -> tuple[float, float]:
     return max(node[0], float(start.min())), min(node[1], float(end.max()))
 
 
-def _payloads(
-    scene: Scene, jobs: list[ChunkJob], options: SegmentOptions
-) -> Iterator[tuple[ChunkJob, Scene, bytes]]:
-    """(job, chunk scene, payload) in job order, encoding up to 2 x workers ahead in parallel."""
+@dataclass(frozen=True)
+class Part:
+    """One chunk to encode: its node and its Gaussians."""
+
+    key: NodeKey
+    scene: Scene
+
+
+def _encoded(parts: Iterable[Part], options: SegmentOptions) -> Iterator[tuple[Part, bytes]]:
+    """(part, payload) in input order, encoding up to 2 x workers parts ahead in parallel."""
     if options.workers <= 1:
-        for job in jobs:
-            part = scene.subset(job.indices)
-            yield job, part, encode_job_payload(part, options.seed)
+        for part in parts:
+            yield part, encode_job_payload(part.scene, options.seed)
         return
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=options.workers, mp_context=context) as pool:
-        pending: deque[tuple[ChunkJob, Scene, Future[bytes]]] = deque()
-        queue = iter(jobs)
-        for job in queue:
-            part = scene.subset(job.indices)
-            pending.append((job, part, pool.submit(encode_job_payload, part, options.seed)))
+        pending: deque[tuple[Part, Future[bytes]]] = deque()
+        for part in parts:
+            pending.append((part, pool.submit(encode_job_payload, part.scene, options.seed)))
             if len(pending) >= 2 * options.workers:
-                done_job, done_part, fut = pending.popleft()
-                yield done_job, done_part, fut.result()
+                done, fut = pending.popleft()
+                yield done, fut.result()
         while pending:
-            done_job, done_part, fut = pending.popleft()
-            yield done_job, done_part, fut.result()
+            done, fut = pending.popleft()
+            yield done, fut.result()
 
 
-def scene_info(scene: Scene, plan: Plan) -> SceneInfo:
-    """The manifest's description of the whole scene."""
-    tl = scene.timeline
-    means = scene.gaussians.means
-    lo = means.min(axis=0) if len(scene) else np.zeros(3)
-    hi = means.max(axis=0) if len(scene) else np.zeros(3)
-    return SceneInfo.model_validate(
-        {
-            "gaussians": len(scene),
-            "stored": plan.stored,
+def _union(boxes: Sequence[Box]) -> dict[str, list[float]]:
+    """The box holding every box (zeros when there are none)."""
+    if not boxes:
+        return {"min": [0.0] * 3, "max": [0.0] * 3}
+    lo = np.min([b.min for b in boxes], axis=0)
+    hi = np.max([b.max for b in boxes], axis=0)
+    return {"min": lo.tolist(), "max": hi.tolist()}
+
+
+def _write_container(
+    path: str | os.PathLike[str],
+    parts: Iterable[Part],
+    *,
+    total: int,
+    plan: Plan,
+    scene_fields: dict[str, Any],
+    options: SegmentOptions,
+    on_chunk: ChunkProgress | None,
+) -> SegmentReport:
+    """Encode parts (in order), append them, and finish the container with its index."""
+    entries: list[ChunkEntry] = []
+    keys: list[NodeKey] = []
+    per_level: dict[int, int] = {}
+    with ContainerFile(path) as out:
+        for i, (part, payload) in enumerate(_encoded(parts, options)):
+            offset, length, digest = out.add(payload)
+            start, end = _interval(part.scene, plan.node_interval(part.key))
+            entries.append(
+                ChunkEntry(
+                    id=i,
+                    file=f"chunks/{i:06d}.sog",
+                    offset=offset,
+                    length=length,
+                    sha256=digest,
+                    count=len(part.scene),
+                    level=part.key.level,
+                    node=part.key.index,
+                    start_s=start,
+                    end_s=end,
+                    bbox=_bounds(part.scene, start, end),
+                )
+            )
+            keys.append(part.key)
+            per_level[part.key.level] = per_level.get(part.key.level, 0) + length
+            if on_chunk:
+                on_chunk(i + 1, max(total, i + 1))
+        scene = {
+            **scene_fields,
             "start_s": plan.start_s,
             "end_s": plan.end_s,
-            "fps": tl.fps if tl is not None else None,
-            "timeline_type": int(tl.type) if tl is not None else None,
-            "temporal": {a: int(c.shape[1]) for a, c in scene.temporal.items()},
-            "sh_bands": scene.gaussians.sh_bands,
-            "bbox": {"min": lo.tolist(), "max": hi.tolist()},
+            "bbox": _union([e.bbox for e in entries]),
         }
+        manifest = Manifest.model_validate(
+            {
+                "generator": f"{GENERATOR} {__version__}",
+                "policy": options.policy,
+                "window_s": plan.window_s,
+                "max_pixels": options.max_pixels,
+                "scene": scene,
+                "nodes": _nodes(plan, keys),
+                "chunks": entries,
+                "payload_bytes": sum(e.length for e in entries),
+            }
+        )
+        size = out.finish(manifest)
+    stored = sum(e.count for e in entries)
+    gaussians = int(scene_fields["gaussians"])
+    return SegmentReport(
+        str(path), size, len(entries), plan.windows, gaussians, stored, plan.dropped, per_level
     )
 
 
@@ -203,69 +259,91 @@ def segment_scene(
     *,
     on_chunk: ChunkProgress | None = None,
 ) -> SegmentReport:
-    """Segment ``scene`` into the container at ``path`` (published atomically)."""
+    """Segment an in-memory scene into the container at ``path`` (published atomically)."""
     options = options or SegmentOptions()
     plan = plan_scene(scene, options)
     jobs = chunk_jobs(scene, plan, max_gaussians_per_chunk(options.max_pixels))
-    entries: list[ChunkEntry] = []
-    per_level: dict[int, int] = {}
-    with ContainerFile(path) as out:
-        for i, (job, part, payload) in enumerate(_payloads(scene, jobs, options)):
-            offset, length, digest = out.add(payload)
-            node = plan.node_interval(job.key)
-            start, end = _interval(part, node)
-            entries.append(
-                ChunkEntry(
-                    id=i,
-                    file=f"chunks/{i:06d}.sog",
-                    offset=offset,
-                    length=length,
-                    sha256=digest,
-                    count=len(part),
-                    level=job.key.level,
-                    node=job.key.index,
-                    start_s=start,
-                    end_s=end,
-                    bbox=_bounds(part, start, end),
-                )
-            )
-            per_level[job.key.level] = per_level.get(job.key.level, 0) + length
-            if on_chunk:
-                on_chunk(i + 1, len(jobs))
-        manifest = Manifest.model_validate(
-            {
-                "generator": f"{GENERATOR} {__version__}",
-                "policy": options.policy,
-                "window_s": options.window_s,
-                "max_pixels": options.max_pixels,
-                "scene": scene_info(scene, plan),
-                "nodes": _nodes(plan, jobs),
-                "chunks": entries,
-                "payload_bytes": sum(e.length for e in entries),
-            }
-        )
-        size = out.finish(manifest)
-    return SegmentReport(
-        str(path),
-        size,
-        len(entries),
-        plan.windows,
-        len(scene),
-        plan.stored,
-        plan.dropped,
-        per_level,
+    parts = (Part(job.key, scene.subset(job.indices)) for job in jobs)
+    tl = scene.timeline
+    fields: dict[str, Any] = {
+        "gaussians": len(scene),
+        "stored": plan.stored,
+        "fps": tl.fps if tl is not None else None,
+        "timeline_type": int(tl.type) if tl is not None else None,
+        "temporal": {a: int(c.shape[1]) for a, c in scene.temporal.items()},
+        "sh_bands": scene.gaussians.sh_bands,
+    }
+    return _write_container(
+        path,
+        parts,
+        total=len(jobs),
+        plan=plan,
+        scene_fields=fields,
+        options=options,
+        on_chunk=on_chunk,
     )
 
 
-def _nodes(plan: Plan, jobs: list[ChunkJob]) -> list[Node]:
+def _sequence_parts(seq: FrameSequence, per_window: int, max_count: int) -> Iterator[Part]:
+    """Parts of a frame sequence, one window of frames in memory at a time."""
+    for w, first in enumerate(range(0, seq.count, per_window)):
+        scene = seq.read(first, min(seq.count, first + per_window)).scene
+        order = morton_order(scene.gaussians.means)
+        for run in np.array_split(order, max(1, -(-len(order) // max_count))):
+            yield Part(NodeKey(0, w), scene.subset(run))
+
+
+def segment_sequence(
+    seq: FrameSequence,
+    path: str | os.PathLike[str],
+    options: SegmentOptions | None = None,
+    *,
+    on_chunk: ChunkProgress | None = None,
+) -> SegmentReport:
+    """Segment a frame sequence window by window: memory depends on the window, not the length.
+
+    Windows are whole frames (``window_s`` rounded to frames); a frame's Gaussians live in that
+    frame only, so every policy stores each Gaussian once and the policy does not matter.
+    """
+    options = options or SegmentOptions()
+    per_window = max(1, round(options.window_s * seq.fps))
+    window_s = per_window / seq.fps
+    max_count = max_gaussians_per_chunk(options.max_pixels)
+    windows = -(-seq.count // per_window)
+    counts = [
+        sum(c for c, _ in seq.shapes[i : i + per_window]) for i in range(0, seq.count, per_window)
+    ]
+    total = sum(max(1, -(-c // max_count)) for c in counts)
+    plan = Plan(0.0, seq.count / seq.fps, window_s, windows, {}, 0)
+    fields: dict[str, Any] = {
+        "gaussians": seq.gaussians,
+        "stored": seq.gaussians,
+        "fps": seq.fps,
+        "timeline_type": 0,
+        "temporal": {},
+        "sh_bands": SH_BANDS_BY_COEFFS[seq.sh_coeffs],
+    }
+    parts = _sequence_parts(seq, per_window, max_count)
+    return _write_container(
+        path,
+        parts,
+        total=total,
+        plan=plan,
+        scene_fields=fields,
+        options=options,
+        on_chunk=on_chunk,
+    )
+
+
+def _nodes(plan: Plan, keys: Sequence[NodeKey]) -> list[Node]:
     """Manifest nodes (windows first, then coarser levels), each with its chunk ids."""
     members: dict[NodeKey, list[int]] = {}
-    for i, job in enumerate(jobs):
-        members.setdefault(job.key, []).append(i)
-    keys = [NodeKey(0, w) for w in range(plan.windows)]
-    keys += sorted((k for k in members if k.level > 0), key=lambda k: (k.level, k.index))
+    for i, key in enumerate(keys):
+        members.setdefault(key, []).append(i)
+    ordered = [NodeKey(0, w) for w in range(plan.windows)]
+    ordered += sorted((k for k in members if k.level > 0), key=lambda k: (k.level, k.index))
     out = []
-    for key in keys:
+    for key in ordered:
         start, end = plan.node_interval(key)
         out.append(
             Node(
