@@ -1,7 +1,7 @@
-"""Write docs/schema/meta.schema.json from the pydantic models (deterministic output).
+"""Write docs/schema/*.schema.json from the pydantic models (deterministic output).
 
 Usage: ``python scripts/export_schemas.py [--check]``. With ``--check`` nothing is written and
-the exit status is 1 when the committed file differs from a fresh export.
+the exit status is 1 when a committed file differs from a fresh export.
 """
 
 from __future__ import annotations
@@ -11,9 +11,13 @@ import sys
 from pathlib import Path
 
 from tsog_stream.schemas import meta_json_schema_text
+from tsog_stream.schemas.manifest import manifest_json_schema_text
 
 ROOT = Path(__file__).resolve().parent.parent
-TARGET = ROOT / "docs" / "schema" / "meta.schema.json"
+SCHEMAS = {
+    ROOT / "docs" / "schema" / "meta.schema.json": meta_json_schema_text,
+    ROOT / "docs" / "schema" / "manifest.schema.json": manifest_json_schema_text,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,18 +25,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="compare instead of writing")
     args = parser.parse_args(argv)
-    text = meta_json_schema_text()
-    if args.check:
-        current = TARGET.read_text(encoding="utf-8") if TARGET.exists() else ""
-        if current != text:
-            print(f"{TARGET} is stale; run scripts/export_schemas.py", file=sys.stderr)
-            return 1
-        return 0
-    TARGET.parent.mkdir(parents=True, exist_ok=True)
-    with TARGET.open("w", encoding="utf-8", newline="\n") as out:
-        out.write(text)
-    print(f"wrote {TARGET.relative_to(ROOT)}")
-    return 0
+    stale = 0
+    for target, export in SCHEMAS.items():
+        text = export()
+        if args.check:
+            current = target.read_text(encoding="utf-8") if target.exists() else ""
+            if current != text:
+                print(f"{target} is stale; run scripts/export_schemas.py", file=sys.stderr)
+                stale = 1
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with target.open("w", encoding="utf-8", newline="\n") as out:
+            out.write(text)
+        print(f"wrote {target.relative_to(ROOT)}")
+    return stale
 
 
 if __name__ == "__main__":

@@ -69,7 +69,7 @@ def _literal_quantize_finite(s: list[float], k_target: int) -> list[float]:
     return out
 
 
-def _literal_codebook(samples: F64, k: int) -> npt.NDArray[np.float32]:
+def _literal_codebook(samples: npt.NDArray[np.floating], k: int) -> npt.NDArray[np.float32]:
     """Reference finite-only codebook with k slots (no infinities), padded like the tool."""
     finite = np.sort(samples.astype(np.float32)).astype(np.float64).tolist()
     cents = np.sort(np.array(_literal_quantize_finite(finite, k), np.float32))
@@ -85,7 +85,7 @@ DISTRIBUTIONS: dict[str, Callable[[np.random.Generator], F64]] = {
     ),
     "heavy_tail": lambda r: r.standard_t(1.5, 50_000) * 0.1,
     "sh_dc": lambda r: np.concatenate([r.normal(0.0, 0.6, 40_000), r.normal(1.8, 0.2, 5_000)]),
-    "discrete": lambda r: r.integers(-600, 600, 40_000) * 0.01,
+    "discrete": lambda r: r.integers(-600, 600, 40_000).astype(np.float64) * 0.01,
     "few_distinct": lambda r: r.choice([-1.0, 0.0, 0.25, 3.0], 10_000),
     "with_inf": lambda r: np.concatenate([r.normal(-5.0, 1.5, 30_000), [-np.inf] * 50, [np.inf]]),
 }

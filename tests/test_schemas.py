@@ -28,6 +28,7 @@ from tsog_stream.schemas import (
     meta_json_schema_text,
     parse_meta,
 )
+from tsog_stream.schemas.manifest import manifest_json_schema_text
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path("/work/shared/data")
@@ -520,3 +521,8 @@ def test_random_valid_metas_round_trip(doc: Doc) -> None:
     assert again == meta
     assert dump_meta(again) == data
     assert json.loads(data) == doc
+
+
+def test_committed_manifest_schema_is_fresh() -> None:
+    committed = (ROOT / "docs" / "schema" / "manifest.schema.json").read_text(encoding="utf-8")
+    assert committed == manifest_json_schema_text(), "run scripts/export_schemas.py"

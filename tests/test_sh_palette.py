@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -53,8 +54,10 @@ def _sh_like(n: int, dim: int, seed: int) -> F32:
 
 @pytest.mark.parametrize(
     ("n", "k"),
-    [(1, 1), (2, 2), (3, 2), (500, 256), (1023, 512), (1024, 1024), (5000, 4096)]
-    + [(50_000, 32_768), (65_536, 65_536), (100_000, 65_536), (10**7, 65_536)],
+    [
+        *[(1, 1), (2, 2), (3, 2), (500, 256), (1023, 512), (1024, 1024), (5000, 4096)],
+        *[(50_000, 32_768), (65_536, 65_536), (100_000, 65_536), (10**7, 65_536)],
+    ],
 )
 def test_palette_size_examples(n: int, k: int) -> None:
     assert palette_size(n) == k
@@ -119,7 +122,7 @@ def test_progress_is_monotone_and_finishes() -> None:
     seen: list[float] = []
     fit_palette(_sh_like(3000, 45, seed=15), 1024, progress=seen.append)
     assert seen and seen[-1] == 1.0
-    assert all(0.0 <= a <= b <= 1.0 for a, b in zip(seen, seen[1:], strict=False))
+    assert all(0.0 <= a <= b <= 1.0 for a, b in itertools.pairwise(seen))
 
 
 def test_zero_iterations_still_returns_a_palette() -> None:
@@ -140,3 +143,11 @@ def test_bad_arguments() -> None:
         fit_palette(good, 0)
     with pytest.raises(InputError):
         fit_palette(good, 4, iterations=-1)
+
+
+@pytest.mark.parametrize(("n", "dim"), [(2, 1), (3, 45), (5, 3), (257, 1), (300, 45)])
+def test_tiny_inputs_give_exactly_k_entries(n: int, dim: int) -> None:
+    points = np.random.default_rng(n + dim).normal(0, 1, (n, dim)).astype(np.float32)
+    for k in sorted({1, max(1, n // 3), n - 1}):
+        centroids, labels = fit_palette(points, k)
+        assert centroids.shape == (k, dim) and int(labels.max()) < k

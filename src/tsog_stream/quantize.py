@@ -7,11 +7,14 @@ into H = min(1024, n) bins whose position blends rank and value, weight each bin
 count^0.5 and split the bins into at most 256 contiguous groups by an exact dynamic program
 that minimises the weighted sum of squared deviations.
 
-:func:`build_codebook` starts from that codebook and lowers the real quantisation error:
-with at most as many distinct finite values as slots it stores them exactly; otherwise it
-runs 1-D Lloyd passes on the full sorted samples (O(256 log n) each, through prefix sums)
-and keeps whichever codebook has the smaller mean squared error over the samples, so it is
-never worse than the reference. :func:`assign_codebook` maps values to their nearest entry.
+:func:`build_codebook` keeps the slots and sentinels and lowers the real quantisation
+error: with at most as many distinct finite values as slots it stores them exactly;
+otherwise it runs 1-D Lloyd passes from the reference codebook on the full sorted samples
+(O(256 log n) each, through prefix sums) and keeps the codebook with the smallest mean
+squared error over the samples, so it is never worse than the reference. Starting from the
+reference (not from an MSE-optimal DP) keeps its generous share of entries for sparse tails:
+the worst-case error stays close to the reference's (docs/design/quantizers.md).
+:func:`assign_codebook` maps values to their nearest entry.
 """
 
 from __future__ import annotations
@@ -109,10 +112,10 @@ def _finite_centroids(finite: F64, slots: int, refine: bool) -> F32:
         return finite[:1].astype(np.float32)
     if refine and np.count_nonzero(np.diff(finite)) < slots:
         return np.unique(finite.astype(np.float32))  # few distinct values: store them exactly
-    centers, weights = _histogram(finite)
-    centroids = _dp_centroids(centers, weights, slots)
+    centers, counts = _histogram(finite)
+    centroids = _dp_centroids(centers, counts**DENSITY_ALPHA, slots)
     if refine:
-        centroids = _lloyd_1d(finite, centroids)
+        centroids = _lloyd_1d(finite, centroids)[0]
     return np.sort(centroids)
 
 
@@ -132,7 +135,7 @@ def _compose(centroids: F32, finite: F64, has_neg: bool, has_pos: bool) -> F32:
 
 
 def _histogram(finite: F64) -> tuple[F64, F64]:
-    """Bin centres and count^0.5 weights of the rank/value-blended histogram (spec §6.1)."""
+    """Bin centres (means) and counts of the rank/value-blended histogram (spec §6.1)."""
     n = finite.size
     bins = min(HIST_BINS, n)
     vmin, vrange = finite[0], finite[-1] - finite[0]
@@ -145,7 +148,7 @@ def _histogram(finite: F64) -> tuple[F64, F64]:
     empty_centre = vmin + (np.arange(bins) + 0.5) / bins * vrange
     with np.errstate(invalid="ignore", divide="ignore"):
         centers = np.where(counts > 0, sums / counts, empty_centre)
-    return centers, counts**DENSITY_ALPHA
+    return centers, counts
 
 
 def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:
@@ -200,8 +203,8 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     return out.astype(np.float32)
 
 
-def _lloyd_1d(finite: F64, start: F32) -> F32:
-    """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE wins."""
+def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:
+    """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE, its SSE."""
     shift = finite[finite.size // 2]
     centred = finite - shift
     zero = np.zeros(1)
@@ -222,7 +225,7 @@ def _lloyd_1d(finite: F64, start: F32) -> F32:
         sse = _sse_1d(finite, p1, p2, shift, current)
         if sse < best_sse:
             best, best_sse = current, sse
-    return best
+    return best, best_sse
 
 
 def _edges(finite: F64, table: F32) -> npt.NDArray[np.intp]:

@@ -8,8 +8,8 @@ the squared error — with a lower error in a small fraction of the time
 1. identical vectors collapse to weighted unique rows; if those fit, the palette is exact;
 2. Ward agglomeration in parallel rounds: every cluster finds its cheapest partner (Ward
    cost) among approximate nearest neighbours — brute force inside the leaves of two
-   balanced kd-trees in PCA coordinates, as BLAS matrix products — and the cheapest merges
-   that do not conflict are applied together, until K clusters remain;
+   balanced kd-trees in PCA coordinates, one matrix product per leaf — and the cheapest
+   merges that do not conflict are applied together, until K clusters remain;
 3. Lloyd refinement where each vector compares only its centroid's nearest centroids,
    stopping early when the error improvement falls under a tolerance.
 """
@@ -247,10 +247,15 @@ def _cheapest_partner(means: F32, mass: F64, candidates: Ints) -> tuple[Ints, F6
         diff = means - means[other]
         dist = np.einsum("nd,nd->n", diff, diff).astype(np.float64)
         costs[:, col] = mass * mass[other] / (mass + mass[other]) * dist
-    costs[candidates == np.arange(len(means))[:, None]] = np.inf
-    pick = np.argmin(costs, axis=1)
     rows = np.arange(len(means))
-    return candidates[rows, pick], costs[rows, pick]
+    costs[candidates == rows[:, None]] = np.inf
+    pick = np.argmin(costs, axis=1)
+    partner, cost = candidates[rows, pick], costs[rows, pick]
+    lonely = np.flatnonzero(~np.isfinite(cost))  # no other candidate: pair with the next id
+    if len(lonely):
+        partner[lonely] = (lonely + 1) % len(means)
+        cost[lonely] = _cheapest_partner(means, mass, partner[:, None])[1][lonely]
+    return partner, cost
 
 
 def _pick_moves(partner: Ints, cost: F64, need: int) -> Ints:
@@ -303,11 +308,15 @@ def _refine(
     for step in range(iterations):
         near = _neighbours(centroids, axes, REFINE_CANDIDATES, rng)
         options = np.concatenate([np.arange(len(centroids))[:, None], near], axis=1)
-        labels = _assign(points, centroids, options, labels)
-        centroids, labels = _update(points, weights, centroids, labels)
-        before, errors = errors, _errors(points, centroids, labels)
+        assigned = _assign(points, centroids, options, labels)
+        moved, relabelled = _update(points, weights, centroids, assigned)
+        moved_errors = _errors(points, moved, relabelled)
         report(MERGE_SHARE + (1.0 - MERGE_SHARE) * (step + 1) / iterations)
-        if weights @ before - weights @ errors <= REFINE_TOLERANCE * (weights @ before):
+        before, after = float(weights @ errors), float(weights @ moved_errors)
+        if after > before:  # float32 rounding can undo a tiny gain: keep the better palette
+            break
+        centroids, labels, errors = moved, relabelled, moved_errors
+        if before - after <= REFINE_TOLERANCE * before:
             break
     return centroids, labels
 

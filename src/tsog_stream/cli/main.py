@@ -26,6 +26,7 @@ from ..summary import chunk_summary, scene_summary
 from .progress import Progress
 from .stream_commands import (
     add_stream_commands,
+    check_segment_args,
     cmd_extract,
     cmd_pack,
     cmd_unpack,
@@ -289,6 +290,7 @@ def _input_bytes(path: str) -> int:
 
 def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
     """tsog segment: frame sequences stream window by window, other inputs load whole."""
+    check_segment_args(args)
     kind = args.format or detect_format(args.input)
     if kind in ("ply-sequence", "sog-sequence"):
         fps = args.fps if args.fps is not None else DEFAULT_FPS

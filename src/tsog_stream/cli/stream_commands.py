@@ -33,6 +33,17 @@ from .progress import Progress
 _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
 
+def check_segment_args(args: argparse.Namespace) -> None:
+    """Refuse bad options before the (possibly long) input read."""
+    _refuse_existing(args.output, args.force)
+    if not _WINDOW.match(args.window):
+        raise InputError(
+            f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
+        )
+    if args.workers < 1:
+        raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
+
+
 def parse_window(text: str, fps: float | None) -> float:
     """'1s', '0.5', '30f' -> seconds; frames need the scene's fps."""
     m = _WINDOW.match(text)

@@ -43,7 +43,7 @@ def read_bundle(data: bytes, *, where: str = "<bundle>") -> dict[str, bytes]:
     """Entries of a .sog archive (stored or deflated); any damage raises SogError."""
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError) as exc:
         raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
     with archive:
         infos = archive.infolist()
@@ -74,5 +74,12 @@ def _read_entry(archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, whe
         raise SogError("encrypted entries are not supported", where=name)
     try:
         return archive.read(info)
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError, RuntimeError) as exc:
+    except (
+        zipfile.BadZipFile,
+        OSError,
+        ValueError,
+        EOFError,
+        RuntimeError,
+        NotImplementedError,
+    ) as exc:
         raise SogError(f"damaged entry: {exc}", where=name) from exc

@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..codec.bundle import read_bundle
 from ..codec.chunk import decode_chunk
-from ..errors import IntegrityError
+from ..errors import InputError, IntegrityError
 from ..model import Gaussians, Scene
 from ..schemas.manifest import ChunkEntry, Manifest, check_layout
-from .header import HEADER_SIZE, PREFIX_SIZE, Header
+from ..segment.plan import WINDOW_EPSILON
+from ..temporal import TIME_EPSILON
+from .header import PREFIX_SIZE, Header
 from .index import decode_index
 from .ranges import ByteRange
 from .sources import ByteSource
@@ -47,23 +48,39 @@ class StreamIndex:
         """Where a chunk's bytes are."""
         return ByteRange.sized(chunk.offset, chunk.length)
 
+    def _window(self, t: float, windows: int) -> int:
+        """The window holding ``t``, by the segmenter's rule (float rounding snapped forward,
+        so t = k * window_s is in window k), clipped to the scene's windows."""
+        x = (t - self.manifest.scene.start_s) / self.manifest.window_s + WINDOW_EPSILON
+        return min(math.floor(min(max(x, 0.0), float(windows))), windows - 1)
+
     def chunks_for_interval(self, start: float, end: float) -> list[ChunkEntry]:
         """Chunks holding Gaussians visible at some time in [start, end], in file order.
 
-        A chunk is needed when its node's interval and its own visible interval both meet the
-        query (the end of the scene counts as inside the last window).
+        Windows are chosen by index (not by comparing with their stored float edges, which
+        round differently from frame times), so a time is in exactly one window and each
+        Gaussian is shown once; a chunk is kept when its own visible interval meets the query
+        within the evaluation's time tolerance. Nothing is chosen outside the scene's range.
         """
-        last = self.manifest.scene.end_s
+        if not (math.isfinite(start) and math.isfinite(end)):
+            raise InputError(f"times must be finite numbers of seconds, got [{start}, {end}]")
+        m = self.manifest
+        fps = m.scene.fps
+        slack = TIME_EPSILON * (1.0 / fps if fps else 1.0) + WINDOW_EPSILON * m.window_s
+        windows = sum(1 for n in m.nodes if n.level == 0)
+        if windows == 0 or end < m.scene.start_s - slack or start > m.scene.end_s + slack:
+            return []
+        first, last = self._window(start, windows), self._window(end, windows)
         chosen: set[int] = set()
-        for node in self.manifest.nodes:
-            node_end = node.end_s if node.end_s < last else np.inf
-            if node.start_s > end or node_end <= start:
+        for node in m.nodes:
+            level = min(node.level, 62)  # level 62 already spans more windows than exist
+            if node.index << level > last or (node.index + 1) << level <= first:
                 continue
             for cid in node.chunks:
-                c = self.manifest.chunks[cid]
-                if c.start_s <= end and c.end_s >= start:
+                c = m.chunks[cid]
+                if c.start_s <= end + slack and c.end_s >= start - slack:
                     chosen.add(cid)
-        return sorted((self.manifest.chunks[i] for i in chosen), key=lambda c: c.offset)
+        return sorted((m.chunks[i] for i in chosen), key=lambda c: c.offset)
 
     def chunks_for(self, t: float) -> list[ChunkEntry]:
         """Chunks needed to show time ``t`` (empty before the first or after the last Gaussian)."""
@@ -85,12 +102,7 @@ async def open_stream(source: ByteSource) -> StreamIndex:
     data = first[span.start : span.end] if span.end <= len(first) else await source.read(span)
     manifest = decode_index(data, header.index_raw_length, header.index_sha256, where=source.name)
     payload_end = header.index_offset if header.index_offset >= PREFIX_SIZE else size
-    check_layout(
-        manifest,
-        PREFIX_SIZE if size >= PREFIX_SIZE else HEADER_SIZE,
-        payload_end,
-        where=source.name,
-    )
+    check_layout(manifest, PREFIX_SIZE, payload_end, where=source.name)
     return StreamIndex(header, manifest, source.name)
 
 

@@ -154,3 +154,8 @@ def manifest_json_schema() -> dict[str, Any]:
     schema = Manifest.model_json_schema()
     schema["title"] = "tsog-stream container index (manifest.json)"
     return schema
+
+
+def manifest_json_schema_text() -> str:
+    """The index JSON Schema as deterministic text (sorted keys, indent 2, final newline)."""
+    return json.dumps(manifest_json_schema(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"

@@ -23,6 +23,10 @@ F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 POLICIES = ("duplicate", "hierarchy", "hybrid")
 DEFAULT_MAX_COPIES = 2
+WINDOW_EPSILON = 1e-9
+"""Fraction of a window by which a time just before a window start counts as inside it, so
+t = k * window_s lands in window k despite float rounding. Readers choose windows with the
+same rule (container/reader.py), so a Gaussian starting at t is found at t."""
 
 
 @dataclass(frozen=True)
@@ -64,15 +68,15 @@ def window_count(start_s: float, end_s: float, window_s: float) -> int:
         raise InputError(
             f"window length must be a positive number of seconds, got {window_s}", where="--window"
         )
-    return max(1, math.ceil((end_s - start_s) / window_s - 1e-9))
+    return max(1, math.ceil((end_s - start_s) / window_s - WINDOW_EPSILON))
 
 
 def _window_span(
     start: F64, end: F64, t0: float, window_s: float, windows: int
 ) -> tuple[Ints, Ints]:
     """First and last window index each lifespan [start, end) touches, clipped to the scene."""
-    first = np.floor((start - t0) / window_s + 1e-9).astype(np.int64)
-    last = np.ceil((end - t0) / window_s - 1e-9).astype(np.int64) - 1
+    first = np.floor((start - t0) / window_s + WINDOW_EPSILON).astype(np.int64)
+    last = np.ceil((end - t0) / window_s - WINDOW_EPSILON).astype(np.int64) - 1
     last = np.maximum(last, first)
     return np.clip(first, 0, windows - 1), np.clip(last, 0, windows - 1)
 

@@ -21,20 +21,29 @@ from .. import __version__
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
-from ..constants import GENERATOR, SH_BANDS_BY_COEFFS, WEBP_MAX_SIDE
+from ..constants import (
+    GENERATOR,
+    SH_BANDS_BY_COEFFS,
+    SH_CENTROIDS_PER_ROW,
+    SH_COEFFS_BY_BANDS,
+    WEBP_MAX_SIDE,
+)
 from ..container.writer import ContainerFile
 from ..errors import InputError
 from ..io.sequence import FrameSequence
 from ..model import Scene
 from ..morton import morton_order
 from ..schemas.manifest import Box, ChunkEntry, Manifest, Node
-from ..temporal import evaluate_all, lifespans, time_range
+from ..sh_palette import palette_size
+from ..temporal import lifespans, reference_times, time_range
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan
 
 DEFAULT_MAX_PIXELS = 4096 * 4096
 DEFAULT_WINDOW_S = 1.0
 DEFAULT_POLICY = "hybrid"
 MIN_PIXELS = 16
+BOX_SAMPLES = 9
+"""Times at which moving centres are sampled for chunk bounding boxes."""
 Ints = npt.NDArray[np.int64]
 ChunkProgress = Callable[[int, int], None]
 
@@ -73,11 +82,29 @@ class SegmentReport:
     bytes_per_level: dict[int, int] = field(default_factory=dict)
 
 
-def max_gaussians_per_chunk(max_pixels: int) -> int:
-    """Largest Gaussian count whose SOG images fit in ``max_pixels`` pixels (and in WebP)."""
+def palette_pixels(count: int, sh_bands: int) -> int:
+    """Most pixels the shN centroid image of a ``count``-Gaussian chunk can take (0 without
+    SH): one row of SH_CENTROIDS_PER_ROW entries x coefficients per 64 palette entries, the
+    palette holding at most palette_size(count) entries (codec/sog_encode.py)."""
+    coeffs = SH_COEFFS_BY_BANDS[sh_bands]
+    if coeffs == 0 or count < 1:
+        return 0
+    rows = -(-palette_size(count) // SH_CENTROIDS_PER_ROW)
+    return rows * SH_CENTROIDS_PER_ROW * coeffs
+
+
+def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
+    """Largest Gaussian count whose SOG images (the SH palette's included) fit in
+    ``max_pixels`` pixels each (and in WebP)."""
     if max_pixels < MIN_PIXELS or max_pixels > WEBP_MAX_SIDE * WEBP_MAX_SIDE:
         raise InputError(
             f"pixel budget must be between {MIN_PIXELS} and {WEBP_MAX_SIDE}^2, got {max_pixels}",
+            where="--max-pixels",
+        )
+    if palette_pixels(1, sh_bands) > max_pixels:
+        raise InputError(
+            f"a chunk with {sh_bands} SH bands needs a {palette_pixels(1, sh_bands)}-pixel "
+            f"palette image, over the budget of {max_pixels}",
             where="--max-pixels",
         )
     lo, hi = 1, max_pixels
@@ -85,7 +112,7 @@ def max_gaussians_per_chunk(max_pixels: int) -> int:
         mid = (lo + hi + 1) // 2
         try:
             w, h = image_size(mid)
-            fits = w * h <= max_pixels
+            fits = w * h <= max_pixels and palette_pixels(mid, sh_bands) <= max_pixels
         except InputError:
             fits = False
         lo, hi = (mid, hi) if fits else (lo, mid - 1)
@@ -131,15 +158,31 @@ def encode_job_payload(scene: Scene, seed: int) -> bytes:
 
 
 def _bounds(scene: Scene, start: float, end: float) -> Box:
-    """Bounding box of the chunk's centres over [start, end] (5 samples if positions move)."""
-    times = np.linspace(start, end, 5) if "means" in scene.temporal else [start]
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for t in times:
-        g, _ = evaluate_all(scene, float(t))
-        if len(g):
-            lo = np.minimum(lo, g.means.min(axis=0))
-            hi = np.maximum(hi, g.means.max(axis=0))
+    """Bounding box of the chunk's centres at every time of [start, end].
+
+    Moving centres are sampled at ``BOX_SAMPLES`` times; between two samples h apart a path
+    leaves their chord by at most h^2/8 max|x''|, so each Gaussian's samples are widened by
+    that bound (|x''| bounded from its coefficients) and the box holds the whole path.
+    """
+    means = scene.gaussians.means.astype(np.float64)
+    coeffs = scene.temporal.get("means")
+    if coeffs is None or scene.timeline is None or len(scene) == 0 or end <= start:
+        lo, hi = means.min(axis=0, initial=np.inf), means.max(axis=0, initial=-np.inf)
+    else:
+        c = coeffs.astype(np.float64)  # (N, order, 3)
+        ref = reference_times(scene.timeline)
+        k = np.arange(1, c.shape[1] + 1)
+        reach = np.maximum(np.abs(start - ref), np.abs(end - ref))  # largest |t - t_ref|
+        curvature = np.einsum(
+            "nk,nkc->nc", k * (k - 1) * reach[:, None] ** np.maximum(k - 2, 0), np.abs(c)
+        )
+        step = (end - start) / (BOX_SAMPLES - 1)
+        margin = curvature * step * step / 8
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for t in np.linspace(start, end, BOX_SAMPLES):
+            at = means + np.einsum("nk,nkc->nc", (t - ref)[:, None] ** k, c)
+            lo = np.minimum(lo, (at - margin).min(axis=0))
+            hi = np.maximum(hi, (at + margin).max(axis=0))
     if not np.all(np.isfinite(lo)):
         lo = hi = np.zeros(3)
     return Box.model_validate({"min": lo.tolist(), "max": hi.tolist()})
@@ -262,7 +305,8 @@ def segment_scene(
     """Segment an in-memory scene into the container at ``path`` (published atomically)."""
     options = options or SegmentOptions()
     plan = plan_scene(scene, options)
-    jobs = chunk_jobs(scene, plan, max_gaussians_per_chunk(options.max_pixels))
+    max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
+    jobs = chunk_jobs(scene, plan, max_count)
     parts = (Part(job.key, scene.subset(job.indices)) for job in jobs)
     tl = scene.timeline
     fields: dict[str, Any] = {
@@ -308,7 +352,7 @@ def segment_sequence(
     options = options or SegmentOptions()
     per_window = max(1, round(options.window_s * seq.fps))
     window_s = per_window / seq.fps
-    max_count = max_gaussians_per_chunk(options.max_pixels)
+    max_count = max_gaussians_per_chunk(options.max_pixels, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
     windows = -(-seq.count // per_window)
     counts = [
         sum(c for c, _ in seq.shapes[i : i + per_window]) for i in range(0, seq.count, per_window)

@@ -1,0 +1,497 @@
+"""The segmenter: scene -> .tsogs -> the frame at t equals the unsegmented scene's at(t).
+
+Frames are compared as multisets: every decoded Gaussian is matched to the source Gaussian
+nearest to it (positions, base colour and scales together), each source Gaussian at most once,
+then positions, opacity and rotation are checked against the codec's quantisation bounds (see
+tests/test_codec.py ``_check_at``), using the largest steps found in any chunk's meta.json.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from helpers import means_log_step
+from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
+from tsog_stream.codec.bundle import read_bundle
+from tsog_stream.compare import rotation_angles_deg
+from tsog_stream.container.sync import StreamReader
+from tsog_stream.segment.plan import window_count
+from tsog_stream.segment.segmenter import SegmentOptions, SegmentReport, segment_scene
+from tsog_stream.summary import chunk_summary
+from tsog_stream.synthetic import SceneSpec, generate_scene
+from tsog_stream.temporal import (
+    evaluate_all,
+    lifespans,
+    reference_times,
+    time_range,
+    visibility_half_width,
+)
+
+F64 = npt.NDArray[np.float64]
+POLICIES = ("duplicate", "hierarchy", "hybrid")
+KINDS = list(TimelineType)
+WINDOW_S = 0.5
+DURATION_S = 2.0
+SLACK_S = 1e-6
+"""Float slack when comparing a query time with stored interval edges."""
+SMALL_CHUNKS = 12 * 12
+"""Pixel budget of the frame tests: several chunks per node, and quick to encode."""
+SH0_TOL = 0.03
+SCALES_TOL = 0.05
+"""Largest codebook errors (256-entry scalar codebooks) allowed after matching; measured on
+these scenes: 0.006 and 0.004."""
+ROTATION_MAX_DEG = 1.5
+"""8-bit smallest-three base rotation (up to 1.1 degrees, tests/test_codec.py) plus the
+quantised temporal coefficients; measured on these scenes: 0.82."""
+
+
+def make_scene(
+    kind: TimelineType,
+    *,
+    fps: float = 5.0,
+    background: int = 150,
+    objects: int = 3,
+    per_object: int = 50,
+    seed: int = 0,
+) -> Scene:
+    """A small seeded scene of ``kind`` (no SH bands: the palette fit is not under test)."""
+    spec = SceneSpec(
+        timeline_type=kind,
+        background=background,
+        objects=objects,
+        per_object=per_object,
+        duration=DURATION_S,
+        fps=fps,
+        sh_bands=0,
+        motion_order=2,
+        dynamic=("means", "quats"),
+        seed=seed,
+    )
+    return generate_scene(spec)
+
+
+@dataclass(frozen=True)
+class Steps:
+    """The largest quantisation steps over every chunk of a container (from the metas)."""
+
+    means_log: float
+    """One 16-bit step of the log-space position code."""
+    timeline: tuple[float, float]
+    """One step of timeline R and G, in timeline units (0 for exact type-0 frame ids)."""
+    coeff_half: list[float]
+    """Half a step of each order of the means coefficients."""
+    spu: float
+    """Seconds per timeline unit."""
+
+
+def container_steps(reader: StreamReader) -> Steps:
+    """Steps read from every chunk's meta.json (the largest of each)."""
+    metas = [
+        json.loads(read_bundle(reader.chunk_bytes(c.id))["meta.json"])
+        for c in reader.index.manifest.chunks
+    ]
+    means = max(float(means_log_step(m["means"]["mins"], m["means"]["maxs"]).max()) for m in metas)
+    r_step = g_step = 0.0
+    orders = max(len(m["temporal"]["means"]["mins"]) for m in metas)
+    coeff = [0.0] * orders
+    spu = 1.0
+    for m in metas:
+        tl = m["timeline"]
+        spu = 1.0 / tl["fps"] if tl.get("fps") else 1.0
+        if tl["type"] != TimelineType.FRAME:
+            r_step = max(r_step, (tl["maxs"][0] - tl["mins"][0]) / 65535)
+            g_step = max(g_step, (tl["maxs"][1] - tl["mins"][1]) / 65535)
+        entry = m["temporal"]["means"]
+        for k, (lo, hi) in enumerate(zip(entry["mins"], entry["maxs"], strict=True)):
+            coeff[k] = max(coeff[k], float((np.asarray(hi) - np.asarray(lo)).max()) / 65535 / 2)
+    return Steps(means, (r_step, g_step), coeff, spu)
+
+
+def _sigmoid(x: npt.ArrayLike) -> F64:
+    return np.asarray(1.0 / (1.0 + np.exp(-np.asarray(x, np.float64))), np.float64)
+
+
+def _near_edge(src: Scene, steps: Steps, t: float) -> npt.NDArray[np.bool_]:
+    """Gaussians whose visibility at t may flip through quantisation of their lifespan."""
+    assert src.timeline is not None
+    if src.timeline.type is TimelineType.FRAME:
+        return np.zeros(len(src), bool)  # frame ids are stored exactly
+    half_width = visibility_half_width() if src.timeline.type is TimelineType.CENTER_SCALE else 1.0
+    edge = (steps.timeline[0] + half_width * steps.timeline[1]) * steps.spu / 2 + 1e-9
+    start, end = lifespans(src.timeline)
+    return np.asarray(np.minimum(np.abs(t - start), np.abs(t - end)) <= edge)
+
+
+def _position_bound(src: Scene, ref: Gaussians, steps: Steps, t: float) -> F64:
+    """Per source Gaussian: base position step plus every order's coefficient error at t."""
+    assert src.timeline is not None
+    dt = np.abs(t - reference_times(src.timeline))
+    coeff = np.abs(src.temporal["means"]).max(axis=(0, 2))
+    bound = np.zeros(len(src))
+    t_err = steps.timeline[0] * steps.spu / 2
+    for k, half in enumerate(steps.coeff_half):
+        bound += half * dt ** (k + 1) + (k + 1) * coeff[k] * (dt + 1) ** k * t_err
+    size = np.maximum(np.abs(ref.means).max(axis=1), np.abs(src.gaussians.means).max(axis=1))
+    return bound + (1 + size) * steps.means_log + 1e-5
+
+
+def _opacity_bound(src: Scene, steps: Steps) -> F64:
+    """Alpha: half an 8-bit step, plus for type 2 the temporal factor's change when the
+    centre and scale move by half a step (|df/dc| <= e^-1/2 / s, |df/ds| <= 2 e^-1 / s)."""
+    assert src.timeline is not None
+    bound = np.full(len(src), 0.5 / 255 + 1e-5)
+    if src.timeline.type is TimelineType.CENTER_SCALE:
+        dc, ds = steps.timeline[0] / 2, steps.timeline[1] / 2
+        bound += (np.exp(-0.5) * dc + 2 * np.exp(-1) * ds) / src.timeline.t1
+    return bound
+
+
+def _pairwise_cost(
+    got: Gaussians, ref: Gaussians, cand: npt.NDArray[np.intp], pos_tol: F64
+) -> npt.NDArray[np.float64]:
+    """cost[i, j] = worst attribute error of decoded i against candidate j, in tolerances."""
+    cost = np.empty((len(got), cand.size))
+    for lo in range(0, len(got), 256):
+        rows = slice(lo, lo + 256)
+        pos = np.abs(got.means[rows, None, :] - ref.means[None, cand, :]).max(axis=2)
+        sh0 = np.abs(got.sh0[rows, None, :] - ref.sh0[None, cand, :]).max(axis=2)
+        scl = np.abs(got.scales[rows, None, :] - ref.scales[None, cand, :]).max(axis=2)
+        cost[rows] = np.maximum.reduce([pos / pos_tol[None, cand], sh0 / SH0_TOL, scl / SCALES_TOL])
+    return cost
+
+
+def assert_frame_matches(src: Scene, got: Gaussians, t: float, steps: Steps) -> None:
+    """``got`` (a stream's frame at t) is src.at(t) as a multiset, within the codec's bounds."""
+    ref, mask = evaluate_all(src, t)
+    near = _near_edge(src, steps, t)
+    cand = np.flatnonzero(mask | near)
+    if len(got) == 0 or cand.size == 0:
+        assert len(got) == 0 and not np.any(mask & ~near), f"t={t}: {len(got)} vs {mask.sum()}"
+        return
+    cost = _pairwise_cost(got, ref, cand, _position_bound(src, ref, steps, t))
+    best = cost.argmin(axis=1)
+    worst = cost[np.arange(len(got)), best]
+    assert np.all(worst <= 1.0), f"t={t}: {np.sum(worst > 1)} Gaussians match none within bounds"
+    matched = cand[best]
+    assert np.unique(matched).size == matched.size, f"t={t}: a source Gaussian shown twice"
+    shown = np.zeros(len(src), bool)
+    shown[matched] = True
+    assert not np.any(mask & ~near & ~shown), f"t={t}: {np.sum(mask & ~near & ~shown)} missing"
+    assert len(got) >= np.sum(mask & ~near) and len(got) <= np.sum(mask | near)
+    alpha_err = np.abs(_sigmoid(got.opacities) - _sigmoid(ref.opacities[matched]))
+    assert np.all(alpha_err <= _opacity_bound(src, steps)[matched]), f"t={t}: opacity"
+    angles = rotation_angles_deg(got.quats, ref.quats[matched])
+    assert angles.max() < ROTATION_MAX_DEG, f"t={t}: rotation {angles.max():.2f} deg"
+
+
+def probe_times(scene: Scene, window_s: float) -> list[float]:
+    """Window boundaries, times just around them, frame times, and times outside the scene."""
+    assert scene.timeline is not None
+    first, last = time_range(scene.timeline)
+    bounds = [first + k * window_s for k in range(window_count(first, last, window_s) + 1)]
+    times = {first - 0.25, last + 0.25, 0.37, 1.23}
+    for b in bounds:
+        times |= {b, b - SLACK_S, b + SLACK_S}
+    if scene.timeline.fps:
+        frames = round((last - first) * scene.timeline.fps)
+        times |= {first + f / scene.timeline.fps for f in range(frames + 1)}
+    return sorted(times)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., tuple[Path, SegmentReport]]:
+    """Segment (and cache) a container per scene kind and options."""
+    folder = tmp_path_factory.mktemp("segment")
+    cache: dict[tuple[object, ...], tuple[Path, SegmentReport]] = {}
+
+    def build(
+        kind: TimelineType, policy: str, window_s: float = WINDOW_S, max_pixels: int = SMALL_CHUNKS
+    ) -> tuple[Path, SegmentReport]:
+        key = (kind, policy, window_s, max_pixels)
+        if key not in cache:
+            path = folder / f"{kind.name}-{policy}-{window_s}-{max_pixels}.tsogs"
+            options = SegmentOptions(window_s=window_s, policy=policy, max_pixels=max_pixels)
+            cache[key] = (path, segment_scene(scenes(kind), path, options))
+        return cache[key]
+
+    return build
+
+
+_SCENES: dict[TimelineType, Scene] = {}
+
+
+def scenes(kind: TimelineType) -> Scene:
+    """The (cached) test scene of a timeline type."""
+    if kind not in _SCENES:
+        _SCENES[kind] = make_scene(kind, seed=int(kind) + 1)
+    return _SCENES[kind]
+
+
+def _in_range(reader: StreamReader, t: float) -> bool:
+    scene = reader.index.manifest.scene
+    return scene.start_s <= t <= scene.end_s
+
+
+@pytest.mark.parametrize("policy", POLICIES)
+@pytest.mark.parametrize("kind", KINDS)
+def test_frames_equal_the_unsegmented_scene(
+    kind: TimelineType, policy: str, built: Callable[..., tuple[Path, SegmentReport]]
+) -> None:
+    path, _ = built(kind, policy)
+    src = scenes(kind)
+    with StreamReader.open(path) as reader:
+        steps = container_steps(reader)
+        for t in probe_times(src, WINDOW_S):
+            frame = reader.frame_at(t)
+            if not _in_range(reader, t):
+                assert len(frame) == 0, f"t={t} is outside the scene but shows {len(frame)}"
+                continue
+            assert_frame_matches(src, frame, t, steps)
+
+
+@pytest.mark.parametrize("policy", ["duplicate", "hierarchy"])
+@pytest.mark.parametrize("kind", [TimelineType.FRAME, TimelineType.START_DURATION])
+def test_every_frame_time_with_windows_in_frames(
+    kind: TimelineType, policy: str, tmp_path: Path
+) -> None:
+    """24 fps, 5-frame windows: k * (5/24) and frame times f/24 round differently (35/24 <
+    7 * (5/24) in floats); the frame at every f/24 must still be the source's."""
+    fps = 24.0
+    src = make_scene(kind, fps=fps, background=40, objects=2, per_object=15, seed=5)
+    path = tmp_path / "f24.tsogs"
+    segment_scene(src, path, SegmentOptions(window_s=5 / fps, policy=policy))
+    with StreamReader.open(path) as reader:
+        steps = container_steps(reader)
+        for f in range(round(DURATION_S * fps) + 1):
+            t = f / fps
+            frame = reader.frame_at(t)
+            if kind is TimelineType.FRAME:
+                assert len(frame) == len(src.at(t)), f"frame {f}"
+            assert_frame_matches(src, frame, t, steps)
+
+
+def _chunk_positions(scene: Scene, start: float, end: float, samples: int = 41) -> Iterable[F64]:
+    """Positions of the visible Gaussians at many times of [start, end]."""
+    for t in np.linspace(start, end, samples):
+        g, mask = evaluate_all(scene, float(t))
+        yield g.means[mask].astype(np.float64)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_single_window_is_split_spatially_under_the_pixel_budget(
+    kind: TimelineType, built: Callable[..., tuple[Path, SegmentReport]]
+) -> None:
+    budget = 16 * 16
+    path, report = built(kind, "hybrid", DURATION_S, budget)
+    src = scenes(kind)
+    assert report.windows == 1
+    with StreamReader.open(path) as reader:
+        manifest = reader.index.manifest
+        assert [n.level for n in manifest.nodes] == [0]
+        assert len(manifest.chunks) >= 2 and len(manifest.chunks) == report.chunks
+        assert manifest.max_pixels == budget
+        steps = container_steps(reader)
+        tol = (1 + np.abs(src.gaussians.means).max()) * steps.means_log + 1e-4
+        for chunk in manifest.chunks:
+            files = read_bundle(reader.chunk_bytes(chunk.id))
+            summary = chunk_summary(files, where=f"chunk {chunk.id}")
+            assert summary["count"] == chunk.count <= budget
+            for name, (w, h) in summary["images"].items():
+                assert w * h <= budget, f"chunk {chunk.id} {name} is {w}x{h}"
+            lo, hi = np.asarray(chunk.bbox.min), np.asarray(chunk.bbox.max)
+            decoded = reader.chunk_scene(chunk.id)
+            for means in _chunk_positions(decoded, chunk.start_s, chunk.end_s):
+                assert np.all(means >= lo - tol) and np.all(means <= hi + tol), (
+                    f"chunk {chunk.id}: a centre lies outside its bounding box"
+                )
+        assert sum(c.count for c in manifest.chunks) == report.stored
+        for t in probe_times(src, DURATION_S):
+            if _in_range(reader, t):
+                assert_frame_matches(src, reader.frame_at(t), t, steps)
+
+
+def test_the_budget_also_holds_the_sh_palette_image(tmp_path: Path) -> None:
+    """The shN centroid image grows with the bands (64 entries x coefficients per row): the
+    chunks must shrink until it fits too, and `tsog verify` must find nothing over budget."""
+    spec = SceneSpec(
+        timeline_type=TimelineType.START_DURATION,
+        background=300,
+        objects=1,
+        per_object=40,
+        duration=DURATION_S,
+        fps=5.0,
+        sh_bands=1,
+        seed=4,
+    )
+    budget = 16 * 16
+    path = tmp_path / "sh.tsogs"
+    segment_scene(
+        generate_scene(spec), path, SegmentOptions(window_s=DURATION_S, max_pixels=budget)
+    )
+    with StreamReader.open(path) as reader:
+        report = reader.verify()
+        assert report.problems == [] and report.exit_code == 0
+        for chunk in reader.index.manifest.chunks:
+            images = chunk_summary(read_bundle(reader.chunk_bytes(chunk.id)), where="c")["images"]
+            assert "shN_centroids.webp" in images
+            assert all(w * h <= budget for w, h in images.values()), images
+    with pytest.raises(InputError, match="palette") as info:
+        segment_scene(
+            generate_scene(replace(spec, sh_bands=3)),
+            tmp_path / "sh3.tsogs",
+            SegmentOptions(max_pixels=512),
+        )
+    assert info.value.where == "--max-pixels"
+
+
+def test_bounding_boxes_hold_curved_paths(tmp_path: Path) -> None:
+    """A path whose turning point falls between sample times (x = t - 0.4 t^2 peaks at
+    t = 1.25 s) must still lie inside its chunk's box at every time."""
+    n = 8
+    rng = np.random.default_rng(0)
+    gaussians = Gaussians.from_arrays(
+        rng.normal(0, 0.01, (n, 3)),
+        np.full((n, 3), -3.0),
+        np.tile([1.0, 0, 0, 0], (n, 1)),
+        np.full(n, 2.0),
+        np.zeros((n, 3)),
+    )
+    coeffs = np.zeros((n, 3, 3), np.float32)
+    coeffs[0, 0, 0], coeffs[0, 1, 0] = 1.0, -0.4
+    coeffs[1, :, 1] = [-0.3, 0.9, -0.45]  # cubic in y: extrema at t = 0.21 and 1.12 s
+    timeline = Timeline(
+        TimelineType.START_DURATION, np.zeros(n), np.full(n, 10.0), fps=5.0, scene_length=2.0
+    )
+    src = Scene(gaussians, timeline, {"means": coeffs})
+    path = tmp_path / "curve.tsogs"
+    segment_scene(src, path, SegmentOptions(window_s=DURATION_S))
+    with StreamReader.open(path) as reader:
+        (chunk,) = reader.index.manifest.chunks
+    lo, hi = np.asarray(chunk.bbox.min), np.asarray(chunk.bbox.max)
+    for means in _chunk_positions(src, chunk.start_s, chunk.end_s, samples=401):
+        assert np.all(means >= lo) and np.all(means <= hi)
+    assert hi[0] == pytest.approx(0.625, abs=0.02), "the box is not needlessly loose"
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_policies_store_what_they_promise(
+    kind: TimelineType, built: Callable[..., tuple[Path, SegmentReport]]
+) -> None:
+    reports = {p: built(kind, p)[1] for p in POLICIES}
+    source = len(scenes(kind))
+    inside = source - reports["hierarchy"].dropped
+    assert reports["duplicate"].stored >= reports["hybrid"].stored >= reports["hierarchy"].stored
+    assert reports["hierarchy"].stored == inside
+    assert reports["duplicate"].dropped == reports["hybrid"].dropped == source - inside
+    for policy, report in reports.items():
+        with StreamReader.open(built(kind, policy)[0]) as reader:
+            manifest = reader.index.manifest
+            assert manifest.policy == policy
+            assert manifest.scene.gaussians == source
+            assert manifest.scene.stored == report.stored == sum(c.count for c in manifest.chunks)
+            if policy == "duplicate":
+                assert {c.level for c in manifest.chunks} == {0}
+
+
+@pytest.mark.parametrize("policy", POLICIES)
+@pytest.mark.parametrize("kind", KINDS)
+def test_chunks_for_t_only_returns_nodes_holding_t(
+    kind: TimelineType, policy: str, built: Callable[..., tuple[Path, SegmentReport]]
+) -> None:
+    path, _ = built(kind, policy)
+    with StreamReader.open(path) as reader:
+        index = reader.index
+        nodes = {(n.level, n.index): n for n in index.manifest.nodes}
+        for chunk in index.manifest.chunks:
+            assert chunk.id in nodes[(chunk.level, chunk.node)].chunks
+        for t in probe_times(scenes(kind), WINDOW_S):
+            chosen = index.chunks_for(t)
+            if not _in_range(reader, t):
+                assert chosen == [], f"t={t} is outside the scene"
+                continue
+            for c in chosen:
+                node = nodes[(c.level, c.node)]
+                assert node.start_s - SLACK_S <= t <= node.end_s + SLACK_S, (t, node)
+                assert c.start_s - SLACK_S <= t <= c.end_s + SLACK_S, (t, c.id)
+            assert [c.offset for c in chosen] == sorted(c.offset for c in chosen)
+            windows = {c.node for c in chosen if c.level == 0}
+            assert len(windows) <= 1, f"t={t}: two windows chosen {windows}"
+            per_level = [c.level for c in chosen]
+            assert all(
+                len({c.node for c in chosen if c.level == lv}) == 1 for lv in set(per_level)
+            ), f"t={t}: two nodes of one level"
+
+
+def test_same_input_gives_byte_identical_containers(tmp_path: Path) -> None:
+    src = make_scene(TimelineType.CENTER_SCALE, background=200, objects=3, per_object=60, seed=9)
+    options = SegmentOptions(window_s=0.5, policy="duplicate", max_pixels=16 * 16, seed=3)
+    paths = [tmp_path / f"{n}.tsogs" for n in ("a", "b", "c")]
+    segment_scene(src, paths[0], options)
+    segment_scene(src, paths[1], options)
+    report = segment_scene(src, paths[2], replace(options, workers=2))
+    assert report.chunks >= 4
+    first = paths[0].read_bytes()
+    assert paths[1].read_bytes() == first
+    assert paths[2].read_bytes() == first
+    assert not list(tmp_path.glob(".*.tmp")), "temporary files left behind"
+
+
+def test_progress_reports_every_chunk(tmp_path: Path) -> None:
+    src = make_scene(TimelineType.START_DURATION, background=100, objects=2, per_object=40)
+    calls: list[tuple[int, int]] = []
+    report = segment_scene(
+        src,
+        tmp_path / "p.tsogs",
+        SegmentOptions(window_s=1.0, max_pixels=16 * 16),
+        on_chunk=lambda done, total: calls.append((done, total)),
+    )
+    assert [d for d, _ in calls] == list(range(1, report.chunks + 1))
+    assert all(total == report.chunks for _, total in calls)
+
+
+def test_a_failed_segmentation_leaves_the_destination_untouched(tmp_path: Path) -> None:
+    src = make_scene(TimelineType.START_DURATION, background=100, objects=2, per_object=40)
+    out = tmp_path / "keep.tsogs"
+    out.write_bytes(b"keep me")
+
+    def interrupt(done: int, total: int) -> None:
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        segment_scene(src, out, SegmentOptions(max_pixels=16 * 16), on_chunk=interrupt)
+    assert out.read_bytes() == b"keep me"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.tsogs"]
+
+
+@pytest.mark.parametrize(
+    ("options", "where"),
+    [
+        (SegmentOptions(window_s=0.0), "--window"),
+        (SegmentOptions(window_s=float("nan")), "--window"),
+        (SegmentOptions(policy="copy"), "--policy"),
+        (SegmentOptions(max_pixels=8), "--max-pixels"),
+        (SegmentOptions(max_pixels=16384 * 16384), "--max-pixels"),
+    ],
+)
+def test_impossible_options_are_input_errors(
+    options: SegmentOptions, where: str, tmp_path: Path
+) -> None:
+    src = make_scene(TimelineType.START_DURATION, background=20, objects=1, per_object=10)
+    out = tmp_path / "x.tsogs"
+    with pytest.raises(InputError) as info:
+        segment_scene(src, out, options)
+    assert info.value.where == where
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_a_static_scene_cannot_be_segmented(tmp_path: Path) -> None:
+    src = make_scene(TimelineType.START_DURATION, background=20, objects=1, per_object=10)
+    with pytest.raises(InputError, match="4D"):
+        segment_scene(Scene(src.gaussians), tmp_path / "x.tsogs")
