@@ -119,3 +119,15 @@ def test_help_teaches() -> None:
     assert proc.returncode == 0
     for word in ("encode", "decode", "info", "frame", "demo", "examples:", "seconds"):
         assert word in proc.stdout
+
+
+def test_demo_reports_a_faithful_stream(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["demo", "--out", str(tmp_path), "--json", "-q"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    stream = report["stream"]
+    assert stream["frame_gaussians"] == stream["expected_gaussians"] > 0
+    assert (tmp_path / "demo.tsogs").stat().st_size == stream["bytes"]
+    assert (tmp_path / "demo.sog").stat().st_size == report["tsog_bytes"]
+    assert report["tsog_bytes"] < report["extended_ply_bytes"]
+    for row in report["errors"]:
+        assert row["means_max"] < 1e-3 and row["visibility_flips"] == 0

@@ -262,6 +262,14 @@ def _print_demo(report: dict[str, Any]) -> None:
     print(f"TSOG chunk: {report['tsog_bytes']} bytes -> {report['output']}")
     saving = report["saving_percent"]
     print(f"extended PLY: {report['extended_ply_bytes']} bytes ({saving}% smaller as TSOG)")
+    s = report["stream"]
+    print(
+        f"stream: {s['bytes']} bytes, {s['windows']} windows, {s['chunks']} chunks -> {s['output']}"
+    )
+    print(
+        f"  frame at t = {s['t']} s: {s['frame_gaussians']} Gaussians (scene has "
+        f"{s['expected_gaussians']}), read {s['bytes_read']} bytes in {s['requests']} requests"
+    )
     print("errors after encode/decode (positions: scene units, rotations: degrees, opacity: alpha)")
     head = ("t (s)", "visible", "pos max", "rot max", "scale max", "alpha max", "flips")
     print(" ".join(f"{h:>9}" for h in head))

@@ -204,18 +204,43 @@ class Part:
     scene: Scene
 
 
-def _encoded(parts: Iterable[Part], options: SegmentOptions) -> Iterator[tuple[Part, bytes]]:
-    """(part, payload) in input order, encoding up to 2 x workers parts ahead in parallel."""
+@dataclass(frozen=True)
+class PartInfo:
+    """What the index records of a part, computed before its arrays are handed to a worker."""
+
+    key: NodeKey
+    count: int
+    start_s: float
+    end_s: float
+    bbox: Box
+
+
+def describe_part(part: Part, plan: Plan) -> PartInfo:
+    """A part's count, visible interval (clipped to its node) and bounding box."""
+    start, end = _interval(part.scene, plan.node_interval(part.key))
+    return PartInfo(part.key, len(part.scene), start, end, _bounds(part.scene, start, end))
+
+
+def _encoded(
+    parts: Iterable[Part], plan: Plan, options: SegmentOptions
+) -> Iterator[tuple[PartInfo, bytes]]:
+    """(info, payload) in input order, with at most ``workers`` parts in flight.
+
+    The parent keeps only each part's small :class:`PartInfo`, so peak memory is the part being
+    produced plus the ones being encoded, whatever the scene length.
+    """
     if options.workers <= 1:
         for part in parts:
-            yield part, encode_job_payload(part.scene, options.seed)
+            yield describe_part(part, plan), encode_job_payload(part.scene, options.seed)
         return
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=options.workers, mp_context=context) as pool:
-        pending: deque[tuple[Part, Future[bytes]]] = deque()
+        pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
         for part in parts:
-            pending.append((part, pool.submit(encode_job_payload, part.scene, options.seed)))
-            if len(pending) >= 2 * options.workers:
+            info = describe_part(part, plan)
+            pending.append((info, pool.submit(encode_job_payload, part.scene, options.seed)))
+            del part
+            if len(pending) >= options.workers:
                 done, fut = pending.popleft()
                 yield done, fut.result()
         while pending:
@@ -247,9 +272,8 @@ def _write_container(
     keys: list[NodeKey] = []
     per_level: dict[int, int] = {}
     with ContainerFile(path) as out:
-        for i, (part, payload) in enumerate(_encoded(parts, options)):
+        for i, (info, payload) in enumerate(_encoded(parts, plan, options)):
             offset, length, digest = out.add(payload)
-            start, end = _interval(part.scene, plan.node_interval(part.key))
             entries.append(
                 ChunkEntry(
                     id=i,
@@ -257,16 +281,16 @@ def _write_container(
                     offset=offset,
                     length=length,
                     sha256=digest,
-                    count=len(part.scene),
-                    level=part.key.level,
-                    node=part.key.index,
-                    start_s=start,
-                    end_s=end,
-                    bbox=_bounds(part.scene, start, end),
+                    count=info.count,
+                    level=info.key.level,
+                    node=info.key.index,
+                    start_s=info.start_s,
+                    end_s=info.end_s,
+                    bbox=info.bbox,
                 )
             )
-            keys.append(part.key)
-            per_level[part.key.level] = per_level.get(part.key.level, 0) + length
+            keys.append(info.key)
+            per_level[info.key.level] = per_level.get(info.key.level, 0) + length
             if on_chunk:
                 on_chunk(i + 1, max(total, i + 1))
         scene = {
