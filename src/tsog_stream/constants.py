@@ -55,6 +55,9 @@ renormalised on evaluation, ``sh0`` f_dc values, ``opacity`` the logit.
 """
 MAX_TEMPORAL_ORDER: Final = 8
 
+SCALE_CAP_SPANS: Final = 20.0
+"""Type-2 scales are stored clamped to this many scene spans (exp(-1/2 (1/20)^2) > 0.998)."""
+
 VISIBILITY_THRESHOLD: Final = 1.0 / 255.0
 """Type-2 Gaussians whose temporal opacity factor falls under this are invisible."""
 

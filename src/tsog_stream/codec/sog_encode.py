@@ -61,12 +61,17 @@ def _sh_rest(gaussians: Gaussians) -> npt.NDArray[np.float32]:
 
 
 def _encode_sh_palette(
-    gaussians: Gaussians, width: int, height: int, seed: int
+    gaussians: Gaussians, width: int, height: int, seed: int, note: Progress
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Palette (k-means on f_rest), its codebook, the centroid image and the label image."""
     coeffs = gaussians.shN.shape[1]
     vectors = _sh_rest(gaussians)
-    centroids, labels = fit_palette(vectors, palette_size(len(gaussians)), seed=seed)
+    centroids, labels = fit_palette(
+        vectors,
+        palette_size(len(gaussians)),
+        seed=seed,
+        progress=lambda f: note(f"SH palette {100 * f:3.0f}%"),
+    )
     count = centroids.shape[0]
     codebook = build_codebook(centroids)
     cbytes = assign_codebook(centroids, codebook).reshape(count, 3, coeffs)
@@ -125,6 +130,6 @@ def encode_sog(
     }
     if gaussians.sh_bands > 0 and len(gaussians) > 0:
         note("SH palette")
-        sh_images, meta["shN"] = _encode_sh_palette(gaussians, width, height, seed)
+        sh_images, meta["shN"] = _encode_sh_palette(gaussians, width, height, seed, note)
         images.update(sh_images)
     return SogParts(images, meta)

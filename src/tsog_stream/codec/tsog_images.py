@@ -53,6 +53,22 @@ def _ranges(values: F64) -> tuple[F64, F64]:
     return values.min(axis=0), values.max(axis=0)
 
 
+def scale_cap(timeline: Timeline) -> float:
+    """Largest type-2 scale worth storing: SCALE_CAP_SPANS times the scene's span.
+
+    A larger scale changes the temporal opacity factor by less than 0.13 % anywhere in the
+    scene, while an unbounded one (a float16 overflow in .splatv gives 65504) would stretch the
+    linear 16-bit range so far that short lifespans lose all precision.
+    """
+    if timeline.scene_length:
+        span = float(timeline.scene_length)
+    elif len(timeline):
+        span = float(timeline.t0.max() - timeline.t0.min())
+    else:
+        span = 0.0
+    return C.SCALE_CAP_SPANS * max(span, 1e-3)
+
+
 def encode_timeline(
     timeline: Timeline, width: int, height: int
 ) -> tuple[dict[str, U8], dict[str, Any]]:
@@ -60,6 +76,8 @@ def encode_timeline(
     values = np.stack([timeline.t0, timeline.t1], axis=1)
     if timeline.type is TimelineType.FRAME:
         values[:, 1] = 0.0  # G is unused for frame ids: stored as 0 with range [0, 0]
+    if timeline.type is TimelineType.CENTER_SCALE:
+        values[:, 1] = np.minimum(values[:, 1], scale_cap(timeline))
     mins, maxs = _ranges(values)
     if timeline.type is TimelineType.FRAME and maxs[0] - mins[0] > C.U16_MAX:
         raise InputError(
