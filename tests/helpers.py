@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from tsog_stream import Scene, TimelineType
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.constants import U16_MAX
+from tsog_stream.temporal import evaluate_all, lifespans, reference_times, visibility_half_width
 
 
 def means_log_step(mins: list[float], maxs: list[float]) -> npt.NDArray[np.float64]:
@@ -17,3 +19,38 @@ def means_log_step(mins: list[float], maxs: list[float]) -> npt.NDArray[np.float
 def log_space_error(a: npt.ArrayLike, b: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """|f(a) - f(b)| per coordinate, f the symmetric log transform of SOG positions."""
     return np.abs(log_transform(a) - log_transform(b))
+
+
+def _edges(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    assert scene.timeline is not None
+    return lifespans(scene.timeline)
+
+
+def check_decoded_at(src: Scene, decoded: Scene, meta: dict, t: float) -> None:
+    """Decoded positions at t are within the base step plus every order's coefficient step."""
+    ref, mask = evaluate_all(src, t)
+    got, got_mask = evaluate_all(decoded, t)
+    assert src.timeline is not None
+    dt = np.abs(t - reference_times(src.timeline))
+    tl_meta = meta["timeline"]
+    t_step = (np.asarray(tl_meta["maxs"]) - np.asarray(tl_meta["mins"])) / 65535
+    spu = 1 / tl_meta["fps"] if tl_meta.get("fps") else 1.0
+    bound = np.zeros(len(src))
+    motion = meta.get("temporal", {}).get("means", {"mins": [], "maxs": []})
+    coeff = np.abs(src.temporal["means"]).max(axis=(0, 2)) if motion["mins"] else []
+    for k, (mins, maxs) in enumerate(zip(motion["mins"], motion["maxs"], strict=True)):
+        half = (np.asarray(maxs) - np.asarray(mins)).max() / 65535 / 2
+        # coefficient error, plus the reference-time error moving along the path
+        bound += half * dt ** (k + 1) + (k + 1) * coeff[k] * (dt + 1) ** k * t_step[0] * spu / 2
+    base = (1 + np.abs(ref.means).max(axis=1)) * means_log_step(
+        meta["means"]["mins"], meta["means"]["maxs"]
+    ).max()
+    err = np.abs(ref.means - got.means).max(axis=1)
+    both = mask & got_mask
+    assert np.all(err[both] <= (bound + base + 1e-6)[both]), f"t={t}"
+    # Visibility may differ only where t is within one quantisation error of a lifespan edge.
+    start, end = _edges(src)
+    half_width = visibility_half_width() if src.timeline.type is TimelineType.CENTER_SCALE else 1.0
+    edge_error = (t_step[0] + half_width * t_step[1]) * spu / 2 + 1e-9
+    near_edge = np.minimum(np.abs(t - start), np.abs(t - end)) <= edge_error
+    assert not np.any((mask != got_mask) & ~near_edge), f"visibility changed away from edges, t={t}"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import log_space_error, means_log_step
+from helpers import check_decoded_at, log_space_error, means_log_step
 from tsog_stream import Scene, SogError, TimelineType, TsogError
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
@@ -16,10 +16,7 @@ from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
 from tsog_stream.synthetic import small_scene
 from tsog_stream.temporal import (
-    evaluate_all,
     lifespans,
-    reference_times,
-    visibility_half_width,
 )
 
 ROTATION_MAX_DEG = 1.1
@@ -76,46 +73,11 @@ def test_tsog_round_trip_matches_source_at_t(kind: TimelineType, order: int) -> 
     assert decoded.timeline is not None and src.timeline is not None
     assert decoded.timeline.type is kind
     meta = json.loads(files["meta.json"])
-    start, end = _edges(src)
+    assert src.timeline is not None
+    start, end = lifespans(src.timeline)
     edges = [*start[-3:].tolist(), *end[-3:].tolist()]  # object Gaussians come last
     for t in sorted({0.0, 0.37, 1.0, 1.99, *edges}):
-        _check_at(src, decoded, meta, t)
-
-
-def _edges(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    assert scene.timeline is not None
-    return lifespans(scene.timeline)
-
-
-def _check_at(src: Scene, decoded: Scene, meta: dict, t: float) -> None:
-    """Decoded positions at t are within the base step plus every order's coefficient step."""
-    ref, mask = evaluate_all(src, t)
-    got, got_mask = evaluate_all(decoded, t)
-    assert src.timeline is not None
-    dt = np.abs(t - reference_times(src.timeline))
-    tl_meta = meta["timeline"]
-    t_step = (np.asarray(tl_meta["maxs"]) - np.asarray(tl_meta["mins"])) / 65535
-    spu = 1 / tl_meta["fps"] if tl_meta.get("fps") else 1.0
-    coeff = np.abs(src.temporal["means"]).max(axis=(0, 2))
-    bound = np.zeros(len(src))
-    for k, (mins, maxs) in enumerate(
-        zip(meta["temporal"]["means"]["mins"], meta["temporal"]["means"]["maxs"], strict=True)
-    ):
-        half = (np.asarray(maxs) - np.asarray(mins)).max() / 65535 / 2
-        # coefficient error, plus the reference-time error moving along the path
-        bound += half * dt ** (k + 1) + (k + 1) * coeff[k] * (dt + 1) ** k * t_step[0] * spu / 2
-    base = (1 + np.abs(ref.means).max(axis=1)) * means_log_step(
-        meta["means"]["mins"], meta["means"]["maxs"]
-    ).max()
-    err = np.abs(ref.means - got.means).max(axis=1)
-    both = mask & got_mask
-    assert np.all(err[both] <= (bound + base + 1e-6)[both]), f"t={t}"
-    # Visibility may differ only where t is within one quantisation error of a lifespan edge.
-    start, end = _edges(src)
-    half_width = visibility_half_width() if src.timeline.type is TimelineType.CENTER_SCALE else 1.0
-    edge_error = (t_step[0] + half_width * t_step[1]) * spu / 2 + 1e-9
-    near_edge = np.minimum(np.abs(t - start), np.abs(t - end)) <= edge_error
-    assert not np.any((mask != got_mask) & ~near_edge), f"visibility changed away from edges, t={t}"
+        check_decoded_at(src, decoded, meta, t)
 
 
 def test_frame_ids_survive_exactly() -> None:
