@@ -157,6 +157,9 @@ def cmd_segment(
     print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
     for level, size in sorted(report.bytes_per_level.items()):
         print(f"  level {level}: {size} bytes")
+    shown = ", ".join(str(b) for b in report.bytes_per_window[:12])
+    more = " ..." if len(report.bytes_per_window) > 12 else ""
+    print(f"  bytes per window (level 0): {shown}{more}")
     return 0
 
 

@@ -80,6 +80,8 @@ class SegmentReport:
     stored: int
     dropped: int
     bytes_per_level: dict[int, int] = field(default_factory=dict)
+    bytes_per_window: list[int] = field(default_factory=list)
+    """Bytes of the window chunks (level 0) of each window, in time order."""
 
 
 def palette_pixels(count: int, sh_bands: int) -> int:
@@ -314,8 +316,20 @@ def _write_container(
         size = out.finish(manifest)
     stored = sum(e.count for e in entries)
     gaussians = int(scene_fields["gaussians"])
+    per_window = [0] * plan.windows
+    for e in entries:
+        if e.level == 0:
+            per_window[e.node] += e.length
     return SegmentReport(
-        str(path), size, len(entries), plan.windows, gaussians, stored, plan.dropped, per_level
+        str(path),
+        size,
+        len(entries),
+        plan.windows,
+        gaussians,
+        stored,
+        plan.dropped,
+        per_level,
+        per_window,
     )
 
 
