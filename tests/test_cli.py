@@ -131,3 +131,17 @@ def test_demo_reports_a_faithful_stream(tmp_path: Path, capsys: pytest.CaptureFi
     assert report["tsog_bytes"] < report["extended_ply_bytes"]
     for row in report["errors"]:
         assert row["means_max"] < 1e-3 and row["visibility_flips"] == 0
+
+
+def test_encode_to_4dgs_refuses_unrepresentable_motion_unless_lossy(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = tmp_path / "curved.sog"
+    scene = small_scene(TimelineType.CENTER_SCALE, motion_order=2, dynamic=("means",))
+    source.write_bytes(bundle_bytes(encode_chunk(scene)))
+    out = tmp_path / "x.4dgs"
+    assert main(["encode", str(source), str(out), "-q"]) == 1
+    assert "tsog: error:" in capsys.readouterr().err and not out.exists()
+    assert main(["encode", str(source), str(out), "--lossy", "-q"]) == 0
+    assert out.stat().st_size > 0
+    assert "note:" in capsys.readouterr().err

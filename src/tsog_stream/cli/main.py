@@ -18,6 +18,7 @@ from ..codec.chunk import decode_chunk, encode_chunk
 from ..demo import run_demo
 from ..errors import InputError, TsogError
 from ..io.chunks import read_chunk_files, write_chunk_files
+from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
 from ..io.readers import FORMATS, ReadOptions, detect_format, load_scene
 from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
@@ -40,6 +41,9 @@ EPILOG = """examples:
   tsog demo                                   generate, encode, decode and report
   tsog encode scene.ply scene.sog             static 3DGS PLY -> bundled SOG v2
   tsog encode chunk.sog out/                  re-encode into an unbundled folder
+  tsog encode clip.splatv clip.4dgs --lossy   write .4dgs (drops motion it cannot hold)
+  tsog segment frames/ --fps 30 -o c.tsogs    segment into a stream container
+  tsog frame c.tsogs --t 2 -o f.ply -v        read only the chunks t needs
   tsog decode scene.sog scene.ply             back to a float PLY (base values)
   tsog info scene.sog                         count, SH bands, timeline, sizes
   tsog frame scene.sog --t 1.5 -o f.ply       the scene at t = 1.5 s as a static file
@@ -99,6 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
         "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the SH palette fit (default 0)")
+    p.add_argument(
+        "--lossy",
+        action="store_true",
+        help="OUT.4dgs only: drop motion .4dgs cannot hold instead of refusing",
+    )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     _add_common(p)
 
@@ -161,6 +170,12 @@ def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
     _refuse_existing(args.output, args.force)
     scene = _load(args, progress)
+    if args.output.suffix.lower() == ".4dgs":
+        for note in write_4dgs(args.output, scene, lossy=args.lossy):
+            print(f"tsog: note: {note}", file=sys.stderr)
+        progress.done()
+        print(f"{args.output}: {len(scene)} Gaussians, {args.output.stat().st_size} bytes")
+        return 0
     files = encode_chunk(scene, seed=args.seed, progress=progress)
     size = write_chunk_files(args.output, files, overwrite=True)
     progress.done()
