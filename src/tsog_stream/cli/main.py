@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
+from ..client.cli import add_client_commands, cmd_fetch, cmd_play
 from ..codec.chunk import decode_chunk, encode_chunk
 from ..demo import run_demo
 from ..errors import InputError, TsogError
@@ -134,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p)
 
     add_stream_commands(sub, _add_input, _add_common)
+    add_client_commands(sub, _add_common)
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
@@ -337,6 +339,8 @@ COMMANDS = {
     "extract": cmd_extract,
     "unpack": cmd_unpack,
     "pack": cmd_pack,
+    "fetch": cmd_fetch,
+    "play": cmd_play,
 }
 
 

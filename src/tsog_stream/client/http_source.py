@@ -1,0 +1,249 @@
+"""``HttpSource``: the :class:`ByteSource` protocol over HTTP single-range GET requests.
+
+Every read is one ``GET`` with ``Range: bytes=a-b`` (RFC 9110 §14.2) and
+``Accept-Encoding: identity``; a response is used only when its status is 206, its
+``Content-Range`` (RFC 9110 §14.4) is exactly the range asked for and names the file's length,
+and its body has that many bytes. The first response teaches the file's length and its strong
+ETag; later requests carry ``If-Match: <etag>`` so a file replaced on the server fails with a
+412 (a SourceError), never a silent mix of two versions. Connection errors, timeouts and 5xx
+answers are retried with exponential backoff, resuming a truncated body from the last byte
+received. An origin that ignores ``Range`` (200 with the whole file) is tolerated for small
+files (kept in memory) and refused for large ones. See docs/client.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import re
+from dataclasses import dataclass
+
+import aiohttp
+
+from ..container.header import PREFIX_SIZE
+from ..container.ranges import ByteRange
+from ..container.sources import ReadStats
+from ..errors import SourceError
+
+_CONTENT_RANGE = re.compile(r"^bytes (\d+)-(\d+)/(\d+)$")
+_UNSATISFIED = re.compile(r"^bytes \*/(\d+)$")
+
+
+class _RetryableError(Exception):
+    """A transient failure (5xx) worth another attempt."""
+
+
+@dataclass(frozen=True)
+class HttpOptions:
+    """Tuning of an :class:`HttpSource`: retries, timeouts and the unranged-origin limit."""
+
+    retries: int = 4
+    backoff_s: float = 0.1
+    connect_timeout_s: float = 10.0
+    read_timeout_s: float = 30.0
+    max_unranged_bytes: int = 1 << 20
+    """Largest whole-file (200) answer kept in memory when the origin ignores ``Range``."""
+
+
+class HttpSource:
+    """Random access to one file on an HTTP server, pinned to the version first seen."""
+
+    def __init__(
+        self,
+        url: str,
+        options: HttpOptions | None = None,
+        *,
+        session: aiohttp.ClientSession | None = None,
+    ) -> None:
+        self.url = url
+        self.name = url
+        self.stats = ReadStats()
+        self.options = options or HttpOptions()
+        self.etag: str | None = None
+        self._session = session
+        self._owns_session = session is None
+        self._size: int | None = None
+        self._head = b""  # bytes from the first request, served again without a request
+        self._copy: bytes | None = None  # the whole file, when the origin ignores ranges
+        self._lock = asyncio.Lock()
+
+    def _client(self) -> aiohttp.ClientSession:
+        """The session, created on first use (inside the running event loop)."""
+        if self._session is None:
+            timeout = aiohttp.ClientTimeout(
+                sock_connect=self.options.connect_timeout_s, sock_read=self.options.read_timeout_s
+            )
+            self._session = aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
+        return self._session
+
+    async def aclose(self) -> None:
+        """Close the HTTP session if this source created it."""
+        if self._session is not None and self._owns_session:
+            await self._session.close()
+        self._session = None
+
+    async def size(self) -> int:
+        """Length of the file, learnt from the first request (which also fetches its prefix)."""
+        async with self._lock:
+            if self._size is None:
+                self._head = await self._fetch(ByteRange(0, PREFIX_SIZE), probe=True)
+                if self._size is None:  # the first answer always sets it; keeps mypy honest
+                    raise SourceError("the server did not say how long the file is", where=self.url)
+            return self._size
+
+    async def read(self, span: ByteRange) -> bytes:
+        """Exactly the bytes of ``span``: from memory when already received, else one GET."""
+        size = await self.size()
+        if not span.within(size):
+            raise SourceError(
+                f"asked for bytes [{span.start}, {span.end}) of a {size}-byte file", where=self.url
+            )
+        if span.length == 0:
+            return b""
+        if self._copy is not None:
+            return self._copy[span.start : span.end]
+        if span.end <= len(self._head):
+            return self._head[span.start : span.end]
+        return await self._fetch(span, probe=False)
+
+    async def _fetch(self, span: ByteRange, *, probe: bool) -> bytes:
+        """GET ``span`` with retries, resuming after the bytes already received."""
+        got = bytearray()
+        attempt = 0
+        while True:
+            rest = ByteRange(span.start + len(got), span.end)
+            try:
+                await self._get(rest, got, probe=probe)
+                return bytes(got)
+            except (aiohttp.ClientError, TimeoutError, _RetryableError) as exc:
+                attempt += 1
+                if attempt > self.options.retries:
+                    raise SourceError(
+                        f"bytes [{rest.start}, {rest.end}) failed after {attempt} attempts: "
+                        f"{exc or type(exc).__name__}",
+                        where=self.url,
+                    ) from exc
+                await asyncio.sleep(self.options.backoff_s * 2 ** (attempt - 1))
+
+    def _headers(self, span: ByteRange) -> dict[str, str]:
+        """Request headers: one range, no compression, pinned to the known version."""
+        headers = {"Range": span.http_header(), "Accept-Encoding": "identity"}
+        if self.etag is not None:
+            headers["If-Match"] = self.etag
+        return headers
+
+    async def _get(self, span: ByteRange, got: bytearray, *, probe: bool) -> None:
+        """One request for ``span``; appends the body to ``got`` as it arrives."""
+        self.stats.requests += 1
+        async with self._client().get(self.url, headers=self._headers(span)) as resp:
+            await self._receive(resp, span, got, probe=probe)
+
+    async def _receive(
+        self, resp: aiohttp.ClientResponse, span: ByteRange, got: bytearray, *, probe: bool
+    ) -> None:
+        """Check one response and read its body into ``got``."""
+        if resp.status == 412:
+            raise SourceError(
+                f"the file changed on the server (ETag {self.etag} no longer matches); "
+                "reopen it to read the new version",
+                where=self.url,
+            )
+        if resp.status >= 500:
+            raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
+        if resp.headers.get("Content-Encoding", "identity").lower() != "identity":
+            raise SourceError(
+                f"expected an unencoded body, got Content-Encoding: "
+                f"{resp.headers['Content-Encoding']}",
+                where=self.url,
+            )
+        if resp.status == 200:
+            await self._take_whole_file(resp, got, span)
+        elif resp.status == 416 and probe:
+            self._learn(_parse(_UNSATISFIED, resp, self.url)[0], resp)
+        elif resp.status == 206:
+            expected = self._check_range(resp, span, probe=probe)
+            await self._read_body(resp, got, expected)
+        else:
+            raise SourceError(
+                f"expected HTTP 206 for Range {span.http_header()}, got {resp.status}",
+                where=self.url,
+            )
+
+    def _check_range(self, resp: aiohttp.ClientResponse, span: ByteRange, *, probe: bool) -> int:
+        """Validate ``Content-Range`` against the request and the file; returns the body length."""
+        first, last, total = _parse(_CONTENT_RANGE, resp, self.url)
+        if probe:
+            self._learn(total, resp)
+        want_last = min(span.end, self._size or 0) - 1
+        if (first, last, total) != (span.start, want_last, self._size):
+            raise SourceError(
+                f"asked for bytes {span.start}-{want_last}/{self._size}, the server sent "
+                f"Content-Range: {resp.headers.get('Content-Range')}",
+                where=self.url,
+            )
+        self._check_etag(resp)
+        length = last - first + 1
+        declared = resp.headers.get("Content-Length")
+        if declared is not None and declared != str(length):
+            raise SourceError(
+                f"Content-Range has {length} bytes but Content-Length says {declared}",
+                where=self.url,
+            )
+        return length
+
+    def _learn(self, total: int, resp: aiohttp.ClientResponse) -> None:
+        """Remember the file's length and strong ETag from the first answer."""
+        self._size = total
+        etag = resp.headers.get("ETag")
+        self.etag = etag if etag and not etag.startswith("W/") else None
+
+    def _check_etag(self, resp: aiohttp.ClientResponse) -> None:
+        """A SourceError when a pinned file answers with another ETag."""
+        etag = resp.headers.get("ETag")
+        if self.etag is not None and etag is not None and etag != self.etag:
+            raise SourceError(
+                f"the file changed on the server (ETag {self.etag}, now {etag})", where=self.url
+            )
+
+    async def _take_whole_file(
+        self, resp: aiohttp.ClientResponse, got: bytearray, span: ByteRange
+    ) -> None:
+        """A 200 answer: keep a small file in memory, refuse a large one (never stream it)."""
+        length = resp.content_length
+        limit = self.options.max_unranged_bytes
+        if length is None or length > limit or (self._size is not None and length != self._size):
+            resp.close()
+            raise SourceError(
+                f"origin ignores Range requests (HTTP 200 with {length} bytes; only files up to "
+                f"{limit} bytes are read whole)",
+                where=self.url,
+            )
+        if self._size is None:
+            self._learn(length, resp)
+        self._check_etag(resp)
+        whole = bytearray()
+        await self._read_body(resp, whole, length)
+        self._copy = bytes(whole)
+        got += self._copy[span.start : span.end]
+
+    async def _read_body(self, resp: aiohttp.ClientResponse, got: bytearray, length: int) -> None:
+        """Append the body to ``got``, counting bytes on the wire; longer than ``length`` fails."""
+        received = 0
+        async for piece in resp.content.iter_chunked(64 * 1024):
+            received += len(piece)
+            self.stats.bytes += len(piece)
+            if received > length:
+                raise SourceError(f"expected a {length}-byte body, got more", where=self.url)
+            got += piece
+        if received < length:
+            raise aiohttp.ClientPayloadError(f"body ended after {received} of {length} bytes")
+
+
+def _parse(pattern: re.Pattern[str], resp: aiohttp.ClientResponse, url: str) -> tuple[int, ...]:
+    """The integers of a ``Content-Range`` header matching ``pattern``, else a SourceError."""
+    value = resp.headers.get("Content-Range", "")
+    m = pattern.match(value)
+    if m is None:
+        raise SourceError(
+            f"expected Content-Range like {pattern.pattern!r}, got {value!r}", where=url
+        )
+    return tuple(int(g) for g in m.groups())

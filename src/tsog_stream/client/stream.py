@@ -1,0 +1,369 @@
+"""``StreamClient``: the async core that shows a remote (or local) container at any time.
+
+It opens the container with one request, fetches only the chunks a time needs, keeps decoded
+chunks in an LRU cache bounded in bytes, prefetches ahead in time order with a bounded number
+of requests in flight, and merges chunks that lie close together in the file into one request
+(the body is split back into chunks and every chunk's SHA-256 is checked). See docs/client.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+from collections import OrderedDict
+from collections.abc import AsyncIterator, Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+from urllib.parse import unquote, urlparse
+
+from ..container.ranges import ByteRange, coalesce
+from ..container.reader import (
+    StreamIndex,
+    decode_chunk_bytes,
+    frame_from_chunks,
+    open_stream,
+    verify_chunk,
+)
+from ..container.sources import ByteSource, FileSource
+from ..errors import InputError
+from ..model import Gaussians, Scene
+from ..schemas.manifest import ChunkEntry
+from .http_source import HttpOptions, HttpSource
+
+MiB = 1 << 20
+
+
+def open_source(target: str | os.PathLike[str], options: HttpOptions | None = None) -> ByteSource:
+    """An ``HttpSource`` for http(s) URLs, a ``FileSource`` for ``file://`` URLs and paths."""
+    text = os.fspath(target)
+    scheme = urlparse(text).scheme.lower()
+    if scheme in ("http", "https"):
+        return HttpSource(text, options)
+    if scheme == "file":
+        return FileSource(unquote(urlparse(text).path))
+    return FileSource(text)
+
+
+def scene_nbytes(scene: Scene) -> int:
+    """Memory held by a decoded chunk's arrays (the cache's measure of size)."""
+    g = scene.gaussians
+    n = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
+    if scene.timeline is not None:
+        n += scene.timeline.t0.nbytes + scene.timeline.t1.nbytes
+    return n + sum(a.nbytes for a in scene.temporal.values())
+
+
+@dataclass
+class CacheStats:
+    """Lookups of chunks a frame needed: found decoded (hits) or not (misses)."""
+
+    hits: int = 0
+    misses: int = 0
+
+    @property
+    def hit_rate(self) -> float:
+        """Fraction of lookups that were hits (0 before any lookup)."""
+        total = self.hits + self.misses
+        return self.hits / total if total else 0.0
+
+
+class SceneCache:
+    """Decoded chunks by id, least recently used evicted first, bounded in bytes."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self.nbytes = 0
+        self._items: OrderedDict[int, tuple[Scene, int]] = OrderedDict()
+
+    def __contains__(self, chunk_id: int) -> bool:
+        return chunk_id in self._items
+
+    def get(self, chunk_id: int) -> Scene | None:
+        """The chunk if cached (and mark it recently used)."""
+        item = self._items.get(chunk_id)
+        if item is None:
+            return None
+        self._items.move_to_end(chunk_id)
+        return item[0]
+
+    def put(self, chunk_id: int, scene: Scene) -> None:
+        """Add a chunk, evicting the least recently used ones beyond the byte budget."""
+        if chunk_id in self._items:
+            return
+        size = scene_nbytes(scene)
+        self._items[chunk_id] = (scene, size)
+        self.nbytes += size
+        while self.nbytes > self.max_bytes and len(self._items) > 1:
+            _, (_, dropped) = self._items.popitem(last=False)
+            self.nbytes -= dropped
+
+
+@dataclass
+class PlayStats:
+    """What a playback cost: startup latency, stalls, transfer and cache behaviour."""
+
+    frames: int = 0
+    startup_s: float = 0.0
+    stalls: int = 0
+    stall_s: float = 0.0
+    requests: int = 0
+    bytes: int = 0
+    hit_rate: float = 0.0
+    elapsed_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class PlayedFrame:
+    """One frame of a playback: its number, scene time, Gaussians and wait for data."""
+
+    index: int
+    t: float
+    gaussians: Gaussians
+    wait_s: float
+
+
+@dataclass(frozen=True)
+class _PlayPlan:
+    """Frame times and budget of one playback."""
+
+    start: float
+    end: float
+    count: int
+    step: float
+    budget: float
+    horizon: float
+    realtime: bool
+
+
+@dataclass
+class Playback:
+    """An async iterator of played frames; ``stats`` fills in as it runs."""
+
+    frames: AsyncIterator[PlayedFrame]
+    stats: PlayStats = field(default_factory=PlayStats)
+
+    def __aiter__(self) -> AsyncIterator[PlayedFrame]:
+        return self.frames
+
+
+class StreamClient:
+    """An opened container: frames at any time, prefetching and simulated playback."""
+
+    def __init__(
+        self,
+        source: ByteSource,
+        index: StreamIndex,
+        *,
+        cache_bytes: int = 256 * MiB,
+        concurrency: int = 4,
+        coalesce_gap: int | None = 64 * 1024,
+    ) -> None:
+        if concurrency < 1 or cache_bytes < 0 or (coalesce_gap is not None and coalesce_gap < 0):
+            raise InputError("concurrency must be >= 1, cache_bytes and coalesce_gap >= 0")
+        self.source = source
+        self.index = index
+        self.cache = SceneCache(cache_bytes)
+        self.cache_stats = CacheStats()
+        self.coalesce_gap = coalesce_gap
+        self._limit = asyncio.Semaphore(concurrency)
+        self._pending: dict[int, asyncio.Future[Scene]] = {}
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    @classmethod
+    async def open(
+        cls,
+        target: str | os.PathLike[str] | ByteSource,
+        *,
+        cache_bytes: int = 256 * MiB,
+        concurrency: int = 4,
+        coalesce_gap: int | None = 64 * 1024,
+        http: HttpOptions | None = None,
+    ) -> StreamClient:
+        """Open a container by URL, ``file://`` URL, path or byte source."""
+        source = open_source(target, http) if isinstance(target, str | os.PathLike) else target
+        try:
+            index = await open_stream(source)
+        except BaseException:
+            await _close_source(source)
+            raise
+        return cls(
+            source,
+            index,
+            cache_bytes=cache_bytes,
+            concurrency=concurrency,
+            coalesce_gap=coalesce_gap,
+        )
+
+    async def frame_at(self, t: float) -> Gaussians:
+        """The Gaussians visible at ``t``, fetching only the chunks ``t`` needs."""
+        chunks = self.index.chunks_for(t)
+        for c in chunks:
+            if c.id in self.cache:
+                self.cache_stats.hits += 1
+            else:
+                self.cache_stats.misses += 1
+        scenes = await self._scenes(chunks)
+        return frame_from_chunks(scenes, t, self.index.manifest.scene.sh_bands)
+
+    async def prefetch(self, t: float, horizon: float, *, wait: bool = True) -> int:
+        """Fetch the chunks of [t, t + horizon] in time order; returns how many were scheduled.
+
+        With ``wait=False`` the fetches run in the background (a failure there is not raised:
+        the chunk is fetched again, and the error raised, when a frame needs it).
+        """
+        chunks = self.index.chunks_for_interval(t, t + max(horizon, 0.0))
+        chunks.sort(key=lambda c: (c.start_s, c.offset))
+        futures = self._schedule(chunks)
+        if wait:
+            await asyncio.gather(*futures.values())
+        return len(futures)
+
+    async def _scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
+        """The decoded chunks, from the cache or fetched (in-flight fetches are shared)."""
+        found = {c.id: s for c in chunks if (s := self.cache.get(c.id)) is not None}
+        futures = self._schedule([c for c in chunks if c.id not in found])
+        for cid, fut in futures.items():
+            found[cid] = await fut
+        return [found[c.id] for c in chunks]
+
+    def _schedule(self, chunks: Sequence[ChunkEntry]) -> dict[int, asyncio.Future[Scene]]:
+        """Futures of the given chunks, starting coalesced fetches for those not under way."""
+        out = {c.id: self._pending[c.id] for c in chunks if c.id in self._pending}
+        todo = [c for c in chunks if c.id not in out and c.id not in self.cache]
+        loop = asyncio.get_running_loop()
+        for group in self._groups(todo):
+            futures = {c.id: loop.create_future() for c in group}
+            self._pending.update(futures)
+            out.update(futures)
+            task = loop.create_task(self._fetch_group(group, futures))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+        for c in chunks:
+            if c.id not in out and (s := self.cache.get(c.id)) is not None:
+                done: asyncio.Future[Scene] = loop.create_future()
+                done.set_result(s)
+                out[c.id] = done
+        return out
+
+    def _groups(self, chunks: Sequence[ChunkEntry]) -> list[list[ChunkEntry]]:
+        """Chunks split into runs whose byte ranges are at most ``coalesce_gap`` apart.
+
+        Runs keep the order in which their first chunk was asked for (time order); a gap of
+        None fetches every chunk on its own.
+        """
+        if self.coalesce_gap is None:
+            return [[c] for c in chunks]
+        spans = coalesce((self.index.chunk_range(c) for c in chunks), self.coalesce_gap)
+        groups: dict[ByteRange, list[ChunkEntry]] = {}
+        for c in chunks:
+            span = next(s for s in spans if s.start <= c.offset < s.end)
+            groups.setdefault(span, []).append(c)
+        return list(groups.values())
+
+    async def _fetch_group(
+        self, group: list[ChunkEntry], futures: dict[int, asyncio.Future[Scene]]
+    ) -> None:
+        """Fetch one run with one request, verify and decode each chunk, settle its future."""
+        try:
+            start = min(c.offset for c in group)
+            span = ByteRange(start, max(c.offset + c.length for c in group))
+            async with self._limit:
+                body = await self.source.read(span)
+            for c in sorted(group, key=lambda c: c.offset):
+                where = f"{self.source.name} chunk {c.id}"
+                data = verify_chunk(
+                    c, body[c.offset - start : c.offset + c.length - start], where=where
+                )
+                scene = await asyncio.to_thread(decode_chunk_bytes, data, where=where)
+                self.cache.put(c.id, scene)
+                futures[c.id].set_result(scene)
+        except BaseException as exc:
+            for fut in futures.values():
+                if fut.done():
+                    continue
+                if isinstance(exc, Exception):
+                    fut.set_exception(exc)
+                    fut.exception()  # a failed prefetch nobody awaits is not an error
+                else:
+                    fut.cancel()
+            if not isinstance(exc, Exception):
+                raise
+        finally:
+            for cid in futures:
+                self._pending.pop(cid, None)
+
+    def play(
+        self,
+        start: float = 0.0,
+        *,
+        speed: float = 1.0,
+        fps: float = 30.0,
+        duration: float | None = None,
+        horizon_s: float = 1.0,
+        realtime: bool = False,
+    ) -> Playback:
+        """Simulated playback from ``start`` at ``speed``, ``fps`` frames per wall second.
+
+        Each frame keeps ``horizon_s`` of scene time (clipped to the end) prefetched. Without
+        ``realtime`` nothing sleeps: a stall is a frame whose data took longer than its budget
+        (1 / fps) to arrive; the first frame's wait is the startup latency.
+        """
+        if fps <= 0 or speed <= 0:
+            raise InputError(f"fps and speed must be positive, got fps={fps}, speed={speed}")
+        scene = self.index.manifest.scene
+        end = start + duration * speed if duration is not None else scene.end_s
+        count = max(int((end - start) * fps / speed + 1e-9), 0) + 1
+        plan = _PlayPlan(start, end, count, speed / fps, 1.0 / fps, horizon_s, realtime)
+        stats = PlayStats()
+        return Playback(self._play(plan, stats), stats)
+
+    async def _play(self, plan: _PlayPlan, stats: PlayStats) -> AsyncIterator[PlayedFrame]:
+        """The frames of :meth:`play`, updating ``stats`` as they are produced."""
+        requests, nbytes = self.source.stats.requests, self.source.stats.bytes
+        hits, misses = self.cache_stats.hits, self.cache_stats.misses
+        began = time.monotonic()
+        budget = plan.budget
+        for k in range(plan.count):
+            t = plan.start + k * plan.step
+            await self.prefetch(t, min(plan.horizon, max(plan.end - t, 0.0)), wait=False)
+            asked = time.monotonic()
+            frame = await self.frame_at(t)
+            wait = time.monotonic() - asked
+            if k == 0:
+                stats.startup_s = wait
+            elif wait > budget:
+                stats.stalls += 1
+                stats.stall_s += wait - budget
+            stats.frames = k + 1
+            stats.requests = self.source.stats.requests - requests
+            stats.bytes = self.source.stats.bytes - nbytes
+            looked = self.cache_stats.hits - hits + self.cache_stats.misses - misses
+            stats.hit_rate = (self.cache_stats.hits - hits) / looked if looked else 0.0
+            stats.elapsed_s = time.monotonic() - began
+            yield PlayedFrame(k, t, frame, wait)
+            if plan.realtime:
+                await asyncio.sleep(
+                    max(0.0, began + stats.startup_s + (k + 1) * budget - time.monotonic())
+                )
+
+    async def aclose(self) -> None:
+        """Cancel background fetches and close the source's connections."""
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await _close_source(self.source)
+
+    async def __aenter__(self) -> StreamClient:
+        return self
+
+    async def __aexit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()
+
+
+async def _close_source(source: ByteSource) -> None:
+    """Close a source that holds connections (an ``HttpSource``)."""
+    if isinstance(source, HttpSource):
+        await source.aclose()

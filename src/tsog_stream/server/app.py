@@ -1,0 +1,362 @@
+"""The aiohttp application: raw files with RFC 9110 byte ranges, and the streaming API.
+
+Routes (see docs/http.md): ``GET|HEAD /files/{path}``, ``GET /v1/scenes``,
+``GET /v1/scenes/{id}/manifest``, ``GET /v1/scenes/{id}/chunks?t=&horizon=``,
+``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /healthz`` and ``OPTIONS`` preflight anywhere.
+Bodies are read with ``pread`` in a worker thread, 256 KiB at a time, and written with
+``StreamResponse.write`` (no sendfile: see docs/http.md).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import secrets
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+from aiohttp import web
+
+from ..container.ranges import ByteRange
+from ..errors import InputError, TsogError
+from .catalog import Catalog, NotFoundError, Representation, SceneEntry
+from .conditional import Outcome, evaluate, http_date, if_range_allows
+from .ranges import Ignore, Serve, Unsatisfiable, content_range, parse_range, unsatisfied_range
+
+READ_BLOCK = 256 * 1024
+REVALIDATE = "public, max-age=0, must-revalidate"
+IMMUTABLE = "public, max-age=31536000, immutable"
+ACCESS_LOG_FORMAT = '%a "%r" %s %b bytes %Tf s "%{Range}i" "%{User-Agent}i"'
+CORS = {
+    "Access-Control-Allow-Origin": "*",
+    "Access-Control-Expose-Headers": "Content-Range, ETag, Accept-Ranges, Content-Length",
+}
+PREFLIGHT = {
+    "Access-Control-Allow-Methods": "GET, HEAD, OPTIONS",
+    "Access-Control-Allow-Headers": "Range, If-Match, If-None-Match, If-Range, "
+    "If-Modified-Since, If-Unmodified-Since",
+    "Access-Control-Max-Age": "86400",
+}
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """Hardening limits of one server."""
+
+    max_concurrent: int = 256
+    """Requests handled at once; more get 503 with Retry-After: 1."""
+    send_timeout_s: float = 60.0
+    """Deadline for sending one response body; the connection is dropped when it passes."""
+    keepalive_s: float = 15.0
+    """Idle keep-alive connections are closed after this."""
+    shutdown_timeout_s: float = 10.0
+    """Grace period for in-flight requests on shutdown."""
+
+
+CATALOG = web.AppKey("catalog", Catalog)
+LIMITS = web.AppKey("limits", Limits)
+GATE = web.AppKey("gate", asyncio.Semaphore)
+
+
+def _error(status: int, message: str, **extra: Any) -> web.Response:
+    """A JSON error body ``{"error": {"status", "message", ...}}``."""
+    body = {"error": {"status": status, "message": message, **extra}}
+    return web.json_response(body, status=status, headers={"Cache-Control": "no-store"})
+
+
+@web.middleware
+async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """Concurrency cap, then library errors and aiohttp's HTTP errors as JSON."""
+    gate = request.app[GATE]
+    if gate.locked():
+        resp = _error(503, "too many concurrent requests")
+        resp.headers["Retry-After"] = "1"
+        return resp
+    async with gate:
+        try:
+            return await handler(request)
+        except NotFoundError as exc:
+            return _error(404, str(exc))
+        except InputError as exc:
+            return _error(400, str(exc))
+        except web.HTTPException as exc:
+            if exc.status < 400:
+                raise
+            return _error(exc.status, exc.reason)
+
+
+async def _add_cors(request: web.Request, response: web.StreamResponse) -> None:
+    """CORS headers on every response."""
+    response.headers.update(CORS)
+
+
+def _validators(rep: Representation, cache_control: str) -> dict[str, str]:
+    """ETag, Last-Modified, Accept-Ranges and Cache-Control of a representation."""
+    return {
+        "ETag": rep.etag,
+        "Last-Modified": http_date(rep.mtime),
+        "Accept-Ranges": "bytes",
+        "Cache-Control": cache_control,
+    }
+
+
+async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange) -> None:
+    """Write ``span`` of the open file ``fd`` in READ_BLOCK pieces."""
+    pos = span.start
+    while pos < span.end:
+        data = await asyncio.to_thread(os.pread, fd, min(READ_BLOCK, span.end - pos), pos)
+        if not data:
+            raise ConnectionAbortedError("file shrank while being sent")
+        await resp.write(data)
+        pos += len(data)
+
+
+def _parts(
+    rep: Representation, spans: tuple[ByteRange, ...], boundary: str
+) -> tuple[list[tuple[bytes, ByteRange]], bytes]:
+    """Multipart/byteranges framing: (part header, span) pairs and the closing delimiter."""
+    parts = [
+        (
+            f"\r\n--{boundary}\r\nContent-Type: {rep.content_type}\r\n"
+            f"Content-Range: {content_range(s, rep.length)}\r\n\r\n".encode(),
+            s,
+        )
+        for s in spans
+    ]
+    return parts, f"\r\n--{boundary}--\r\n".encode()
+
+
+async def _send_body(
+    request: web.Request, resp: web.StreamResponse, rep: Representation, plan: list[Any]
+) -> web.StreamResponse:
+    """Prepare ``resp`` and write ``plan`` (bytes and spans) unless HEAD, under the deadline."""
+    await resp.prepare(request)
+    if request.method == "HEAD":
+        return resp
+    fd = await asyncio.to_thread(os.open, rep.path, os.O_RDONLY)
+    try:
+        async with asyncio.timeout(request.app[LIMITS].send_timeout_s):
+            for item in plan:
+                if isinstance(item, ByteRange):
+                    await _copy(resp, fd, ByteRange.sized(rep.offset + item.start, item.length))
+                else:
+                    await resp.write(item)
+            await resp.write_eof()
+    finally:
+        os.close(fd)
+    return resp
+
+
+async def send_representation(
+    request: web.Request, rep: Representation, cache_control: str = REVALIDATE
+) -> web.StreamResponse:
+    """Answer GET/HEAD for ``rep`` with preconditions, ranges, multipart and 416."""
+    headers = _validators(rep, cache_control)
+    outcome = evaluate(request.method, request.headers, rep.etag, rep.mtime)
+    if outcome is not Outcome.PROCEED:
+        return web.Response(status=outcome.value, headers=headers)
+    verdict = parse_range(request.headers.get("Range"), rep.length)
+    if not if_range_allows(request.headers.get("If-Range"), rep.etag, rep.mtime):
+        verdict = Ignore("If-Range does not match")
+    if isinstance(verdict, Unsatisfiable):
+        headers["Content-Range"] = unsatisfied_range(rep.length)
+        return web.Response(status=416, headers=headers)
+    plan: list[Any]
+    if isinstance(verdict, Serve) and len(verdict.ranges) == 1:
+        span = verdict.ranges[0]
+        headers["Content-Range"] = content_range(span, rep.length)
+        resp, plan = web.StreamResponse(status=206, headers=headers), [span]
+        resp.content_length = span.length
+    elif isinstance(verdict, Serve):
+        boundary = secrets.token_hex(16)
+        parts, tail = _parts(rep, verdict.ranges, boundary)
+        headers["Content-Type"] = f"multipart/byteranges; boundary={boundary}"
+        resp = web.StreamResponse(status=206, headers=headers)
+        plan = [x for head, span in parts for x in (head, span)] + [tail]
+        resp.content_length = sum(len(x) if isinstance(x, bytes) else x.length for x in plan)
+    else:
+        resp, plan = web.StreamResponse(status=200, headers=headers), [ByteRange(0, rep.length)]
+        resp.content_length = rep.length
+    if "Content-Type" not in headers:
+        resp.content_type = rep.content_type
+    return await _send_body(request, resp, rep, plan)
+
+
+async def files(request: web.Request) -> web.StreamResponse:
+    """GET/HEAD /files/{path}: a raw file under the root."""
+    rep = await request.app[CATALOG].file(request.match_info["path"])
+    return await send_representation(request, rep)
+
+
+async def _scene(request: web.Request) -> SceneEntry:
+    """The scene named in the URL; a malformed id is simply not found."""
+    try:
+        return await request.app[CATALOG].scene(request.match_info["id"])
+    except InputError as exc:
+        raise NotFoundError("no such scene", where=request.match_info["id"][:80]) from exc
+
+
+def _scene_json(scene: SceneEntry) -> dict[str, Any]:
+    """One item of the scene list."""
+    q = quote(scene.id)
+    info = scene.index.manifest.scene
+    return {
+        "id": scene.id,
+        "url": f"/files/{q}.tsogs" if scene.packed else f"/files/{q}/manifest.json",
+        "manifest": f"/v1/scenes/{q}/manifest",
+        "packed": scene.packed,
+        "bytes": scene.size,
+        "identity": scene.index.identity,
+        "start_s": info.start_s,
+        "end_s": info.end_s,
+        "duration_s": info.end_s - info.start_s,
+        "chunks": len(scene.index.manifest.chunks),
+    }
+
+
+async def scenes(request: web.Request) -> web.StreamResponse:
+    """GET /v1/scenes: every readable scene under the root."""
+    catalog = request.app[CATALOG]
+    items = []
+    for scene_id in catalog.scene_ids():
+        try:
+            items.append(_scene_json(await catalog.scene(scene_id)))
+        except TsogError:
+            continue
+    return web.json_response({"scenes": items}, headers={"Cache-Control": "no-cache"})
+
+
+async def manifest(request: web.Request) -> web.StreamResponse:
+    """GET /v1/scenes/{id}/manifest: the index JSON, ETag = the container identity."""
+    scene = await _scene(request)
+    etag = f'"{scene.index.identity}"'
+    headers = {"ETag": etag, "Cache-Control": REVALIDATE, "Last-Modified": http_date(scene.mtime)}
+    outcome = evaluate(request.method, request.headers, etag, scene.mtime)
+    if outcome is not Outcome.PROCEED:
+        return web.Response(status=outcome.value, headers=headers)
+    return web.Response(body=scene.manifest_json, content_type="application/json", headers=headers)
+
+
+def _seconds(request: web.Request, name: str, default: float | None) -> float:
+    """A finite float query parameter (InputError naming it otherwise)."""
+    raw = request.query.get(name)
+    if raw is None:
+        if default is None:
+            raise InputError(f"query parameter {name!r} is required (seconds)", where=name)
+        return default
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or (name == "horizon" and value < 0):
+        raise InputError(f"expected a finite number of seconds, got {raw[:40]!r}", where=name)
+    return value
+
+
+async def chunks(request: web.Request) -> web.StreamResponse:
+    """GET /v1/scenes/{id}/chunks?t=T&horizon=H: the chunks [T, T+H] needs."""
+    t, horizon = _seconds(request, "t", None), _seconds(request, "horizon", 0.0)
+    scene = await _scene(request)
+    base = f"/v1/scenes/{quote(scene.id)}/chunks"
+    items = [
+        {
+            "id": c.id,
+            "offset": c.offset,
+            "length": c.length,
+            "sha256": c.sha256,
+            "start_s": c.start_s,
+            "end_s": c.end_s,
+            "url": f"{base}/{c.id}.sog?v={c.sha256}",
+        }
+        for c in scene.index.chunks_for_interval(t, t + horizon)
+    ]
+    body = {"scene": scene.id, "identity": scene.index.identity, "t": t, "horizon": horizon}
+    return web.json_response({**body, "chunks": items}, headers={"Cache-Control": "no-cache"})
+
+
+async def chunk(request: web.Request) -> web.StreamResponse:
+    """GET/HEAD /v1/scenes/{id}/chunks/{n}.sog: one chunk, byte-exactly a standalone .sog.
+
+    With ``?v=<sha256>`` (the form the chunk list gives) the URL names immutable content:
+    it is cached for a year, and a stale ``v`` is 404.
+    """
+    scene = await _scene(request)
+    rep = request.app[CATALOG].chunk(scene, int(request.match_info["n"]))
+    version = request.query.get("v")
+    if version is not None and f'"{version}"' != rep.etag:
+        raise NotFoundError("chunk version gone; fetch the chunk list again", where=scene.id)
+    return await send_representation(request, rep, IMMUTABLE if version else REVALIDATE)
+
+
+async def healthz(request: web.Request) -> web.StreamResponse:
+    """GET /healthz."""
+    return web.json_response({"status": "ok"}, headers={"Cache-Control": "no-store"})
+
+
+async def preflight(request: web.Request) -> web.StreamResponse:
+    """OPTIONS anywhere: the CORS preflight answer."""
+    return web.Response(status=204, headers=PREFLIGHT)
+
+
+def make_app(root: Path, *, limits: Limits | None = None) -> web.Application:
+    """The application serving ``root`` (a folder)."""
+    if not root.is_dir():
+        raise InputError("the server root must be a folder", where=str(root))
+    app = web.Application(middlewares=[_guard])
+    app[CATALOG] = Catalog(root)
+    app[LIMITS] = limits or Limits()
+    app[GATE] = asyncio.Semaphore(app[LIMITS].max_concurrent)
+    app.on_response_prepare.append(_add_cors)
+    r = app.router
+    r.add_get("/healthz", healthz)
+    r.add_get("/files/{path:.+}", files)
+    r.add_get("/v1/scenes", scenes)
+    r.add_get("/v1/scenes/{id:.+}/manifest", manifest)
+    r.add_get("/v1/scenes/{id:.+}/chunks", chunks)
+    r.add_get("/v1/scenes/{id:.+}/chunks/{n:[0-9]{1,9}}.sog", chunk)
+    r.add_route("OPTIONS", "/{tail:.*}", preflight)
+    return app
+
+
+async def start_server(
+    app: web.Application, host: str = "127.0.0.1", port: int = 0
+) -> tuple[web.AppRunner, int]:
+    """Start ``app`` on host:port (0 = any free port); returns the runner and the port."""
+    limits = app[LIMITS]
+    runner = web.AppRunner(
+        app,
+        keepalive_timeout=limits.keepalive_s,
+        access_log_format=ACCESS_LOG_FORMAT,
+        shutdown_timeout=limits.shutdown_timeout_s,
+    )
+    await runner.setup()
+    site = web.TCPSite(runner, host, port)
+    await site.start()
+    return runner, int(runner.addresses[0][1])
+
+
+async def serve_forever(root: Path, host: str, port: int, limits: Limits | None = None) -> None:
+    """Serve until cancelled (Ctrl-C), then shut down gracefully."""
+    runner, bound = await start_server(make_app(root, limits=limits), host, port)
+    print(f"serving {root} on http://{host}:{bound}/", flush=True)
+    try:
+        await asyncio.Event().wait()
+    finally:
+        await runner.cleanup()
+
+
+def run_server(
+    root: Path, *, host: str = "127.0.0.1", port: int = 8080, limits: Limits | None = None
+) -> None:
+    """Blocking: serve ``root`` until interrupted."""
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(serve_forever(root, host, port, limits))
+
+
+__all__ = ["Limits", "make_app", "run_server", "send_representation", "start_server"]

@@ -1,0 +1,194 @@
+"""What the server may send: safe paths under the root, file ETags, scenes and their chunks.
+
+Every path a client names is checked here: NUL bytes, backslashes, absolute paths and ``.``
+or ``..`` segments are refused (:class:`~tsog_stream.errors.InputError`, 400); the path is
+then resolved with symlinks followed and must stay inside the resolved root, else
+:class:`NotFoundError` (404), the same answer as for a missing file, so nothing leaks.
+Scenes are ``.tsogs`` containers and unpacked layouts (folders with ``manifest.json``); each is
+reopened when its size or mtime changes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..container.header import HEADER_SIZE, INDEX_ZSTD, VERSION_MAJOR, Header, is_container
+from ..container.reader import StreamIndex, open_stream
+from ..container.sources import FileSource
+from ..container.unpacked import MANIFEST
+from ..errors import InputError, SourceError, TsogError
+from ..schemas.manifest import ChunkEntry, dump_manifest, parse_manifest
+
+CONTAINER_SUFFIX = ".tsogs"
+CONTAINER_TYPE = "application/vnd.tsog-stream"
+SOG_TYPE = "application/x-sog"
+_HASH_BLOCK = 1 << 20
+
+
+class NotFoundError(SourceError):
+    """Nothing servable at this path or id (missing, outside the root, not a regular file)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Representation:
+    """Bytes ``[offset, offset + length)`` of a file, with their validators."""
+
+    path: Path
+    offset: int
+    length: int
+    etag: str
+    mtime: float
+    content_type: str
+
+
+@dataclass(frozen=True, slots=True)
+class SceneEntry:
+    """An opened scene: packed (a container file) or unpacked (a folder)."""
+
+    id: str
+    path: Path
+    packed: bool
+    index: StreamIndex
+    manifest_json: bytes
+    mtime: float
+    size: int
+
+
+def safe_path(root: Path, rel: str) -> Path:
+    """The resolved path of ``rel`` under ``root``; refuses anything that could escape it."""
+    if "\x00" in rel or "\\" in rel:
+        raise InputError("NUL bytes and backslashes are not allowed in paths", where=rel[:80])
+    if rel.startswith("/") or any(p in ("", ".", "..") for p in rel.split("/")):
+        raise InputError("paths must be relative, without empty, '.' or '..' segments")
+    base = root.resolve()
+    try:
+        resolved = (base / rel).resolve(strict=True)
+    except (OSError, RuntimeError) as exc:
+        raise NotFoundError("no such file", where=rel[:80]) from exc
+    if not resolved.is_relative_to(base):
+        raise NotFoundError("no such file", where=rel[:80])
+    return resolved
+
+
+def _signature(path: Path) -> tuple[int, int]:
+    """(size, mtime_ns) of a regular file, NotFoundError otherwise."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise NotFoundError("no such file", where=path.name) from exc
+    if not path.is_file():
+        raise NotFoundError("not a regular file", where=path.name)
+    return st.st_size, st.st_mtime_ns
+
+
+def _content_etag(path: Path) -> str:
+    """Strong ETag: a container's identity (index SHA-256) or the SHA-256 of the content."""
+    with open(path, "rb") as f:
+        head = f.read(HEADER_SIZE)
+        if is_container(head):
+            try:
+                return f'"{Header.unpack(head, where=path.name).index_sha256.hex()}"'
+            except TsogError:
+                pass
+        f.seek(0)
+        digest = hashlib.sha256()
+        while block := f.read(_HASH_BLOCK):
+            digest.update(block)
+    return f'"{digest.hexdigest()}"'
+
+
+def _unpacked_index(manifest_json: bytes, where: str) -> StreamIndex:
+    """A StreamIndex for an unpacked layout (header fields describe the would-be container)."""
+    manifest = parse_manifest(manifest_json, where=where)
+    digest = hashlib.sha256(manifest_json).digest()
+    header = Header(VERSION_MAJOR, 0, 0, 0, INDEX_ZSTD, 0, 0, len(manifest_json), 0, digest)
+    return StreamIndex(header, manifest, where)
+
+
+class Catalog:
+    """Files and scenes under one root folder, with caches keyed by (path, size, mtime_ns)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root.resolve()
+        self._etags: dict[tuple[Path, int, int], str] = {}
+        self._scenes: dict[tuple[Path, int, int], SceneEntry] = {}
+
+    async def file(self, rel: str) -> Representation:
+        """The whole file at ``rel`` (relative to the root)."""
+        path = safe_path(self.root, rel)
+        size, mtime_ns = _signature(path)
+        key = (path, size, mtime_ns)
+        if key not in self._etags:
+            self._etags[key] = await asyncio.to_thread(_content_etag, path)
+        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else _guess_type(path)
+        return Representation(path, 0, size, self._etags[key], mtime_ns / 1e9, kind)
+
+    async def scene(self, scene_id: str) -> SceneEntry:
+        """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
+        try:
+            path = safe_path(self.root, scene_id + CONTAINER_SUFFIX)
+            packed = path.is_file()
+        except NotFoundError:
+            packed = False
+        if not packed:
+            path = safe_path(self.root, f"{scene_id}/{MANIFEST}")
+        size, mtime_ns = _signature(path)
+        key = (path, size, mtime_ns)
+        if key not in self._scenes:
+            self._scenes[key] = await self._open(scene_id, path, packed, size, mtime_ns)
+        return self._scenes[key]
+
+    async def _open(
+        self, scene_id: str, path: Path, packed: bool, size: int, mtime_ns: int
+    ) -> SceneEntry:
+        """Open a container or read an unpacked manifest (NotFoundError when unreadable)."""
+        try:
+            if packed:
+                index = await open_stream(FileSource(path))
+                manifest_json = dump_manifest(index.manifest)
+            else:
+                manifest_json = await asyncio.to_thread(path.read_bytes)
+                index = _unpacked_index(manifest_json, str(path))
+        except TsogError as exc:
+            raise NotFoundError(f"not a readable scene: {exc.message}", where=scene_id) from exc
+        if not packed:
+            size = len(manifest_json) + index.manifest.payload_bytes
+        return SceneEntry(scene_id, path, packed, index, manifest_json, mtime_ns / 1e9, size)
+
+    def scene_ids(self) -> list[str]:
+        """Ids of every container and unpacked layout under the root (symlinks not followed)."""
+        ids: set[str] = set()
+        for folder, dirs, files in os.walk(self.root):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            rel = Path(folder).relative_to(self.root)
+            if MANIFEST in files and rel != Path("."):
+                ids.add(rel.as_posix())
+            for name in files:
+                if name.endswith(CONTAINER_SUFFIX) and not name.startswith("."):
+                    ids.add((rel / name).as_posix().removesuffix(CONTAINER_SUFFIX))
+        return sorted(ids)
+
+    def chunk(self, scene: SceneEntry, chunk_id: int) -> Representation:
+        """The bytes of one chunk: a slice of the container or a file of the unpacked layout."""
+        chunks = scene.index.manifest.chunks
+        if not 0 <= chunk_id < len(chunks):
+            raise NotFoundError(f"no chunk {chunk_id} (it has {len(chunks)})", where=scene.id)
+        entry: ChunkEntry = chunks[chunk_id]
+        etag = f'"{entry.sha256}"'
+        if scene.packed:
+            return Representation(
+                scene.path, entry.offset, entry.length, etag, scene.mtime, SOG_TYPE
+            )
+        path = safe_path(scene.path.parent, entry.file)
+        size, mtime_ns = _signature(path)
+        return Representation(path, 0, size, etag, mtime_ns / 1e9, SOG_TYPE)
+
+
+def _guess_type(path: Path) -> str:
+    """A media type from the extension (octet-stream when unknown)."""
+    known = {".json": "application/json", ".sog": SOG_TYPE, ".ply": "application/octet-stream"}
+    return known.get(path.suffix.lower(), "application/octet-stream")

@@ -1,0 +1,112 @@
+"""Parsing a ``Range`` request header against a representation length (RFC 9110 §14).
+
+Sans-I/O: a header value and a length in, a verdict out, never an exception.
+
+- :class:`Serve`: send these ranges (206), already clipped to the length, sorted and with
+  overlapping or adjacent ranges coalesced (RFC 9110 §14.2 allows a server to do so).
+- :class:`Ignore`: answer as if there were no ``Range`` header (200, whole representation):
+  no header, another unit, invalid syntax (RFC 9110 §14.2: "a server MUST ignore a Range
+  header field ... that contains a range unit it does not understand" and an invalid
+  ranges-specifier), or more than ``max_ranges`` ranges (our cap against amplification).
+- :class:`Unsatisfiable`: valid syntax but no range overlaps the representation (416,
+  ``Content-Range: bytes */LEN``), e.g. ``bytes=LEN-`` or ``bytes=-0``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Final
+
+from ..container.ranges import ByteRange, coalesce
+
+MAX_RANGES: Final = 32
+"""More ranges than this in one header and the header is ignored (whole file, 200)."""
+
+_SPEC = re.compile(r"([0-9]*)-([0-9]*)", re.ASCII)
+_UNIT = re.compile(r"[ \t]*bytes[ \t]*=", re.ASCII | re.IGNORECASE)
+
+
+@dataclass(frozen=True, slots=True)
+class Serve:
+    """Send these ranges (non-empty, sorted, disjoint, non-adjacent, inside the length)."""
+
+    ranges: tuple[ByteRange, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Ignore:
+    """Ignore the header: send the whole representation with 200."""
+
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class Unsatisfiable:
+    """No requested range overlaps the representation: 416."""
+
+
+RangeVerdict = Serve | Ignore | Unsatisfiable
+
+
+def _num(digits: str) -> int:
+    """A decimal position; absurdly long ones are capped (Python refuses huge int strings)."""
+    digits = digits.lstrip("0") or "0"
+    return int(digits) if len(digits) <= 18 else 10**18
+
+
+def _one(spec: str, length: int) -> ByteRange | bool | None:
+    """One range-spec: its clipped range, None when unsatisfiable, False when invalid."""
+    m = _SPEC.fullmatch(spec)
+    if m is None:
+        return False
+    first, last = m.group(1), m.group(2)
+    if not first:
+        if not last:
+            return False
+        n = _num(last)
+        if n == 0 or length == 0:
+            return None
+        return ByteRange(max(0, length - n), length)
+    start = _num(first)
+    if last and _num(last) < start:
+        return False
+    if start >= length:
+        return None
+    end = length if not last else min(_num(last) + 1, length)
+    return ByteRange(start, end)
+
+
+def parse_range(value: str | None, length: int, *, max_ranges: int = MAX_RANGES) -> RangeVerdict:
+    """The verdict on a ``Range`` header value for a representation of ``length`` bytes."""
+    if value is None:
+        return Ignore("no Range header")
+    unit = _UNIT.match(value)
+    if unit is None:
+        return Ignore("not a bytes range")
+    specs = [s.strip(" \t") for s in value[unit.end() :].split(",")]
+    specs = [s for s in specs if s]  # RFC 9110 §5.6.1: empty list elements do not count
+    if not specs:
+        return Ignore("no range in the header")
+    if len(specs) > max_ranges:
+        return Ignore(f"more than {max_ranges} ranges")
+    wanted: list[ByteRange] = []
+    for spec in specs:
+        r = _one(spec, length)
+        if r is False:
+            return Ignore(f"invalid range {spec[:40]!r}")
+        if isinstance(r, ByteRange):
+            wanted.append(r)
+    if not wanted:
+        return Unsatisfiable()
+    return Serve(tuple(coalesce(wanted)))
+
+
+def content_range(span: ByteRange, length: int) -> str:
+    """The ``Content-Range`` value of a served range (inclusive end)."""
+    return f"bytes {span.start}-{span.end - 1}/{length}"
+
+
+def unsatisfied_range(length: int) -> str:
+    """The ``Content-Range`` value of a 416 response."""
+    return f"bytes */{length}"

@@ -1,0 +1,395 @@
+"""The HTTP server on loopback: raw files with byte ranges, conditionals, CORS, safety, API."""
+
+from __future__ import annotations
+
+import asyncio
+import email.parser
+import hashlib
+import http.client
+import json
+import os
+import shutil
+import socket
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from aiohttp import web
+
+from tsog_stream.container.sync import StreamReader
+from tsog_stream.model import TimelineType
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import make_app, start_server
+from tsog_stream.synthetic import small_scene
+
+SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
+DATA = bytes(range(256)) * 400 + b"tail"  # 102 404 bytes
+
+
+class Server:
+    """An app served from a background thread with its own event loop."""
+
+    def __init__(self, app: web.Application) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        future = asyncio.run_coroutine_threadsafe(start_server(app), self.loop)
+        self.runner, self.port = future.result(10)
+
+    def stop(self) -> None:
+        """Shut down the server and its loop."""
+        asyncio.run_coroutine_threadsafe(self.runner.cleanup(), self.loop).result(30)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+class Resp:
+    """Status, headers and body of one response."""
+
+    def __init__(self, r: http.client.HTTPResponse) -> None:
+        self.status = r.status
+        self.headers = r.headers
+        self.body = r.read()
+
+
+def fetch(port: int, path: str, method: str = "GET", headers: dict[str, Any] | None = None) -> Resp:
+    """One request over a fresh connection, headers sent exactly as given."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        conn.putrequest(method, path, skip_accept_encoding=True)
+        for k, v in (headers or {}).items():
+            conn.putheader(k, v)
+        conn.endheaders()
+        return Resp(conn.getresponse())
+    finally:
+        conn.close()
+
+
+@pytest.fixture(scope="module")
+def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A root with a data file, a container, its unpacked layout and a symlink out of it."""
+    base = tmp_path_factory.mktemp("srv")
+    (base / "secret.txt").write_bytes(SECRET)
+    root = base / "root"
+    (root / "sub").mkdir(parents=True)
+    (root / "data.bin").write_bytes(DATA)
+    (root / "sub" / "note.txt").write_bytes(b"hello")
+    (root / "escape.txt").symlink_to(base / "secret.txt")
+    (root / "escape_dir").symlink_to(base)
+    scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0)
+    segment_scene(scene, root / "clip.tsogs", SegmentOptions(window_s=0.5))
+    with StreamReader.open(root / "clip.tsogs") as reader:
+        reader.unpack(root / "unpacked")
+    return root
+
+
+@pytest.fixture(scope="module")
+def port(tree: Path) -> Iterator[int]:
+    """A running server on the tree."""
+    server = Server(make_app(tree))
+    try:
+        yield server.port
+    finally:
+        server.stop()
+
+
+def test_whole_file(port: int) -> None:
+    r = fetch(port, "/files/data.bin")
+    assert r.status == 200 and r.body == DATA
+    assert r.headers["Content-Length"] == str(len(DATA))
+    assert r.headers["Accept-Ranges"] == "bytes"
+    assert r.headers["ETag"] == f'"{hashlib.sha256(DATA).hexdigest()}"'
+    assert r.headers["Cache-Control"] == "public, max-age=0, must-revalidate"
+    assert r.headers["Last-Modified"].endswith("GMT")
+    assert r.headers["Access-Control-Allow-Origin"] == "*"
+    assert "Content-Range" in r.headers["Access-Control-Expose-Headers"]
+    assert "Content-Encoding" not in r.headers
+
+
+@pytest.mark.parametrize(
+    ("value", "start", "end"),
+    [
+        ("bytes=0-0", 0, 1),
+        ("bytes=100-199", 100, 200),
+        ("bytes=102000-", 102000, len(DATA)),
+        ("bytes=-4", len(DATA) - 4, len(DATA)),
+        ("bytes=102400-999999", 102400, len(DATA)),
+    ],
+)
+def test_single_ranges(port: int, value: str, start: int, end: int) -> None:
+    r = fetch(port, "/files/data.bin", headers={"Range": value, "Accept-Encoding": "gzip"})
+    assert r.status == 206 and r.body == DATA[start:end]
+    assert r.headers["Content-Range"] == f"bytes {start}-{end - 1}/{len(DATA)}"
+    assert r.headers["Content-Length"] == str(end - start)
+
+
+def test_unsatisfiable(port: int) -> None:
+    for value in ("bytes=102404-", "bytes=-0", "bytes=200000-300000"):
+        r = fetch(port, "/files/data.bin", headers={"Range": value})
+        assert r.status == 416, value
+        assert r.headers["Content-Range"] == f"bytes */{len(DATA)}"
+
+
+def parse_multipart(r: Resp) -> list[tuple[str, str, bytes]]:
+    """(Content-Type, Content-Range, body) of each part of a multipart/byteranges response."""
+    raw = f"Content-Type: {r.headers['Content-Type']}\r\n\r\n".encode() + r.body
+    msg = email.parser.BytesParser().parsebytes(raw)
+    assert msg.is_multipart()
+    out = []
+    for part in msg.get_payload():
+        payload = part.get_payload(decode=True)
+        out.append((part["Content-Type"], part["Content-Range"], payload))
+    return out
+
+
+def test_multiple_ranges(port: int) -> None:
+    r = fetch(port, "/files/data.bin", headers={"Range": "bytes=-4, 0-9,5-19,20-29, 500-599"})
+    assert r.status == 206
+    assert r.headers["Content-Type"].startswith("multipart/byteranges; boundary=")
+    assert int(r.headers["Content-Length"]) == len(r.body)
+    parts = parse_multipart(r)
+    n = len(DATA)
+    assert [(p[1], p[2]) for p in parts] == [
+        (f"bytes 0-29/{n}", DATA[0:30]),
+        (f"bytes 500-599/{n}", DATA[500:600]),
+        (f"bytes {n - 4}-{n - 1}/{n}", DATA[-4:]),
+    ]
+    assert all(p[0] == "application/octet-stream" for p in parts)
+
+
+def test_malformed_ranges_never_fail(port: int) -> None:
+    too_many = "bytes=" + ",".join(f"{2 * i}-{2 * i}" for i in range(1500))
+    for value in (
+        "bytes=abc",
+        "bytes=5-2",
+        "bytes=1-2-3",
+        "items=0-1",
+        too_many,
+        "bytes=é-1".encode(),
+        b"bytes=\xff\xfe-1",
+    ):
+        r = fetch(port, "/files/data.bin", headers={"Range": value})
+        assert r.status == 200 and r.body == DATA, value[:30]
+
+
+def test_head_equals_get_without_body(port: int) -> None:
+    for headers in ({}, {"Range": "bytes=10-20"}, {"Range": "bytes=0-1,5-6"}):
+        get = fetch(port, "/files/data.bin", headers=headers)
+        head = fetch(port, "/files/data.bin", "HEAD", headers)
+        assert head.status == get.status and head.body == b""
+        skip = {"Date", "Content-Type"}  # multipart boundaries are random per response
+        assert {k: v for k, v in head.headers.items() if k not in skip} == {
+            k: v for k, v in get.headers.items() if k not in skip
+        }
+
+
+def test_conditionals(port: int) -> None:
+    first = fetch(port, "/files/data.bin")
+    etag, date = first.headers["ETag"], first.headers["Last-Modified"]
+    assert fetch(port, "/files/data.bin", headers={"If-None-Match": etag}).status == 304
+    assert fetch(port, "/files/data.bin", "HEAD", {"If-None-Match": etag}).status == 304
+    assert fetch(port, "/files/data.bin", headers={"If-Match": '"nope"'}).status == 412
+    assert fetch(port, "/files/data.bin", headers={"If-Match": etag}).status == 200
+    assert fetch(port, "/files/data.bin", headers={"If-Modified-Since": date}).status == 304
+    rng = {"Range": "bytes=0-9"}
+    assert fetch(port, "/files/data.bin", headers={**rng, "If-Range": etag}).status == 206
+    assert fetch(port, "/files/data.bin", headers={**rng, "If-Range": date}).status == 206
+    for other in ('"stale"', f"W/{etag}", "Mon, 01 Jan 2001 00:00:00 GMT"):
+        r = fetch(port, "/files/data.bin", headers={**rng, "If-Range": other})
+        assert r.status == 200 and r.body == DATA, other
+
+
+def test_cors_preflight(port: int) -> None:
+    r = fetch(
+        port,
+        "/files/data.bin",
+        "OPTIONS",
+        {
+            "Origin": "https://viewer.example",
+            "Access-Control-Request-Method": "GET",
+            "Access-Control-Request-Headers": "range, if-range",
+        },
+    )
+    assert r.status == 204
+    assert r.headers["Access-Control-Allow-Origin"] == "*"
+    allowed = r.headers["Access-Control-Allow-Headers"]
+    for name in ("Range", "If-Match", "If-None-Match", "If-Range"):
+        assert name in allowed
+    assert "GET" in r.headers["Access-Control-Allow-Methods"]
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/files/../secret.txt",
+        "/files/%2e%2e/secret.txt",
+        "/files/sub/%2e%2e/%2e%2e/secret.txt",
+        "/files/..%2Fsecret.txt",
+        "/files/sub%2F..%2F..%2Fsecret.txt",
+        "/files//etc/passwd",
+        "/files/%2Fetc%2Fpasswd",
+        "/files/escape.txt",
+        "/files/escape_dir/secret.txt",
+        "/files/data.bin%00",
+        "/files/sub%5C..%5C..%5Csecret.txt",
+        "/files/nope.bin",
+        "/files/sub",
+        "/files/./data.bin",
+    ],
+)
+def test_path_safety(port: int, path: str) -> None:
+    r = fetch(port, path)
+    assert r.status in (400, 404), (path, r.status)
+    assert SECRET not in r.body and b"root:" not in r.body
+
+
+def test_subfolder_file(port: int) -> None:
+    assert fetch(port, "/files/sub/note.txt").body == b"hello"
+
+
+def test_container_etag_is_identity(port: int, tree: Path) -> None:
+    with StreamReader.open(tree / "clip.tsogs") as reader:
+        identity = reader.index.identity
+    r = fetch(port, "/files/clip.tsogs", headers={"Range": "bytes=0-127"})
+    assert r.status == 206 and r.headers["ETag"] == f'"{identity}"'
+    assert r.body == (tree / "clip.tsogs").read_bytes()[:128]
+    assert r.headers["Content-Type"] == "application/vnd.tsog-stream"
+
+
+def get_json(port: int, path: str, status: int = 200) -> Any:
+    """The JSON body of a response with the expected status."""
+    r = fetch(port, path)
+    assert r.status == status, (path, r.status, r.body[:200])
+    assert r.headers["Content-Type"].startswith("application/json")
+    return json.loads(r.body)
+
+
+def test_healthz_and_scene_list(port: int, tree: Path) -> None:
+    assert get_json(port, "/healthz") == {"status": "ok"}
+    with StreamReader.open(tree / "clip.tsogs") as reader:
+        identity = reader.index.identity
+    items = {s["id"]: s for s in get_json(port, "/v1/scenes")["scenes"]}
+    assert set(items) == {"clip", "unpacked"}
+    assert items["clip"]["url"] == "/files/clip.tsogs"
+    assert items["clip"]["bytes"] == (tree / "clip.tsogs").stat().st_size
+    assert items["clip"]["identity"] == items["unpacked"]["identity"] == identity
+    assert items["clip"]["duration_s"] > 0
+
+
+@pytest.mark.parametrize("scene", ["clip", "unpacked"])
+def test_manifest_and_chunks(port: int, tree: Path, scene: str) -> None:
+    r = fetch(port, f"/v1/scenes/{scene}/manifest")
+    identity = hashlib.sha256(r.body).hexdigest()
+    assert r.status == 200 and r.headers["ETag"] == f'"{identity}"'
+    assert r.body == (tree / "unpacked" / "manifest.json").read_bytes()
+    again = fetch(port, f"/v1/scenes/{scene}/manifest", headers={"If-None-Match": f'"{identity}"'})
+    assert again.status == 304
+    listing = get_json(port, f"/v1/scenes/{scene}/chunks?t=0.25&horizon=1")
+    with StreamReader.open(tree / "clip.tsogs") as reader:
+        expected = reader.index.chunks_for_interval(0.25, 1.25)
+        assert [c["id"] for c in listing["chunks"]] == [c.id for c in expected]
+        assert expected
+        for c in listing["chunks"][:3]:
+            got = fetch(port, c["url"])
+            assert got.status == 200 and got.body == reader.chunk_bytes(c["id"])
+            assert got.headers["Cache-Control"] == "public, max-age=31536000, immutable"
+            assert got.headers["ETag"] == f'"{c["sha256"]}"'
+            plain = fetch(
+                port, f"/v1/scenes/{scene}/chunks/{c['id']}.sog", headers={"Range": "bytes=-22"}
+            )
+            assert plain.status == 206 and plain.body == reader.chunk_bytes(c["id"])[-22:]
+            assert plain.headers["Content-Type"] == "application/x-sog"
+
+
+def test_api_errors(port: int) -> None:
+    assert get_json(port, "/v1/scenes/nope/manifest", 404)["error"]["status"] == 404
+    assert get_json(port, "/v1/scenes/../clip/manifest", 404)
+    assert get_json(port, "/v1/scenes/%2e%2e%2froot%2fclip/manifest", 404)
+    assert get_json(port, "/v1/scenes/clip/chunks/99999.sog", 404)
+    assert get_json(port, "/v1/scenes/clip/chunks/0.sog?v=deadbeef", 404)
+    for query, name in (
+        ("", "t"),
+        ("?t=abc", "t"),
+        ("?t=nan", "t"),
+        ("?t=1&horizon=-1", "horizon"),
+        ("?t=inf", "t"),
+    ):
+        body = get_json(port, f"/v1/scenes/clip/chunks{query}", 400)
+        assert name in body["error"]["message"], query
+    assert get_json(port, "/nowhere", 404)["error"]["status"] == 404
+
+
+def test_concurrency_cap(tree: Path) -> None:
+    from tsog_stream.server import Limits
+
+    server = Server(make_app(tree, limits=Limits(max_concurrent=1)))
+    try:
+        gate = server.runner.app[next(k for k in server.runner.app if k.name == "gate")]
+        asyncio.run_coroutine_threadsafe(gate.acquire(), server.loop).result(5)
+        r = fetch(server.port, "/healthz")
+        assert r.status == 503 and r.headers["Retry-After"] == "1"
+        server.loop.call_soon_threadsafe(gate.release)
+        assert fetch(server.port, "/healthz").status == 200
+    finally:
+        server.stop()
+
+
+def free_port() -> int:
+    """A port that was free a moment ago on loopback."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.skipif(not os.path.exists("/usr/sbin/nginx"), reason="nginx is not installed")
+def test_agrees_with_nginx(port: int, tree: Path, tmp_path: Path) -> None:
+    ngx = free_port()
+    (tmp_path / "logs").mkdir()
+    user = "user root;" if os.getuid() == 0 else ""
+    (tmp_path / "nginx.conf").write_text(
+        f"{user}\ndaemon off; worker_processes 1; pid {tmp_path}/nginx.pid;\n"
+        f"error_log {tmp_path}/logs/error.log warn;\nevents {{ worker_connections 64; }}\n"
+        f"http {{ access_log off; default_type application/octet-stream;\n"
+        f"client_body_temp_path {tmp_path}/b; proxy_temp_path {tmp_path}/p;\n"
+        f"fastcgi_temp_path {tmp_path}/f; uwsgi_temp_path {tmp_path}/u; scgi_temp_path "
+        f"{tmp_path}/s;\nserver {{ listen 127.0.0.1:{ngx}; root {tree}; location /files/ "
+        f"{{ alias {tree}/; }} }} }}\n"
+    )
+    proc = subprocess.Popen(
+        ["/usr/sbin/nginx", "-p", str(tmp_path), "-c", str(tmp_path / "nginx.conf")],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", ngx), 0.2).close()
+                break
+            except OSError:
+                assert proc.poll() is None and time.monotonic() < deadline, "nginx did not start"
+                time.sleep(0.05)
+        for value in (
+            "bytes=0-0",
+            "bytes=100-199",
+            "bytes=102000-",
+            "bytes=-4",
+            "bytes=-0",
+            "bytes=102404-",
+            "bytes=0-999999",
+            "bytes=abc",
+            "bytes=5-2",
+        ):
+            ours = fetch(port, "/files/data.bin", headers={"Range": value})
+            theirs = fetch(ngx, "/files/data.bin", headers={"Range": value})
+            assert (ours.status, ours.body) == (theirs.status, theirs.body), value
+            assert ours.headers.get("Content-Range") == theirs.headers.get("Content-Range"), value
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        shutil.rmtree(tmp_path / "logs", ignore_errors=True)
