@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import email.parser
 import hashlib
@@ -20,10 +21,14 @@ from typing import Any
 import pytest
 from aiohttp import web
 
+from tsog_stream.cli.progress import Progress
 from tsog_stream.container.sync import StreamReader
+from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.server import make_app, start_server
+from tsog_stream.server import Limits, make_app, start_server
+from tsog_stream.server.app import GATE
+from tsog_stream.server.cli import add_serve_command, cmd_serve
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
@@ -163,7 +168,7 @@ def test_multiple_ranges(port: int) -> None:
 
 
 def test_malformed_ranges_never_fail(port: int) -> None:
-    too_many = "bytes=" + ",".join(f"{2 * i}-{2 * i}" for i in range(1500))
+    too_many = "bytes=" + ",".join("0-0" for _ in range(1500))  # within aiohttp's 8 KiB
     for value in (
         "bytes=abc",
         "bytes=5-2",
@@ -325,11 +330,9 @@ def test_api_errors(port: int) -> None:
 
 
 def test_concurrency_cap(tree: Path) -> None:
-    from tsog_stream.server import Limits
-
     server = Server(make_app(tree, limits=Limits(max_concurrent=1)))
     try:
-        gate = server.runner.app[next(k for k in server.runner.app if k.name == "gate")]
+        gate = server.runner.app[GATE]
         asyncio.run_coroutine_threadsafe(gate.acquire(), server.loop).result(5)
         r = fetch(server.port, "/healthz")
         assert r.status == 503 and r.headers["Retry-After"] == "1"
@@ -382,14 +385,27 @@ def test_agrees_with_nginx(port: int, tree: Path, tmp_path: Path) -> None:
             "bytes=-0",
             "bytes=102404-",
             "bytes=0-999999",
-            "bytes=abc",
-            "bytes=5-2",
-        ):
+        ):  # malformed values differ: nginx says 416 where RFC 9110 §14.2 says ignore (200)
             ours = fetch(port, "/files/data.bin", headers={"Range": value})
             theirs = fetch(ngx, "/files/data.bin", headers={"Range": value})
-            assert (ours.status, ours.body) == (theirs.status, theirs.body), value
+            assert ours.status == theirs.status, value
+            if ours.status < 300:
+                assert ours.body == theirs.body, value
             assert ours.headers.get("Content-Range") == theirs.headers.get("Content-Range"), value
     finally:
         proc.terminate()
         proc.wait(10)
         shutil.rmtree(tmp_path / "logs", ignore_errors=True)
+
+
+def test_serve_command_arguments(tree: Path) -> None:
+    parser = argparse.ArgumentParser()
+    add_serve_command(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["serve", str(tree / "clip.tsogs")])
+    assert (args.host, args.port, args.func) == ("127.0.0.1", 8080, cmd_serve)
+    bad = parser.parse_args(["serve", str(tree / "missing"), "--port", "1"])
+    with pytest.raises(InputError):
+        cmd_serve(bad, Progress(quiet=True))
+    bad = parser.parse_args(["serve", str(tree), "--port", "70000"])
+    with pytest.raises(InputError, match="port"):
+        cmd_serve(bad, Progress(quiet=True))

@@ -72,7 +72,9 @@ def _error(status: int, message: str, **extra: Any) -> web.Response:
 
 @web.middleware
 async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
-    """Concurrency cap, then library errors and aiohttp's HTTP errors as JSON."""
+    """OPTIONS preflight, the concurrency cap, then errors (ours and aiohttp's) as JSON."""
+    if request.method == "OPTIONS":
+        return web.Response(status=204, headers=PREFLIGHT)
     gate = request.app[GATE]
     if gate.locked():
         resp = _error(503, "too many concurrent requests")
@@ -299,11 +301,6 @@ async def healthz(request: web.Request) -> web.StreamResponse:
     return web.json_response({"status": "ok"}, headers={"Cache-Control": "no-store"})
 
 
-async def preflight(request: web.Request) -> web.StreamResponse:
-    """OPTIONS anywhere: the CORS preflight answer."""
-    return web.Response(status=204, headers=PREFLIGHT)
-
-
 def make_app(root: Path, *, limits: Limits | None = None) -> web.Application:
     """The application serving ``root`` (a folder)."""
     if not root.is_dir():
@@ -320,7 +317,6 @@ def make_app(root: Path, *, limits: Limits | None = None) -> web.Application:
     r.add_get("/v1/scenes/{id:.+}/manifest", manifest)
     r.add_get("/v1/scenes/{id:.+}/chunks", chunks)
     r.add_get("/v1/scenes/{id:.+}/chunks/{n:[0-9]{1,9}}.sog", chunk)
-    r.add_route("OPTIONS", "/{tail:.*}", preflight)
     return app
 
 
