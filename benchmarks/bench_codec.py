@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from doc_sections import write_section
 from tsog_stream import Scene
 from tsog_stream.codec.chunk import decode_chunk, texel_order
 from tsog_stream.compare import attribute_errors
@@ -34,7 +35,6 @@ REPO = Path(__file__).resolve().parents[1]
 TOOL = REPO / "node_modules" / ".bin" / "splat-transform"
 TSOG = REPO / ".venv" / "bin" / "tsog"
 RESULTS = REPO / "benchmarks" / "results" / "codec.json"
-DOC = REPO / "docs" / "benchmarks.md"
 
 
 def run_measured(cmd: list[str], timeout: float) -> dict[str, Any]:
@@ -118,7 +118,6 @@ def _cell(row: dict[str, Any], key: str, field: str) -> str:
 def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
     """The codec section of docs/benchmarks.md."""
     lines = [
-        "<!-- codec:begin (written by benchmarks/bench_codec.py) -->",
         "## SOG codec: ours vs splat-transform",
         "",
         f"Run {stamp} on this project's 2-core machine; synthetic static scenes "
@@ -160,21 +159,7 @@ def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
                     f" | {e['rotation_deg_mean']:.3f} | {e['scales_mean']:.4f} | {e['sh0_mean']:.4f}"
                     f" | {e['opacity_mean']:.4f} | {e['shN_rms']:.4f} |"
                 )
-    lines.append("<!-- codec:end -->")
     return "\n".join(lines) + "\n"
-
-
-def write_section(section: str) -> None:
-    """Replace the codec section of docs/benchmarks.md (creating the file if needed)."""
-    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\n"
-    begin, end = "<!-- codec:begin", "<!-- codec:end -->"
-    if begin in text:
-        head, rest = text.split(begin, 1)
-        tail = rest.split(end, 1)[1].lstrip("\n")
-        text = head + section + tail
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    DOC.write_text(text)
 
 
 def main() -> int:
@@ -201,7 +186,7 @@ def main() -> int:
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps({"date": stamp, "rows": rows}, indent=2))
-    write_section(markdown(rows, stamp))
+    write_section("codec", markdown(rows, stamp), "bench_codec.py")
     return 0
 
 

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from doc_sections import write_section
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.compare import attribute_errors
@@ -35,7 +36,6 @@ from tsog_stream.temporal import evaluate_all, time_range
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "4d"
 RESULTS = REPO / "benchmarks" / "results"
-DOC = REPO / "docs" / "benchmarks.md"
 PLY_ROW_FLOATS = 17  # x y z nx ny nz f_dc*3 opacity scale*3 rot*4, before SH rest
 PLY_HEADER = 400
 FPS = 30.0
@@ -175,19 +175,6 @@ def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(body: str) -> None:
-    """Replace (or append) the inputs section of docs/benchmarks.md."""
-    begin, end = "<!-- inputs:begin", "<!-- inputs:end -->"
-    section = f"{begin} (written by benchmarks/bench_inputs.py) -->\n{body}{end}\n"
-    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\n"
-    if begin in text:
-        head, rest = text.split(begin, 1)
-        text = head + section + rest.split(end, 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    DOC.write_text(text)
-
-
 def main() -> int:
     """Measure every input and write the results."""
     rows = []
@@ -197,7 +184,7 @@ def main() -> int:
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "inputs.json").write_text(json.dumps({"date": stamp, "rows": rows}, indent=2))
-    write_section(markdown(rows, stamp))
+    write_section("inputs", markdown(rows, stamp), "bench_inputs.py")
     return 0
 
 

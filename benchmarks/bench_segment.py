@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from doc_sections import write_section
 from tsog_stream import TimelineType
 from tsog_stream.container.sync import StreamReader
 from tsog_stream.io.ply import write_ply
@@ -34,22 +35,8 @@ from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
-DOC = REPO / "docs" / "benchmarks.md"
 TSOG = REPO / ".venv" / "bin" / "tsog"
 SPLATV = REPO.parent / "shared" / "data" / "4d" / "splatv" / "macaburguera_spinach_4.splatv"
-
-
-def write_section(name: str, body: str) -> None:
-    """Replace (or append) the ``name`` section of docs/benchmarks.md."""
-    begin, end = f"<!-- {name}:begin", f"<!-- {name}:end -->"
-    section = f"{begin} (written by benchmarks/bench_segment.py) -->\n{body}{end}\n"
-    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\n"
-    if begin in text:
-        head, rest = text.split(begin, 1)
-        text = head + section + rest.split(end, 1)[1].lstrip("\n")
-    else:
-        text = text.rstrip("\n") + "\n\n" + section
-    DOC.write_text(text)
 
 
 def seek_stats(path: Path, samples: int, seed: int) -> dict[str, float]:
@@ -141,7 +128,7 @@ def policies(args: argparse.Namespace) -> None:
             f"{r['max_bytes'] / 1e6:.2f} | {r['mean_percent']:.1f} | {r['mean_requests']:.1f} / "
             f"{r['max_requests']:.0f} | {r['overfetch']:.2f} |"
         )
-    write_section("segment-policies", "\n".join(lines) + "\n")
+    write_section("segment-policies", "\n".join(lines) + "\n", "bench_segment.py")
 
 
 def _splatv_options() -> ReadOptions:
@@ -235,7 +222,7 @@ def scale(args: argparse.Namespace) -> None:
             f"{r['tsogs_bytes'] / 1e6:.1f} | {100 * (1 - r['tsogs_bytes'] / r['ply_bytes']):.1f}% | "
             f"{r['seconds']} | {r['gaussians_per_s']:,} | {r['peak_mib']} |"
         )
-    write_section(name, "\n".join(lines) + "\n")
+    write_section(name, "\n".join(lines) + "\n", "bench_segment.py")
 
 
 def main() -> int:
