@@ -12,6 +12,7 @@ Writes benchmarks/results/inputs.json and the "inputs" section of docs/benchmark
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import json
 import sys
@@ -177,6 +178,9 @@ def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
 
 def main() -> int:
     """Measure every input and write the results."""
+    argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    ).parse_args()
     rows = []
     with tempfile.TemporaryDirectory(prefix="tsog-inputs-") as tmp:
         for name, path, options in INPUTS:
