@@ -125,7 +125,7 @@ def test_demo_reports_a_faithful_stream(tmp_path: Path, capsys: pytest.CaptureFi
     assert main(["demo", "--out", str(tmp_path), "--json", "-q"]) == 0
     report = json.loads(capsys.readouterr().out)
     stream = report["stream"]
-    assert stream["frame_gaussians"] == stream["expected_gaussians"] > 0
+    assert stream["frames"] > 5 and stream["mismatches"] == 0 and stream["bytes_fetched"] > 0
     assert (tmp_path / "demo.tsogs").stat().st_size == stream["bytes"]
     assert (tmp_path / "demo.sog").stat().st_size == report["tsog_bytes"]
     assert report["tsog_bytes"] < report["extended_ply_bytes"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -9,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from .client.stream import PlayStats, StreamClient
 from .codec.bundle import bundle_bytes
 from .codec.chunk import decode_chunk, encode_chunk, texel_order
 from .compare import attribute_errors
@@ -16,8 +18,9 @@ from .container.sync import StreamReader
 from .errors import InputError
 from .io.files import atomic_write_bytes
 from .io.ply import ply_bytes
-from .model import Scene
+from .model import Gaussians, Scene
 from .segment.segmenter import SegmentOptions, segment_scene
+from .server.app import make_app, start_server
 from .synthetic import SceneSpec, generate_scene
 from .temporal import evaluate_all, time_range
 
@@ -50,25 +53,50 @@ def errors_over_time(source: Scene, decoded: Scene, times: list[float]) -> list[
     return rows
 
 
-def _stream_report(scene: Scene, out_dir: Path | None, t: float, note: Progress) -> dict[str, Any]:
-    """Segment the scene into a .tsogs container, open it and read the frame at ``t``."""
+async def _play_over_http(
+    root: Path, name: str, start: float, seconds: float
+) -> tuple[str, list[tuple[float, Gaussians]], PlayStats]:
+    """Serve ``root`` on loopback and play ``name`` from ``start`` at 2x; then shut down."""
+    runner, port = await start_server(make_app(root))
+    try:
+        url = f"http://127.0.0.1:{port}/files/{name}"
+        async with await StreamClient.open(url) as client:
+            playback = client.play(start, speed=2.0, fps=10.0, duration=seconds)
+            frames = [(f.t, f.gaussians) async for f in playback]
+            return url, frames, playback.stats
+    finally:
+        await runner.cleanup()
+
+
+def _stream_report(
+    scene: Scene, out_dir: Path | None, start: float, note: Progress
+) -> dict[str, Any]:
+    """Segment the scene, serve it on loopback, play it over HTTP from ``start``, shut down."""
     note("segmenting into a stream container")
     with tempfile.TemporaryDirectory(prefix="tsog-demo-") as tmp:
-        path = (out_dir or Path(tmp)) / "demo.tsogs"
+        root = out_dir or Path(tmp)
+        path = root / "demo.tsogs"
         report = segment_scene(scene, path, SegmentOptions(window_s=0.5))
-        with StreamReader.open(path) as reader:
-            frame = reader.frame_at(t)
-            stats = reader.source.stats
+        note("serving on 127.0.0.1 and playing over HTTP")
+        url, frames, stats = asyncio.run(_play_over_http(root, path.name, start, seconds=1.0))
+        with StreamReader.open(path) as local:
+            mismatches = sum(
+                1 for t, got in frames if not np.array_equal(got.means, local.frame_at(t).means)
+            )
         return {
             "output": str(path) if out_dir is not None else None,
             "bytes": report.bytes,
             "windows": report.windows,
             "chunks": report.chunks,
-            "t": round(t, 3),
-            "frame_gaussians": len(frame),
-            "expected_gaussians": len(scene.at(t)),
-            "bytes_read": stats.bytes,
+            "url": url,
+            "start_t": round(start, 3),
+            "frames": len(frames),
+            "mismatches": mismatches,
+            "startup_ms": round(1000 * stats.startup_s, 1),
+            "stalls": stats.stalls,
             "requests": stats.requests,
+            "bytes_fetched": stats.bytes,
+            "cache_hit_rate": round(stats.hit_rate, 3),
         }
 
 
@@ -92,7 +120,8 @@ def run_demo(
     first, last = time_range(scene.timeline)
     times = [round(float(t), 3) for t in np.linspace(first, last, 5)]
     ply_size = extended_ply_size(scene)
-    stream = _stream_report(scene, out_dir, (first + last) / 2, note)
+    start = float(np.random.default_rng(seed).uniform(first, max(first, last - 2.0)))
+    stream = _stream_report(scene, out_dir, start, note)
     return {
         "stream": stream,
         "gaussians": len(scene),

@@ -285,10 +285,11 @@ def _print_demo(report: dict[str, Any]) -> None:
     print(
         f"stream: {s['bytes']} bytes, {s['windows']} windows, {s['chunks']} chunks -> {s['output']}"
     )
-    print(
-        f"  frame at t = {s['t']} s: {s['frame_gaussians']} Gaussians (scene has "
-        f"{s['expected_gaussians']}), read {s['bytes_read']} bytes in {s['requests']} requests"
-    )
+    print(f"served at {s['url']} (loopback, stopped after the run)")
+    print(f"  played {s['frames']} frames from t = {s['start_t']} s at 2x speed")
+    print(f"  startup {s['startup_ms']} ms, {s['stalls']} stalls, {s['requests']} requests,")
+    print(f"  {s['bytes_fetched']} bytes, cache hit rate {s['cache_hit_rate']:.0%}")
+    print(f"  frames differing from local reads: {s['mismatches']}")
     print("errors after encode/decode (positions: scene units, rotations: degrees, opacity: alpha)")
     head = ("t (s)", "visible", "pos max", "rot max", "scale max", "alpha max", "flips")
     print(" ".join(f"{h:>9}" for h in head))
