@@ -223,9 +223,9 @@ def main() -> int:
         scene = generate_scene(
             SceneSpec(
                 timeline_type=TimelineType.CENTER_SCALE,
-                background=20000,
-                objects=20,
-                per_object=2000,
+                background=150000,
+                objects=30,
+                per_object=5000,
                 duration=8.0,
                 sh_bands=0,
                 seed=2,
