@@ -57,7 +57,8 @@ def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             duration=args.duration,
             realtime=args.realtime,
         )
-        client.run_playback(playback, lambda f: progress(_line(f.t, playback.stats)))
+        # keep nothing: each frame is dropped once reported (memory stays bounded by the cache)
+        client.drain_playback(playback, lambda f: progress(_line(f.t, playback.stats)))
     print(_report(playback.stats))
     return 0
 

@@ -247,3 +247,76 @@ def _parse(pattern: re.Pattern[str], resp: aiohttp.ClientResponse, url: str) -> 
             f"expected Content-Range like {pattern.pattern!r}, got {value!r}", where=url
         )
     return tuple(int(g) for g in m.groups())
+
+
+class HttpFiles:
+    """Whole-file GETs (the unpacked layout's manifest and chunks) over one shared session.
+
+    Each file is one request with ``Accept-Encoding: identity``; only a 200 whose body has at
+    most ``limit`` bytes is accepted (a longer declared length is refused unread). Connection
+    errors, timeouts and 5xx answers are retried with backoff, like :class:`HttpSource`.
+    """
+
+    def __init__(self, options: HttpOptions | None = None) -> None:
+        self.options = options or HttpOptions()
+        self.stats = ReadStats()
+        self._session: aiohttp.ClientSession | None = None
+
+    def _client(self) -> aiohttp.ClientSession:
+        """The session, created on first use (inside the running event loop)."""
+        if self._session is None:
+            timeout = aiohttp.ClientTimeout(
+                sock_connect=self.options.connect_timeout_s, sock_read=self.options.read_timeout_s
+            )
+            self._session = aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
+        return self._session
+
+    async def aclose(self) -> None:
+        """Close the HTTP session."""
+        if self._session is not None:
+            await self._session.close()
+        self._session = None
+
+    async def get(self, url: str, limit: int) -> bytes:
+        """The whole body of ``url`` (at most ``limit`` bytes), retrying transient failures."""
+        attempt = 0
+        while True:
+            try:
+                return await self._get_once(url, limit)
+            except (aiohttp.ClientError, TimeoutError, _RetryableError) as exc:
+                attempt += 1
+                if attempt > self.options.retries:
+                    raise SourceError(
+                        f"GET failed after {attempt} attempts: {exc or type(exc).__name__}",
+                        where=url,
+                    ) from exc
+                await asyncio.sleep(self.options.backoff_s * 2 ** (attempt - 1))
+
+    async def _get_once(self, url: str, limit: int) -> bytes:
+        """One GET of ``url``; checks status, encoding and length."""
+        self.stats.requests += 1
+        headers = {"Accept-Encoding": "identity"}
+        async with self._client().get(url, headers=headers) as resp:
+            if resp.status >= 500:
+                raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
+            if resp.status != 200:
+                raise SourceError(f"expected HTTP 200, got {resp.status}", where=url)
+            if resp.headers.get("Content-Encoding", "identity").lower() != "identity":
+                raise SourceError(
+                    f"expected an unencoded body, got Content-Encoding: "
+                    f"{resp.headers['Content-Encoding']}",
+                    where=url,
+                )
+            length = resp.content_length
+            if length is not None and length > limit:
+                resp.close()
+                raise SourceError(f"{length} bytes, expected at most {limit}", where=url)
+            body = bytearray()
+            async for piece in resp.content.iter_chunked(64 * 1024):
+                self.stats.bytes += len(piece)
+                body += piece
+                if len(body) > limit:
+                    raise SourceError(f"more than the expected {limit} bytes", where=url)
+            if length is not None and len(body) < length:
+                raise aiohttp.ClientPayloadError(f"body ended after {len(body)} of {length} bytes")
+            return bytes(body)

@@ -18,17 +18,12 @@ from types import TracebackType
 from urllib.parse import unquote, urlparse
 
 from ..container.ranges import ByteRange, coalesce
-from ..container.reader import (
-    StreamIndex,
-    decode_chunk_bytes,
-    frame_from_chunks,
-    open_stream,
-    verify_chunk,
-)
+from ..container.reader import StreamIndex, decode_chunk_bytes, frame_from_chunks, verify_chunk
 from ..container.sources import ByteSource, FileSource
 from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..schemas.manifest import ChunkEntry
+from .fetchers import ChunkFetcher, RangeFetcher, make_fetcher
 from .http_source import HttpOptions, HttpSource
 
 MiB = 1 << 20
@@ -148,11 +143,15 @@ class Playback:
 
 
 class StreamClient:
-    """An opened container: frames at any time, prefetching and simulated playback."""
+    """An opened container: frames at any time, prefetching and simulated playback.
+
+    ``source`` is the :class:`ChunkFetcher` of the source kind (ranges of one ``.tsogs`` file
+    or whole files of the unpacked layout); a plain :class:`ByteSource` is read by ranges.
+    """
 
     def __init__(
         self,
-        source: ByteSource,
+        source: ChunkFetcher | ByteSource,
         index: StreamIndex,
         *,
         cache_bytes: int = 256 * MiB,
@@ -161,7 +160,9 @@ class StreamClient:
     ) -> None:
         if concurrency < 1 or cache_bytes < 0 or (coalesce_gap is not None and coalesce_gap < 0):
             raise InputError("concurrency must be >= 1, cache_bytes and coalesce_gap >= 0")
-        self.source = source
+        self.source: ChunkFetcher = (
+            source if isinstance(source, ChunkFetcher) else RangeFetcher(source)
+        )
         self.index = index
         self.cache = SceneCache(cache_bytes)
         self.cache_stats = CacheStats()
@@ -180,12 +181,20 @@ class StreamClient:
         coalesce_gap: int | None = 64 * 1024,
         http: HttpOptions | None = None,
     ) -> StreamClient:
-        """Open a container by URL, ``file://`` URL, path or byte source."""
-        source = open_source(target, http) if isinstance(target, str | os.PathLike) else target
+        """Open a container by URL, ``file://`` URL, path or byte source.
+
+        A URL ending with ``/`` or ``/manifest.json``, or a local folder, is read as the
+        unpacked layout; anything else as one ``.tsogs`` file (see :func:`make_fetcher`).
+        """
+        source = (
+            make_fetcher(target, http)
+            if isinstance(target, str | os.PathLike)
+            else RangeFetcher(target)
+        )
         try:
-            index = await open_stream(source)
+            index = await source.open()
         except BaseException:
-            await _close_source(source)
+            await source.aclose()
             raise
         return cls(
             source,
@@ -252,7 +261,7 @@ class StreamClient:
         Runs keep the order in which their first chunk was asked for (time order); a gap of
         None fetches every chunk on its own.
         """
-        if self.coalesce_gap is None:
+        if self.coalesce_gap is None or not self.source.coalesces:
             return [[c] for c in chunks]
         spans = coalesce((self.index.chunk_range(c) for c in chunks), self.coalesce_gap)
         groups: dict[ByteRange, list[ChunkEntry]] = {}
@@ -266,15 +275,12 @@ class StreamClient:
     ) -> None:
         """Fetch one run with one request, verify and decode each chunk, settle its future."""
         try:
-            start = min(c.offset for c in group)
-            span = ByteRange(start, max(c.offset + c.length for c in group))
+            group = sorted(group, key=lambda c: c.offset)
             async with self._limit:
-                body = await self.source.read(span)
-            for c in sorted(group, key=lambda c: c.offset):
+                bodies = await self.source.fetch(group)
+            for c, body in zip(group, bodies, strict=True):
                 where = f"{self.source.name} chunk {c.id}"
-                data = verify_chunk(
-                    c, body[c.offset - start : c.offset + c.length - start], where=where
-                )
+                data = verify_chunk(c, body, where=where)
                 scene = await asyncio.to_thread(decode_chunk_bytes, data, where=where)
                 self.cache.put(c.id, scene)
                 futures[c.id].set_result(scene)
@@ -352,7 +358,7 @@ class StreamClient:
         for task in list(self._tasks):
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
-        await _close_source(self.source)
+        await self.source.aclose()
 
     async def __aenter__(self) -> StreamClient:
         return self
@@ -361,9 +367,3 @@ class StreamClient:
         self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         await self.aclose()
-
-
-async def _close_source(source: ByteSource) -> None:
-    """Close a source that holds connections (an ``HttpSource``)."""
-    if isinstance(source, HttpSource):
-        await source.aclose()

@@ -52,6 +52,13 @@ class SyncClient:
         """Run a playback to its end, calling ``on_frame`` after each frame."""
         return self._run(_collect(playback, on_frame))
 
+    def drain_playback(
+        self, playback: Playback, on_frame: Callable[[PlayedFrame], None] | None = None
+    ) -> int:
+        """Run a playback to its end keeping no frame (each is dropped after ``on_frame``);
+        returns the number of frames played."""
+        return self._run(_drain(playback, on_frame))
+
     def close(self) -> None:
         """Close the connections and the event loop."""
         try:
@@ -78,6 +85,16 @@ async def _collect(
         if on_frame is not None:
             on_frame(frame)
     return out
+
+
+async def _drain(playback: Playback, on_frame: Callable[[PlayedFrame], None] | None) -> int:
+    """Iterate a playback, dropping each frame; returns how many there were."""
+    count = 0
+    async for frame in playback:
+        count += 1
+        if on_frame is not None:
+            on_frame(frame)
+    return count
 
 
 def open_url(

@@ -1,0 +1,164 @@
+"""Chunk fetchers: how :class:`StreamClient` gets the raw bytes of chunks, by source kind.
+
+Two kinds share the whole client (cache, prefetch, playback, verification): a
+:class:`RangeFetcher` reads byte ranges of one ``.tsogs`` file (runs of neighbouring chunks
+merged into one read), a :class:`FolderFetcher` reads each chunk's own file of the unpacked
+layout (``manifest.json`` + ``chunks/NNNNNN.sog``), over HTTP or from a local folder.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import os
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from pathlib import Path
+from urllib.parse import unquote, urljoin, urlparse
+
+from ..container.header import PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
+from ..container.ranges import ByteRange
+from ..container.reader import StreamIndex, open_stream
+from ..container.sources import ByteSource, FileSource, ReadStats
+from ..container.unpacked import MANIFEST
+from ..errors import SourceError
+from ..io.files import read_bytes
+from ..schemas.manifest import ChunkEntry, parse_manifest
+from .http_source import HttpFiles, HttpOptions, HttpSource
+
+MAX_MANIFEST_BYTES = 64 << 20
+
+
+class ChunkFetcher(ABC):
+    """Raw (unverified) bytes of chunks; ``coalesces`` when a run of chunks costs one read."""
+
+    name: str
+    stats: ReadStats
+    coalesces: bool = False
+
+    @abstractmethod
+    async def open(self) -> StreamIndex:
+        """Read the index (one request in the usual case)."""
+
+    @abstractmethod
+    async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
+        """The bytes of each chunk of ``group``, in the same order."""
+
+    @abstractmethod
+    async def aclose(self) -> None:
+        """Release connections."""
+
+
+class RangeFetcher(ChunkFetcher):
+    """Chunks as byte ranges of one container file; a run is read with one request."""
+
+    coalesces = True
+
+    def __init__(self, source: ByteSource) -> None:
+        self.source = source
+        self.name = source.name
+        self.stats = source.stats
+
+    async def open(self) -> StreamIndex:
+        """Read the header and index (one request when the index fits the prefix)."""
+        return await open_stream(self.source)
+
+    async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
+        """One read spanning the group, split back into chunks."""
+        start = min(c.offset for c in group)
+        body = await self.source.read(ByteRange(start, max(c.offset + c.length for c in group)))
+        return [body[c.offset - start : c.offset + c.length - start] for c in group]
+
+    async def aclose(self) -> None:
+        """Close the HTTP session of an ``HttpSource``."""
+        if isinstance(self.source, HttpSource):
+            await self.source.aclose()
+
+
+class FolderFetcher(ChunkFetcher):
+    """Chunks as whole files of the unpacked layout, by URL (``base/chunks/NNNNNN.sog``) or path.
+
+    ``base`` is the folder: an http(s) URL ending with ``/`` (uses :class:`HttpFiles`) or a
+    local folder path.
+    """
+
+    def __init__(self, base: str, options: HttpOptions | None = None) -> None:
+        self.base = base
+        self.name = base
+        self._http = HttpFiles(options) if _is_http(base) else None
+        self.stats = self._http.stats if self._http is not None else ReadStats()
+
+    async def _get(self, name: str, limit: int) -> bytes:
+        """The file ``name`` of the folder, at most ``limit`` bytes (else a SourceError)."""
+        if self._http is not None:
+            return await self._http.get(urljoin(self.base, name), limit)
+        path = Path(self.base) / name
+        try:
+            size = (await asyncio.to_thread(os.stat, path)).st_size
+        except OSError as exc:
+            raise SourceError(f"cannot read: {exc.strerror}", where=str(path)) from exc
+        if size > limit:
+            raise SourceError(f"{size} bytes, expected at most {limit}", where=str(path))
+        data = await asyncio.to_thread(read_bytes, path)
+        self.stats.add(len(data))
+        return data
+
+    async def open(self) -> StreamIndex:
+        """Read ``manifest.json`` (one request) and present it as an opened container."""
+        raw = await self._get(MANIFEST, MAX_MANIFEST_BYTES)
+        manifest = parse_manifest(raw, where=self._where(MANIFEST))
+        end = max((c.offset + c.length for c in manifest.chunks), default=PREFIX_SIZE)
+        header = Header(
+            version_major=VERSION_MAJOR,
+            version_minor=VERSION_MINOR,
+            required_flags=0,
+            optional_flags=0,
+            index_codec=0,
+            index_offset=end,
+            index_length=len(raw),
+            index_raw_length=len(raw),
+            file_length=end + len(raw),
+            index_sha256=hashlib.sha256(raw).digest(),
+        )
+        return StreamIndex(header, manifest, self.name)
+
+    async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
+        """Each chunk's file, one request each (a longer file is refused unread)."""
+        return list(await asyncio.gather(*(self._get(c.file, c.length) for c in group)))
+
+    def _where(self, name: str) -> str:
+        return urljoin(self.base, name) if self._http is not None else str(Path(self.base) / name)
+
+    async def aclose(self) -> None:
+        """Close the HTTP session."""
+        if self._http is not None:
+            await self._http.aclose()
+
+
+def _is_http(text: str) -> bool:
+    return urlparse(text).scheme.lower() in ("http", "https")
+
+
+def make_fetcher(
+    target: str | os.PathLike[str], options: HttpOptions | None = None
+) -> RangeFetcher | FolderFetcher:
+    """The fetcher for a target, by its form.
+
+    An http(s) URL ending with ``/`` or ``/manifest.json``, or a local folder (or its
+    ``manifest.json``), is the unpacked layout; anything else is one ``.tsogs`` file.
+    """
+    text = os.fspath(target)
+    if _is_http(text):
+        if text.endswith("/"):
+            return FolderFetcher(text, options)
+        if text.endswith("/" + MANIFEST):
+            return FolderFetcher(text[: -len(MANIFEST)], options)
+        return RangeFetcher(HttpSource(text, options))
+    if urlparse(text).scheme.lower() == "file":
+        text = unquote(urlparse(text).path)
+    path = Path(text)
+    if path.is_dir():
+        return FolderFetcher(str(path))
+    if path.name == MANIFEST:
+        return FolderFetcher(str(path.parent))
+    return RangeFetcher(FileSource(text))
