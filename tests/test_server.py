@@ -8,6 +8,7 @@ import email.parser
 import hashlib
 import http.client
 import json
+import logging
 import os
 import shutil
 import socket
@@ -27,6 +28,7 @@ from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app, start_server
+from tsog_stream.server import app as app_module
 from tsog_stream.server.app import GATE
 from tsog_stream.server.cli import add_serve_command, cmd_serve
 from tsog_stream.synthetic import small_scene
@@ -349,8 +351,10 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.mark.skipif(not os.path.exists("/usr/sbin/nginx"), reason="nginx is not installed")
+@pytest.mark.nginx
 def test_agrees_with_nginx(port: int, tree: Path, tmp_path: Path) -> None:
+    if not os.path.exists("/usr/sbin/nginx"):
+        pytest.fail("nginx is not installed: run scripts/setup")
     ngx = free_port()
     (tmp_path / "logs").mkdir()
     user = "user root;" if os.getuid() == 0 else ""
@@ -409,3 +413,93 @@ def test_serve_command_arguments(tree: Path) -> None:
     bad = parser.parse_args(["serve", str(tree), "--port", "70000"])
     with pytest.raises(InputError, match="port"):
         cmd_serve(bad, Progress(quiet=True))
+
+
+class SendfileSpy:
+    """Wraps a loop's ``sendfile`` and records (offset, count) of each call."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.inner = loop.sendfile
+        self.calls: list[tuple[int, int | None]] = []
+
+    async def __call__(
+        self, transport: Any, file: Any, offset: int = 0, count: int | None = None, **kw: Any
+    ) -> int:
+        self.calls.append((offset, count))
+        return await self.inner(transport, file, offset, count, **kw)
+
+
+@pytest.fixture
+def spied(tree: Path) -> Iterator[tuple[Server, SendfileSpy]]:
+    """A server on the tree whose loop's sendfile is spied on."""
+    server = Server(make_app(tree))
+    spy = SendfileSpy(server.loop)
+    server.loop.sendfile = spy  # type: ignore[method-assign]
+    try:
+        yield server, spy
+    finally:
+        server.stop()
+
+
+def test_sendfile_for_large_single_span(
+    spied: tuple[Server, SendfileSpy], caplog: pytest.LogCaptureFixture
+) -> None:
+    server, spy = spied
+    with caplog.at_level(logging.INFO, logger="aiohttp.access"):
+        r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=100-90099"})
+        assert r.status == 206 and r.body == DATA[100:90100]
+        assert spy.calls == [(100, 90000)]
+        r = fetch(server.port, "/files/data.bin")
+        assert r.status == 200 and r.body == DATA and spy.calls[-1] == (0, len(DATA))
+        small = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=0-99"})
+        multi = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=0-70000,80000-"})
+        head = fetch(server.port, "/files/data.bin", "HEAD", headers={"Range": "bytes=5-"})
+    assert small.body == DATA[:100] and multi.status == 206 and len(multi.body) > 90000
+    assert head.body == b"" and head.headers["Content-Length"] == str(len(DATA) - 5)
+    assert len(spy.calls) == 2  # small, multipart and HEAD bodies do not use sendfile
+    logged = [rec.getMessage() for rec in caplog.records if rec.name == "aiohttp.access"]
+    sizes = [int(line.split('" ')[1].split()[1]) for line in logged[:2]]
+    assert sizes[0] >= 90000 and sizes[1] >= len(DATA)  # %b counts sendfile bytes too
+
+
+def test_sendfile_chunk_slices_and_switch(
+    spied: tuple[Server, SendfileSpy], tree: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    server, spy = spied
+    monkeypatch.setattr(app_module, "SENDFILE_MIN", 1)
+    listing = get_json(server.port, "/v1/scenes/clip/chunks?t=0&horizon=100")
+    container = (tree / "clip.tsogs").read_bytes()
+    for c in listing["chunks"]:
+        r = fetch(server.port, c["url"])
+        assert r.status == 200 and r.body == container[c["offset"] : c["offset"] + c["length"]]
+        assert spy.calls[-1] == (c["offset"], c["length"])
+    off = Server(make_app(tree, limits=Limits(sendfile=False)))
+    try:
+        before = len(spy.calls)
+        r = fetch(off.port, "/files/data.bin", headers={"Range": "bytes=10-"})
+        assert r.body == DATA[10:] and len(spy.calls) == before
+    finally:
+        off.stop()
+
+
+def test_single_file_root(tree: Path) -> None:
+    server = Server(make_app(tree / "clip.tsogs"))
+    try:
+        listing = get_json(server.port, "/v1/scenes")
+        assert [s["id"] for s in listing["scenes"]] == ["clip"]
+        whole = fetch(server.port, "/files/clip.tsogs")
+        assert whole.status == 200 and whole.body == (tree / "clip.tsogs").read_bytes()
+        assert fetch(server.port, "/v1/scenes/clip/manifest").status == 200
+        chunks = get_json(server.port, "/v1/scenes/clip/chunks?t=0")["chunks"]
+        assert chunks and fetch(server.port, chunks[0]["url"]).status == 200
+        for path in ["/files/data.bin", "/files/sub/note.txt", "/v1/scenes/unpacked/manifest"]:
+            assert fetch(server.port, path).status == 404
+    finally:
+        server.stop()
+    other = Server(make_app(tree / "data.bin"))
+    try:
+        assert fetch(other.port, "/files/data.bin").body == DATA
+        assert get_json(other.port, "/v1/scenes") == {"scenes": []}
+        assert fetch(other.port, "/files/clip.tsogs").status == 404
+    finally:
+        other.stop()

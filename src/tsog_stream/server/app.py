@@ -3,8 +3,10 @@
 Routes (see docs/http.md): ``GET|HEAD /files/{path}``, ``GET /v1/scenes``,
 ``GET /v1/scenes/{id}/manifest``, ``GET /v1/scenes/{id}/chunks?t=&horizon=``,
 ``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /healthz`` and ``OPTIONS`` preflight anywhere.
-Bodies are read with ``pread`` in a worker thread, 256 KiB at a time, and written with
-``StreamResponse.write`` (no sendfile: see docs/http.md).
+A single span of at least SENDFILE_MIN bytes (whole file or one range) goes out with
+zero-copy ``loop.sendfile`` on the connection's transport; multipart bodies, small spans, TLS
+and transports without sendfile are read with ``pread`` in a worker thread, 256 KiB at a time,
+and written with ``StreamResponse.write`` (see docs/http.md).
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ import secrets
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 from urllib.parse import quote
 
 from aiohttp import web
+from aiohttp.abc import AbstractStreamWriter
 
 from ..container.ranges import ByteRange
 from ..errors import InputError, TsogError
@@ -29,6 +32,7 @@ from .conditional import Outcome, evaluate, http_date, if_range_allows
 from .ranges import Ignore, Serve, Unsatisfiable, content_range, parse_range, unsatisfied_range
 
 READ_BLOCK = 256 * 1024
+SENDFILE_MIN = 64 * 1024
 REVALIDATE = "public, max-age=0, must-revalidate"
 IMMUTABLE = "public, max-age=31536000, immutable"
 ACCESS_LOG_FORMAT = '%a "%r" %s %b bytes %Tf s "%{Range}i" "%{User-Agent}i"'
@@ -57,6 +61,8 @@ class Limits:
     """Idle keep-alive connections are closed after this."""
     shutdown_timeout_s: float = 10.0
     """Grace period for in-flight requests on shutdown."""
+    sendfile: bool = True
+    """Send large single-span bodies with zero-copy ``loop.sendfile`` when the transport can."""
 
 
 CATALOG = web.AppKey("catalog", Catalog)
@@ -119,6 +125,33 @@ async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange) -> None:
         pos += len(data)
 
 
+async def _sendfile(
+    request: web.Request, writer: AbstractStreamWriter, file: BinaryIO, span: ByteRange
+) -> bool:
+    """Send ``span`` of ``file`` with ``loop.sendfile``; False (nothing sent) if unavailable.
+
+    The headers were already handed to the transport by ``prepare``; sendfile waits for them
+    to be flushed. The bytes sent are added to the writer's ``output_size`` (the access log's
+    ``%b``) and taken off its remaining ``length``, as ``write`` would.
+    """
+    transport = request.transport
+    if transport is None:
+        raise ConnectionResetError("connection lost")
+    if transport.get_extra_info("sslcontext") is not None:
+        return False
+    loop = asyncio.get_running_loop()
+    try:
+        sent = await loop.sendfile(transport, file, span.start, span.length, fallback=False)
+    except (NotImplementedError, asyncio.SendfileNotAvailableError):
+        return False
+    writer.output_size += sent
+    if writer.length is not None:
+        writer.length = max(0, writer.length - sent)
+    if sent < span.length:
+        raise ConnectionAbortedError("file shrank while being sent")
+    return True
+
+
 def _parts(
     rep: Representation, spans: tuple[ByteRange, ...], boundary: str
 ) -> tuple[list[tuple[bytes, ByteRange]], bytes]:
@@ -137,21 +170,42 @@ def _parts(
 async def _send_body(
     request: web.Request, resp: web.StreamResponse, rep: Representation, plan: list[Any]
 ) -> web.StreamResponse:
-    """Prepare ``resp`` and write ``plan`` (bytes and spans) unless HEAD, under the deadline."""
-    await resp.prepare(request)
-    if request.method == "HEAD":
+    """Prepare ``resp`` and write ``plan`` (bytes and spans) unless HEAD, under the deadline.
+
+    A plan of one span of at least SENDFILE_MIN bytes is sent with sendfile when possible.
+    When the deadline passes the transport is aborted (buffered bytes discarded).
+    """
+    writer = await resp.prepare(request)
+    if request.method == "HEAD" or writer is None:
         return resp
-    fd = await asyncio.to_thread(os.open, rep.path, os.O_RDONLY)
+    limits = request.app[LIMITS]
+    file = await asyncio.to_thread(open, rep.path, "rb")
     try:
-        async with asyncio.timeout(request.app[LIMITS].send_timeout_s):
-            for item in plan:
+        async with asyncio.timeout(limits.send_timeout_s):
+            spans = [
+                ByteRange.sized(rep.offset + x.start, x.length) if isinstance(x, ByteRange) else x
+                for x in plan
+            ]
+            first = spans[0]
+            zero_copy = (
+                limits.sendfile
+                and len(spans) == 1
+                and isinstance(first, ByteRange)
+                and first.length >= SENDFILE_MIN
+                and await _sendfile(request, writer, file, first)
+            )
+            for item in [] if zero_copy else spans:
                 if isinstance(item, ByteRange):
-                    await _copy(resp, fd, ByteRange.sized(rep.offset + item.start, item.length))
+                    await _copy(resp, file.fileno(), item)
                 else:
                     await resp.write(item)
             await resp.write_eof()
+    except TimeoutError as exc:
+        if request.transport is not None:
+            request.transport.abort()  # close() would keep waiting to flush to a stalled reader
+        raise ConnectionAbortedError("send deadline passed; connection dropped") from exc
     finally:
-        os.close(fd)
+        file.close()
     return resp
 
 
@@ -302,9 +356,9 @@ async def healthz(request: web.Request) -> web.StreamResponse:
 
 
 def make_app(root: Path, *, limits: Limits | None = None) -> web.Application:
-    """The application serving ``root`` (a folder)."""
-    if not root.is_dir():
-        raise InputError("the server root must be a folder", where=str(root))
+    """The application serving ``root``: a folder, or one file (only that file is served)."""
+    if not (root.is_dir() or root.is_file()):
+        raise InputError("the server root must be a folder or a file", where=str(root))
     app = web.Application(middlewares=[_guard])
     app[CATALOG] = Catalog(root)
     app[LIMITS] = limits or Limits()

@@ -5,7 +5,7 @@ or ``..`` segments are refused (:class:`~tsog_stream.errors.InputError`, 400); t
 then resolved with symlinks followed and must stay inside the resolved root, else
 :class:`NotFoundError` (404), the same answer as for a missing file, so nothing leaks.
 Scenes are ``.tsogs`` containers and unpacked layouts (folders with ``manifest.json``); each is
-reopened when its size or mtime changes.
+reopened when its size or mtime changes. A root that is one file serves only that file.
 """
 
 from __future__ import annotations
@@ -110,15 +110,27 @@ def _unpacked_index(manifest_json: bytes, where: str) -> StreamIndex:
 
 
 class Catalog:
-    """Files and scenes under one root folder, with caches keyed by (path, size, mtime_ns)."""
+    """Files and scenes under one root, with caches keyed by (path, size, mtime_ns).
+
+    The root is a folder, or one file (single-file mode): then only that file is served, as
+    ``/files/<name>`` and, for a ``.tsogs`` container, as the scene ``<name without .tsogs>``.
+    """
 
     def __init__(self, root: Path) -> None:
-        self.root = root.resolve()
+        resolved = root.resolve()
+        self.only: str | None = resolved.name if resolved.is_file() else None
+        self.root = resolved.parent if self.only is not None else resolved
         self._etags: dict[tuple[Path, int, int], str] = {}
         self._scenes: dict[tuple[Path, int, int], SceneEntry] = {}
 
+    def _check_only(self, rel: str) -> None:
+        """In single-file mode, anything but that file is not found."""
+        if self.only is not None and rel != self.only:
+            raise NotFoundError("no such file", where=rel[:80])
+
     async def file(self, rel: str) -> Representation:
         """The whole file at ``rel`` (relative to the root)."""
+        self._check_only(rel)
         path = safe_path(self.root, rel)
         size, mtime_ns = _signature(path)
         key = (path, size, mtime_ns)
@@ -129,6 +141,7 @@ class Catalog:
 
     async def scene(self, scene_id: str) -> SceneEntry:
         """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
+        self._check_only(scene_id + CONTAINER_SUFFIX)
         try:
             path = safe_path(self.root, scene_id + CONTAINER_SUFFIX)
             packed = path.is_file()
@@ -161,6 +174,9 @@ class Catalog:
 
     def scene_ids(self) -> list[str]:
         """Ids of every container and unpacked layout under the root (symlinks not followed)."""
+        if self.only is not None:
+            suffixed = self.only.endswith(CONTAINER_SUFFIX)
+            return [self.only.removesuffix(CONTAINER_SUFFIX)] if suffixed else []
         ids: set[str] = set()
         for folder, dirs, files in os.walk(self.root):
             dirs[:] = sorted(d for d in dirs if not d.startswith("."))

@@ -17,7 +17,7 @@ def add_serve_command(sub: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = sub.add_parser(
         "serve", help="serve containers and files over HTTP with byte ranges (docs/http.md)"
     )
-    p.add_argument("root", help="folder to serve, or one .tsogs file (its folder is served)")
+    p.add_argument("root", help="folder to serve, or one .tsogs file (only that file is served)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free)")
     p.add_argument("--max-concurrent", type=int, default=256, help="requests at once; more get 503")
@@ -29,9 +29,7 @@ def add_serve_command(sub: Any) -> argparse.ArgumentParser:
 def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
     """Serve until interrupted; returns the exit code."""
     root = Path(args.root)
-    if root.is_file():
-        root = root.parent
-    if not root.is_dir():
+    if not (root.is_dir() or root.is_file()):
         raise InputError("no such folder or file", where=args.root)
     if not 0 <= args.port <= 65535:
         raise InputError(f"expected a port 0-65535, got {args.port}", where="--port")
