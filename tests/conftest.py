@@ -26,4 +26,3 @@ def splat_transform() -> Path:
     if not SPLAT_TRANSFORM.exists() or shutil.which("node") is None:
         pytest.fail("splat-transform is not installed: run scripts/setup")
     return SPLAT_TRANSFORM
-
