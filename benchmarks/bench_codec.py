@@ -115,6 +115,11 @@ def _cell(row: dict[str, Any], key: str, field: str) -> str:
     return f"{m[field]}"
 
 
+def _megabytes(n: int | None) -> str:
+    """Bytes as MB, or a dash when there is no figure."""
+    return "—" if n is None else f"{n / 1e6:.2f}"
+
+
 def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
     """The codec section of docs/benchmarks.md."""
     lines = [
@@ -140,7 +145,7 @@ def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
             f" | {_cell(r, 'reference_encode', 'seconds')} | {ratio} | {_cell(r, 'ours_decode', 'seconds')}"
             f" | {_cell(r, 'reference_decode', 'seconds')} | {_cell(r, 'ours_encode', 'peak_mib')}"
             f" | {_cell(r, 'reference_encode', 'peak_mib')} | {r['ours_bytes'] / 1e6:.2f}"
-            f" | {r.get('reference_bytes', 0) / 1e6:.2f} | `{r.get('reference_options', '')}` |"
+            f" | {_megabytes(r.get('reference_bytes'))} | `{r.get('reference_options', '')}` |"
         )
     lines += [
         "",
