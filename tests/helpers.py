@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import asyncio
+import threading
+
 import numpy as np
 import numpy.typing as npt
+from aiohttp import web
 
 from tsog_stream import Scene, TimelineType
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.constants import U16_MAX
+from tsog_stream.server.app import start_server
 from tsog_stream.temporal import evaluate_all, lifespans, reference_times, visibility_half_width
 
 
@@ -54,3 +59,21 @@ def check_decoded_at(src: Scene, decoded: Scene, meta: dict, t: float) -> None:
     edge_error = (t_step[0] + half_width * t_step[1]) * spu / 2 + 1e-9
     near_edge = np.minimum(np.abs(t - start), np.abs(t - end)) <= edge_error
     assert not np.any((mask != got_mask) & ~near_edge), f"visibility changed away from edges, t={t}"
+
+
+class ThreadedServer:
+    """An aiohttp app served from a background thread with its own event loop (tests only)."""
+
+    def __init__(self, app: web.Application) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        future = asyncio.run_coroutine_threadsafe(start_server(app), self.loop)
+        self.runner, self.port = future.result(10)
+
+    def stop(self) -> None:
+        """Shut down the server and its loop."""
+        asyncio.run_coroutine_threadsafe(self.runner.cleanup(), self.loop).result(30)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()

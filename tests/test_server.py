@@ -13,21 +13,20 @@ import os
 import shutil
 import socket
 import subprocess
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from aiohttp import web
 
+from helpers import ThreadedServer
 from tsog_stream.cli.progress import Progress
 from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.server import Limits, make_app, start_server
+from tsog_stream.server import Limits, make_app
 from tsog_stream.server import app as app_module
 from tsog_stream.server.app import GATE
 from tsog_stream.server.cli import add_serve_command, cmd_serve
@@ -35,24 +34,6 @@ from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
 DATA = bytes(range(256)) * 400 + b"tail"  # 102 404 bytes
-
-
-class Server:
-    """An app served from a background thread with its own event loop."""
-
-    def __init__(self, app: web.Application) -> None:
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        future = asyncio.run_coroutine_threadsafe(start_server(app), self.loop)
-        self.runner, self.port = future.result(10)
-
-    def stop(self) -> None:
-        """Shut down the server and its loop."""
-        asyncio.run_coroutine_threadsafe(self.runner.cleanup(), self.loop).result(30)
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(10)
-        self.loop.close()
 
 
 class Resp:
@@ -98,7 +79,7 @@ def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def port(tree: Path) -> Iterator[int]:
     """A running server on the tree."""
-    server = Server(make_app(tree))
+    server = ThreadedServer(make_app(tree))
     try:
         yield server.port
     finally:
@@ -332,7 +313,7 @@ def test_api_errors(port: int) -> None:
 
 
 def test_concurrency_cap(tree: Path) -> None:
-    server = Server(make_app(tree, limits=Limits(max_concurrent=1)))
+    server = ThreadedServer(make_app(tree, limits=Limits(max_concurrent=1)))
     try:
         gate = server.runner.app[GATE]
         asyncio.run_coroutine_threadsafe(gate.acquire(), server.loop).result(5)
@@ -430,9 +411,9 @@ class SendfileSpy:
 
 
 @pytest.fixture
-def spied(tree: Path) -> Iterator[tuple[Server, SendfileSpy]]:
+def spied(tree: Path) -> Iterator[tuple[ThreadedServer, SendfileSpy]]:
     """A server on the tree whose loop's sendfile is spied on."""
-    server = Server(make_app(tree))
+    server = ThreadedServer(make_app(tree))
     spy = SendfileSpy(server.loop)
     server.loop.sendfile = spy  # type: ignore[method-assign]
     try:
@@ -442,7 +423,7 @@ def spied(tree: Path) -> Iterator[tuple[Server, SendfileSpy]]:
 
 
 def test_sendfile_for_large_single_span(
-    spied: tuple[Server, SendfileSpy], caplog: pytest.LogCaptureFixture
+    spied: tuple[ThreadedServer, SendfileSpy], caplog: pytest.LogCaptureFixture
 ) -> None:
     server, spy = spied
     with caplog.at_level(logging.INFO, logger="aiohttp.access"):
@@ -463,7 +444,7 @@ def test_sendfile_for_large_single_span(
 
 
 def test_sendfile_chunk_slices_and_switch(
-    spied: tuple[Server, SendfileSpy], tree: Path, monkeypatch: pytest.MonkeyPatch
+    spied: tuple[ThreadedServer, SendfileSpy], tree: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     server, spy = spied
     monkeypatch.setattr(app_module, "SENDFILE_MIN", 1)
@@ -473,7 +454,7 @@ def test_sendfile_chunk_slices_and_switch(
         r = fetch(server.port, c["url"])
         assert r.status == 200 and r.body == container[c["offset"] : c["offset"] + c["length"]]
         assert spy.calls[-1] == (c["offset"], c["length"])
-    off = Server(make_app(tree, limits=Limits(sendfile=False)))
+    off = ThreadedServer(make_app(tree, limits=Limits(sendfile=False)))
     try:
         before = len(spy.calls)
         r = fetch(off.port, "/files/data.bin", headers={"Range": "bytes=10-"})
@@ -483,7 +464,7 @@ def test_sendfile_chunk_slices_and_switch(
 
 
 def test_single_file_root(tree: Path) -> None:
-    server = Server(make_app(tree / "clip.tsogs"))
+    server = ThreadedServer(make_app(tree / "clip.tsogs"))
     try:
         listing = get_json(server.port, "/v1/scenes")
         assert [s["id"] for s in listing["scenes"]] == ["clip"]
@@ -496,7 +477,7 @@ def test_single_file_root(tree: Path) -> None:
             assert fetch(server.port, path).status == 404
     finally:
         server.stop()
-    other = Server(make_app(tree / "data.bin"))
+    other = ThreadedServer(make_app(tree / "data.bin"))
     try:
         assert fetch(other.port, "/files/data.bin").body == DATA
         assert get_json(other.port, "/v1/scenes") == {"scenes": []}

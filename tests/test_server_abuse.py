@@ -2,41 +2,21 @@
 
 from __future__ import annotations
 
-import asyncio
 import http.client
 import logging
 import select
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from aiohttp import web
 
-from tsog_stream.server import Limits, make_app, start_server
+from helpers import ThreadedServer
+from tsog_stream.server import Limits, make_app
 
 DATA = bytes(range(256)) * 1024  # 256 KiB
 BIG = 64 * 1024 * 1024  # larger than any loopback socket buffers
-
-
-class Server:
-    """An app served from a background thread with its own event loop."""
-
-    def __init__(self, app: web.Application) -> None:
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
-        self.thread.start()
-        future = asyncio.run_coroutine_threadsafe(start_server(app), self.loop)
-        self.runner, self.port = future.result(10)
-
-    def stop(self) -> None:
-        """Shut down the server and its loop."""
-        asyncio.run_coroutine_threadsafe(self.runner.cleanup(), self.loop).result(30)
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self.thread.join(10)
-        self.loop.close()
 
 
 @pytest.fixture(scope="module")
@@ -50,9 +30,9 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture
-def server(root: Path) -> Iterator[Server]:
+def server(root: Path) -> Iterator[ThreadedServer]:
     """A server with small limits."""
-    srv = Server(make_app(root, limits=Limits(keepalive_s=0.6, send_timeout_s=0.5)))
+    srv = ThreadedServer(make_app(root, limits=Limits(keepalive_s=0.6, send_timeout_s=0.5)))
     try:
         yield srv
     finally:
@@ -97,7 +77,7 @@ def connect(port: int, rcvbuf: int | None = None) -> socket.socket:
     return sock
 
 
-def test_slow_loris_is_disconnected(server: Server) -> None:
+def test_slow_loris_is_disconnected(server: ThreadedServer) -> None:
     request = b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 40 + b"\r\n\r\n"
     sock = connect(server.port)
     start, closed = time.monotonic(), False
@@ -119,7 +99,7 @@ def test_slow_loris_is_disconnected(server: Server) -> None:
     assert get(server.port, "/healthz")[0] == 200
 
 
-def test_idle_keepalive_is_closed(server: Server) -> None:
+def test_idle_keepalive_is_closed(server: ThreadedServer) -> None:
     sock = connect(server.port)
     try:
         sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
@@ -139,7 +119,7 @@ def test_idle_keepalive_is_closed(server: Server) -> None:
 @pytest.mark.parametrize("sendfile", [True, False])
 def test_stalled_reader_is_cut_off(root: Path, sendfile: bool) -> None:
     limits = Limits(keepalive_s=5, send_timeout_s=0.5, sendfile=sendfile)
-    srv = Server(make_app(root, limits=limits))
+    srv = ThreadedServer(make_app(root, limits=limits))
     sock = connect(srv.port, rcvbuf=4096)
     try:
         sock.sendall(b"GET /files/big.bin HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
@@ -175,7 +155,7 @@ def test_stalled_reader_is_cut_off(root: Path, sendfile: bool) -> None:
         "bytes=" + " " * 5000 + "0-1",
     ],
 )
-def test_hostile_ranges_are_bounded(server: Server, value: str) -> None:
+def test_hostile_ranges_are_bounded(server: ThreadedServer, value: str) -> None:
     start = time.monotonic()
     status, body = get(server.port, "/files/data.bin", {"Range": value})
     assert status in (200, 206, 400, 416)
@@ -185,7 +165,7 @@ def test_hostile_ranges_are_bounded(server: Server, value: str) -> None:
     assert get(server.port, "/healthz")[0] == 200
 
 
-def test_access_log_counts_bytes(server: Server, caplog: pytest.LogCaptureFixture) -> None:
+def test_access_log_counts_bytes(server: ThreadedServer, caplog: pytest.LogCaptureFixture) -> None:
     with caplog.at_level(logging.INFO, logger="aiohttp.access"):
         assert get(server.port, "/files/data.bin", {"Range": "bytes=0-99999"})[0] == 206
         assert get(server.port, "/files/data.bin", {"Range": "bytes=0-9"})[0] == 206

@@ -44,6 +44,14 @@ class HttpOptions:
     """Largest whole-file (200) answer kept in memory when the origin ignores ``Range``."""
 
 
+def new_session(options: HttpOptions) -> aiohttp.ClientSession:
+    """A client session with the options' timeouts and no transparent decompression."""
+    timeout = aiohttp.ClientTimeout(
+        sock_connect=options.connect_timeout_s, sock_read=options.read_timeout_s
+    )
+    return aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
+
+
 class HttpSource:
     """Random access to one file on an HTTP server, pinned to the version first seen."""
 
@@ -69,10 +77,7 @@ class HttpSource:
     def _client(self) -> aiohttp.ClientSession:
         """The session, created on first use (inside the running event loop)."""
         if self._session is None:
-            timeout = aiohttp.ClientTimeout(
-                sock_connect=self.options.connect_timeout_s, sock_read=self.options.read_timeout_s
-            )
-            self._session = aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
+            self._session = new_session(self.options)
         return self._session
 
     async def aclose(self) -> None:
@@ -265,10 +270,7 @@ class HttpFiles:
     def _client(self) -> aiohttp.ClientSession:
         """The session, created on first use (inside the running event loop)."""
         if self._session is None:
-            timeout = aiohttp.ClientTimeout(
-                sock_connect=self.options.connect_timeout_s, sock_read=self.options.read_timeout_s
-            )
-            self._session = aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
+            self._session = new_session(self.options)
         return self._session
 
     async def aclose(self) -> None:
