@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..errors import InputError
 from ..io.ply import write_ply
 from .stream import PlayStats
 from .sync import open_url
@@ -21,13 +22,19 @@ def add_client_commands(sub: Any, add_common: Callable[[argparse.ArgumentParser]
     p.add_argument("url", help="http(s):// URL, file:// URL or path of a .tsogs container")
     p.add_argument("--t", type=float, required=True, help="time in seconds")
     p.add_argument("-o", "--output", type=Path, required=True, help="the PLY to write")
+    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     add_common(p)
 
     p = sub.add_parser("play", help="simulate playing a served container; report stalls")
     p.add_argument("url", help="http(s):// URL, file:// URL or path of a .tsogs container")
     p.add_argument("--start", type=float, default=0.0, help="start time in seconds (default 0)")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
-    p.add_argument("--duration", type=float, default=None, help="seconds of scene time to play")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="wall-clock seconds of playback (scene time = duration x speed; default: to the end)",
+    )
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--realtime", action="store_true", help="pace frames in real time")
     add_common(p)
@@ -35,6 +42,8 @@ def add_client_commands(sub: Any, add_common: Callable[[argparse.ArgumentParser]
 
 def cmd_fetch(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """tsog fetch: one frame, reading only the chunks it needs."""
+    if args.output.exists() and not args.force:
+        raise InputError("already exists (pass --force to replace it)", where=str(args.output))
     progress(f"opening {args.url}")
     with open_url(args.url) as client:
         progress(f"fetching t = {args.t} s")
