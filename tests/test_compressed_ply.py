@@ -11,9 +11,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tsog_stream.constants import SH_C0
+from tsog_stream.constants import ALPHA_EPS, SH_C0
 from tsog_stream.errors import PlyError
-from tsog_stream.io.compressed_ply import ALPHA_EPS, is_compressed_ply, parse_compressed_ply
+from tsog_stream.io.compressed_ply import is_compressed_ply, parse_compressed_ply
 from tsog_stream.io.ply import parse_ply, ply_bytes, read_ply
 from tsog_stream.io.ply_header import parse_header
 from tsog_stream.model import Gaussians

@@ -14,6 +14,7 @@ import numpy.typing as npt
 
 from .errors import InputError
 from .model import Gaussians
+from .opacity import logit_to_alpha
 
 F64 = npt.NDArray[np.float64]
 
@@ -60,12 +61,6 @@ def rotation_angles_deg(qa: npt.ArrayLike, qb: npt.ArrayLike) -> F64:
     return np.asarray(np.degrees(2.0 * np.arccos(dot)), np.float64)
 
 
-def _alpha(logits: npt.NDArray[np.float32]) -> F64:
-    """sigmoid of logits."""
-    with np.errstate(over="ignore"):
-        return 1.0 / (1.0 + np.exp(-logits.astype(np.float64)))
-
-
 def attribute_errors(reference: Gaussians, candidate: Gaussians) -> AttributeErrors:
     """Differences of ``candidate`` from ``reference``, Gaussian i against Gaussian i."""
     if len(reference) != len(candidate):
@@ -81,7 +76,7 @@ def attribute_errors(reference: Gaussians, candidate: Gaussians) -> AttributeErr
         float(angles.mean()) if angles.size else 0.0,
         *_abs_stats(reference.scales, candidate.scales),
         *_abs_stats(reference.sh0, candidate.sh0),
-        *_abs_stats(_alpha(reference.opacities), _alpha(candidate.opacities)),
+        *_abs_stats(logit_to_alpha(reference.opacities), logit_to_alpha(candidate.opacities)),
         float(np.sqrt(np.mean(sh_diff**2))) if sh_diff.size else 0.0,
         float(np.abs(sh_diff).max()) if sh_diff.size else 0.0,
     )

@@ -58,6 +58,9 @@ MAX_TEMPORAL_ORDER: Final = 8
 SCALE_CAP_SPANS: Final = 20.0
 """Type-2 scales are stored clamped to this many scene spans (exp(-1/2 (1/20)^2) > 0.998)."""
 
+ALPHA_EPS: Final = 1e-6
+"""Alpha is clamped to [ALPHA_EPS, 1 - ALPHA_EPS] before taking its logit (see opacity.py)."""
+
 VISIBILITY_THRESHOLD: Final = 1.0 / 255.0
 """Type-2 Gaussians whose temporal opacity factor falls under this are invisible."""
 

@@ -15,19 +15,13 @@ import numpy.typing as npt
 
 from .. import constants as C
 from ..model import Gaussians
+from ..opacity import alpha_to_logit
 from .layout import from_image
 from .positions import decode_means, join_u16
 from .rotations import decode_quats
 
 U8 = npt.NDArray[np.uint8]
 F32 = npt.NDArray[np.float32]
-ALPHA_CLAMP = 1e-6
-
-
-def opacity_logits(alpha_bytes: U8) -> F32:
-    """Logit of byte/255 with alpha clamped to [1e-6, 1 - 1e-6] (so +-13.8 at the ends)."""
-    a = np.clip(alpha_bytes.astype(np.float64) / 255.0, ALPHA_CLAMP, 1.0 - ALPHA_CLAMP)
-    return np.log(a / (1.0 - a)).astype(np.float32)
 
 
 def _lookup(codebook: list[float], indices: U8) -> F32:
@@ -64,7 +58,7 @@ def decode_sog(meta: Any, images: Mapping[str, U8]) -> Gaussians:
     scales = _lookup(meta.scales.codebook, from_image(images[meta.scales.files[0]], count)[:, :3])
     sh0_texels = from_image(images[meta.sh0.files[0]], count)
     sh0 = _lookup(meta.sh0.codebook, sh0_texels[:, :3])
-    opacities = opacity_logits(sh0_texels[:, 3])
+    opacities = alpha_to_logit(sh0_texels[:, 3] / 255.0)
     shn = meta.shN
     rest = (
         _decode_sh(shn, images, count) if shn is not None else np.zeros((count, 0, 3), np.float32)

@@ -15,6 +15,7 @@ import numpy.typing as npt
 
 from .. import constants as C
 from ..model import Gaussians
+from ..opacity import logit_to_alpha
 from ..quantize import assign_codebook, build_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
@@ -40,8 +41,7 @@ def _floats(values: npt.ArrayLike) -> list[float]:
 
 def opacity_bytes(logits: npt.NDArray[np.float32]) -> U8:
     """Alpha byte = round(sigmoid(logit) * 255), clamped; +inf -> 255, -inf -> 0."""
-    with np.errstate(over="ignore"):
-        alpha = 1.0 / (1.0 + np.exp(-logits.astype(np.float64)))
+    alpha = logit_to_alpha(logits)
     return np.clip(np.rint(alpha * 255.0), 0, 255).astype(np.uint8)
 
 

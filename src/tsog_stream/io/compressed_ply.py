@@ -30,9 +30,10 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from ..constants import SH_C0
+from ..constants import ALPHA_EPS, SH_C0
 from ..errors import PlyError
 from ..model import Gaussians
+from ..opacity import alpha_to_logit
 from .ply import (
     F_REST_COUNTS,
     PlyContents,
@@ -51,8 +52,6 @@ COLOR_BOUNDS: Final = tuple(f"{e}_{c}" for e in ("min", "max") for c in "rgb")
 PACKED: Final = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
 ROTATION_RANGE: Final = 1.0 / (math.sqrt(2.0) * 0.5)
 """Stored [0, 1] -> (u - 0.5) * this, i.e. [-1/sqrt2, 1/sqrt2] (written as the reference does)."""
-ALPHA_EPS: Final = 1e-6
-"""Alpha is clamped to [ALPHA_EPS, 1 - ALPHA_EPS] before the logit, keeping opacities finite."""
 
 F64 = npt.NDArray[np.float64]
 U32 = npt.NDArray[np.uint32]
@@ -169,9 +168,8 @@ def _unpack_color(packed: U32, per_vertex: F64, has_bounds: bool) -> tuple[F64, 
 
 def _opacity_logits(alpha: F64) -> tuple[npt.NDArray[np.float32], int]:
     """Logits of alpha clamped away from 0 and 1, and how many needed the clamp."""
-    clipped = np.clip(alpha, ALPHA_EPS, 1.0 - ALPHA_EPS)
-    clamped = int(np.count_nonzero(clipped != alpha))
-    return (-np.log(1.0 / clipped - 1.0)).astype(np.float32), clamped
+    clamped = int(np.count_nonzero((alpha < ALPHA_EPS) | (alpha > 1.0 - ALPHA_EPS)))
+    return alpha_to_logit(alpha), clamped
 
 
 def _decode_sh(records: Records | None, n: int, name: str) -> npt.NDArray[np.float32]:

@@ -35,6 +35,7 @@ from .. import __version__
 from ..constants import GENERATOR, SH_BANDS_BY_COEFFS, SH_C0, VISIBILITY_THRESHOLD
 from ..errors import FormatError, InputError, UnsupportedError
 from ..model import Gaussians, Scene, Timeline, TimelineType
+from ..opacity import alpha_to_logit, logit_to_alpha
 from ..temporal import time_range, visibility_half_width
 from .files import atomic_write_bytes, read_bytes
 from .loaded import Loaded4D
@@ -47,8 +48,6 @@ PROFILES: Final = ("fine", "default", "coarse")
 """fourdgs quantisation profiles (error bounds scale with the scene's median Gaussian size)."""
 SH_RANGE: Final = (-4.0, 4.0)
 """SH coefficient = lo + byte (hi - lo) / 255 (4dgs spec section 6.5)."""
-ALPHA_EPS: Final = 1e-6
-"""Alpha is clamped to [ALPHA_EPS, 1 - ALPHA_EPS] before the logit, as the SOG decoder does."""
 NEVER_FADES_SIGMAS: Final = 16.0
 """A never-fading Gaussian read into type 2 gets scale = this x its distance to the far end of
 the scene: exp(-1/2 / 16^2) > 1 - 1/510, so its opacity stays within half an 8-bit step."""
@@ -114,12 +113,11 @@ def parse_4dgs(data: bytes, *, name: str = "<bytes>") -> Loaded4D:
 def _gaussians(gs: Any) -> Gaussians:
     """Static attributes in the 3DGS PLY domain (log scales, wxyz, logits, f_dc, f_rest)."""
     colors = np.asarray(gs.colors, np.float64)
-    alpha = np.clip(colors[:, 3], ALPHA_EPS, 1.0 - ALPHA_EPS)
     return Gaussians.from_arrays(
         means=np.asarray(gs.positions, np.float64),
         scales=np.log(np.maximum(np.asarray(gs.scales, np.float64), 1e-30)),
         quats=np.asarray(gs.rotations, np.float64)[:, [3, 0, 1, 2]],
-        opacities=np.log(alpha) - np.log1p(-alpha),
+        opacities=alpha_to_logit(colors[:, 3]),
         sh0=(colors[:, :3] - 0.5) / SH_C0,
         shN=_sh_from_bytes(gs.sh, len(colors)),
     )
@@ -382,8 +380,7 @@ def _colors(g: Gaussians, notes: list[str]) -> npt.NDArray[np.float32]:
     outside = int(np.count_nonzero((rgb < 0.0) | (rgb > 1.0)))
     if outside:
         notes.append(f"{outside} colour values outside [0, 1] clipped (4dgs stores colour)")
-    with np.errstate(over="ignore"):
-        alpha = 1.0 / (1.0 + np.exp(-g.opacities.astype(np.float64)))
+    alpha = logit_to_alpha(g.opacities)
     return np.concatenate([np.clip(rgb, 0.0, 1.0), alpha[:, None]], axis=1).astype(np.float32)
 
 

@@ -54,7 +54,7 @@ import numpy.typing as npt
 from ..constants import SH_C0
 from ..errors import FormatError, InputError
 from ..model import F32, Gaussians, Scene, Timeline, TimelineType
-from .compressed_ply import ALPHA_EPS
+from ..opacity import alpha_to_logit
 from .files import read_bytes
 from .loaded import Loaded4D
 
@@ -292,8 +292,7 @@ def _logits(alpha: npt.NDArray[np.uint8], notes: list[str]) -> F64:
     clamped = int(np.count_nonzero((alpha == 0) | (alpha == 255)))
     if clamped:
         notes.append(f"clamped {clamped} opacities of alpha byte 0 or 255 to finite logits")
-    a = np.clip(alpha.astype(np.float64) / 255.0, ALPHA_EPS, 1.0 - ALPHA_EPS)
-    return np.log(a) - np.log1p(-a)
+    return alpha_to_logit(alpha / 255.0).astype(np.float64)
 
 
 def _trbf_scales(records: npt.NDArray[np.void], notes: list[str]) -> F64:
