@@ -19,6 +19,7 @@ from ..codec.chunk import decode_chunk, encode_chunk
 from ..demo import run_demo
 from ..errors import InputError, TsogError
 from ..io.chunks import read_chunk_files, write_chunk_files
+from ..io.files import refuse_existing
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
 from ..io.readers import FORMATS, ReadOptions, detect_format, load_scene
@@ -149,12 +150,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _refuse_existing(path: Path, force: bool) -> None:
-    """Stop before any work if OUTPUT exists and --force was not given."""
-    if path.exists() and not force:
-        raise InputError("already exists (pass --force to replace it)", where=str(path))
-
-
 def _load(args: argparse.Namespace, progress: Progress) -> Scene:
     """Load the INPUT with progress and reader notes on stderr."""
     progress(f"reading {args.input}")
@@ -172,7 +167,7 @@ def _load(args: argparse.Namespace, progress: Progress) -> Scene:
 
 def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
-    _refuse_existing(args.output, args.force)
+    refuse_existing(args.output, overwrite=args.force)
     scene = _load(args, progress)
     if args.output.suffix.lower() == ".4dgs":
         for note in write_4dgs(args.output, scene, lossy=args.lossy):
@@ -245,7 +240,7 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     """tsog frame."""
-    _refuse_existing(args.output, args.force)
+    refuse_existing(args.output, overwrite=args.force)
     if (args.format or detect_format(args.input)) == "tsogs":
         if args.output.suffix.lower() != ".ply":
             raise InputError("frames of a stream are written as .ply", where=str(args.output))

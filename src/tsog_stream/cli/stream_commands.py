@@ -15,7 +15,7 @@ import numpy as np
 from ..container.sync import StreamReader
 from ..container.unpacked import pack
 from ..errors import InputError
-from ..io.files import atomic_write_bytes
+from ..io.files import atomic_write_bytes, refuse_existing
 from ..io.ply import write_ply
 from ..io.sequence import FrameSequence
 from ..model import Scene
@@ -35,7 +35,7 @@ _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
 def check_segment_args(args: argparse.Namespace) -> None:
     """Refuse bad options before the (possibly long) input read."""
-    _refuse_existing(args.output, args.force)
+    refuse_existing(args.output, overwrite=args.force)
     if not _WINDOW.match(args.window):
         raise InputError(
             f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
@@ -116,17 +116,10 @@ def add_stream_commands(sub: Any, add_input: Any, add_common: Any) -> None:
     add_common(p)
 
 
-def _refuse_existing(path: Path, force: bool) -> None:
-    """Stop before any work if the output exists and --force was not given."""
-    if path.exists() and not force:
-        raise InputError("already exists (pass --force to replace it)", where=str(path))
-
-
 def cmd_segment(
     args: argparse.Namespace, progress: Progress, source: Scene | FrameSequence, input_bytes: int
 ) -> int:
-    """tsog segment (the caller loads the scene, or opens a frame sequence to stream)."""
-    _refuse_existing(args.output, args.force)
+    """tsog segment; the caller has run check_segment_args and loaded or opened the input."""
     if isinstance(source, FrameSequence):
         fps: float | None = source.fps
     else:
@@ -222,7 +215,7 @@ def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
     """tsog extract."""
-    _refuse_existing(args.output, args.force)
+    refuse_existing(args.output, overwrite=args.force)
     with StreamReader.open(args.input) as reader:
         data = reader.chunk_bytes(args.chunk)
     atomic_write_bytes(args.output, data)
@@ -240,7 +233,7 @@ def cmd_unpack(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_pack(args: argparse.Namespace, progress: Progress) -> int:
     """tsog pack."""
-    _refuse_existing(args.output, args.force)
+    refuse_existing(args.output, overwrite=args.force)
     size = pack(args.input, args.output)
     print(f"{args.output}: {size} bytes")
     return 0

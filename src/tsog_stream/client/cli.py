@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
+from ..io.files import refuse_existing
 from ..io.ply import write_ply
 from .stream import PlayStats
 from .sync import open_url
@@ -42,8 +42,7 @@ def add_client_commands(sub: Any, add_common: Callable[[argparse.ArgumentParser]
 
 def cmd_fetch(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """tsog fetch: one frame, reading only the chunks it needs."""
-    if args.output.exists() and not args.force:
-        raise InputError("already exists (pass --force to replace it)", where=str(args.output))
+    refuse_existing(args.output, overwrite=args.force)
     progress(f"opening {args.url}")
     with open_url(args.url) as client:
         progress(f"fetching t = {args.t} s")

@@ -12,7 +12,7 @@ from ..constants import META_JSON
 from ..errors import SourceError
 from ..model import Scene
 from ..schemas import listed_files
-from .files import atomic_write_bytes, atomic_write_folder, read_bytes
+from .files import atomic_write_bytes, atomic_write_folder, read_bytes, refuse_existing
 
 
 def is_unbundled(path: Path) -> bool:
@@ -57,8 +57,7 @@ def write_chunk_files(
     """Publish a chunk atomically: ``*.sog`` as a zip, else a folder; returns the bytes written."""
     p = Path(path)
     if p.suffix.lower() == ".sog":
-        if p.exists() and not overwrite:
-            raise SourceError("already exists (pass --force to replace it)", where=str(p))
+        refuse_existing(p, overwrite=overwrite)
         data = bundle_bytes(files)
         atomic_write_bytes(p, data)
         return len(data)

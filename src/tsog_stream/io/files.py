@@ -13,6 +13,12 @@ from pathlib import Path
 from ..errors import SourceError
 
 
+def refuse_existing(path: str | os.PathLike[str], *, overwrite: bool) -> None:
+    """Refuse to replace ``path`` unless ``overwrite`` (checked before any work is done)."""
+    if not overwrite and Path(path).exists():
+        raise SourceError("already exists (pass --force to replace it)", where=str(path))
+
+
 def atomic_write_bytes(
     path: str | os.PathLike[str], data: bytes | Sequence[bytes | memoryview]
 ) -> None:
@@ -49,8 +55,7 @@ def atomic_write_folder(
 ) -> None:
     """Publish ``files`` as a folder: filled under a temp name, then renamed into place."""
     target = Path(path)
-    if target.exists() and not overwrite:
-        raise SourceError("already exists (pass --force to replace it)", where=str(target))
+    refuse_existing(target, overwrite=overwrite)
     parent = target.parent if str(target.parent) else Path(".")
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=parent))
