@@ -12,6 +12,7 @@ import hashlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 from ..codec.bundle import read_bundle
 from ..codec.chunk import decode_chunk
@@ -48,6 +49,11 @@ class StreamIndex:
         """Where a chunk's bytes are."""
         return ByteRange.sized(chunk.offset, chunk.length)
 
+    @cached_property
+    def windows(self) -> int:
+        """Number of windows (level-0 nodes) of the segmentation."""
+        return sum(1 for n in self.manifest.nodes if n.level == 0)
+
     def _window(self, t: float, windows: int) -> int:
         """The window holding ``t``, by the segmenter's rule (float rounding snapped forward,
         so t = k * window_s is in window k), clipped to the scene's windows."""
@@ -67,7 +73,7 @@ class StreamIndex:
         m = self.manifest
         fps = m.scene.fps
         slack = TIME_EPSILON * (1.0 / fps if fps else 1.0) + WINDOW_EPSILON * m.window_s
-        windows = sum(1 for n in m.nodes if n.level == 0)
+        windows = self.windows
         if windows == 0 or end < m.scene.start_s - slack or start > m.scene.end_s + slack:
             return []
         first, last = self._window(start, windows), self._window(end, windows)
