@@ -13,17 +13,14 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from doc_sections import write_section
+from common import run_measured, write_section
 from tsog_stream import Scene
 from tsog_stream.codec.chunk import decode_chunk, texel_order
 from tsog_stream.compare import attribute_errors
@@ -35,33 +32,6 @@ REPO = Path(__file__).resolve().parents[1]
 TOOL = REPO / "node_modules" / ".bin" / "splat-transform"
 TSOG = REPO / ".venv" / "bin" / "tsog"
 RESULTS = REPO / "benchmarks" / "results" / "codec.json"
-
-
-def run_measured(cmd: list[str], timeout: float) -> dict[str, Any]:
-    """Run ``cmd``; wall seconds, peak RSS in MiB and whether it finished in time."""
-    start = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = start + timeout
-    while True:
-        pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
-        if pid:
-            break
-        if time.monotonic() > deadline:
-            proc.kill()
-            os.wait4(proc.pid, 0)
-            return {"finished": False, "seconds": round(timeout, 1)}
-        time.sleep(0.05)
-    seconds = time.monotonic() - start
-    ok = os.waitstatus_to_exitcode(status) == 0
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-    out = {
-        "finished": ok,
-        "seconds": round(seconds, 2),
-        "peak_mib": round(usage.ru_maxrss / 1024, 1),
-    }
-    if not ok:
-        out["error"] = err[-500:]
-    return out
 
 
 def errors_of(chunk: Path, source: Scene) -> dict[str, float]:

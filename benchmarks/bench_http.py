@@ -27,7 +27,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 
-from doc_sections import write_section
+from common import write_section
 from tsog_stream import TimelineType
 from tsog_stream.client.http_source import HttpSource
 from tsog_stream.client.stream import StreamClient

@@ -22,17 +22,16 @@ from typing import Any
 
 import numpy as np
 
-from doc_sections import write_section
+from common import write_section
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
-from tsog_stream.compare import attribute_errors
-from tsog_stream.demo import extended_ply_size
+from tsog_stream.demo import errors_over_time, extended_ply_size
 from tsog_stream.io.fourdgs import encode_4dgs, parse_4dgs
 from tsog_stream.io.readers import ReadOptions, load_scene
 from tsog_stream.model import Scene
 from tsog_stream.segment.segmenter import segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
-from tsog_stream.temporal import evaluate_all, time_range
+from tsog_stream.temporal import time_range
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "4d"
@@ -78,17 +77,13 @@ def ply_sequence_bytes(scene: Scene, fps: float) -> int:
     return sum(PLY_HEADER + n * row for n in visible)
 
 
-def errors_over_time(source: Scene, candidate: Scene, times: np.ndarray) -> dict[str, float]:
+def error_summary(source: Scene, candidate: Scene, times: np.ndarray) -> dict[str, float]:
     """Worst position error and mean alpha error over ``times`` (index-aligned scenes)."""
-    worst, alpha = 0.0, []
-    for t in times:
-        ref, mask = evaluate_all(source, float(t))
-        got, _ = evaluate_all(candidate, float(t))
-        if mask.any():
-            e = attribute_errors(ref.subset(mask), got.subset(mask))
-            worst = max(worst, e.means_max)
-            alpha.append(e.opacity_mean)
-    return {"pos_max": worst, "alpha_mean": float(np.mean(alpha)) if alpha else 0.0}
+    rows = [r for r in errors_over_time(source, candidate, times.tolist()) if r["count"] > 0]
+    return {
+        "pos_max": max((r["means_max"] for r in rows), default=0.0),
+        "alpha_mean": float(np.mean([r["opacity_mean"] for r in rows])) if rows else 0.0,
+    }
 
 
 def fourdgs_row(scene: Scene, times: np.ndarray) -> dict[str, Any]:
@@ -101,7 +96,7 @@ def fourdgs_row(scene: Scene, times: np.ndarray) -> dict[str, Any]:
     return {
         "4dgs_bytes": len(data),
         "4dgs_notes": notes,
-        **{f"4dgs_{k}": v for k, v in errors_over_time(scene, back, times).items()},
+        **{f"4dgs_{k}": v for k, v in error_summary(scene, back, times).items()},
     }
 
 
@@ -133,7 +128,7 @@ def measure(name: str, path: Path | None, options: ReadOptions, work: Path) -> d
         "extended_ply_bytes": extended_ply_size(scene),
         "tsog_bytes": len(chunk),
         "tsogs_bytes": report.bytes,
-        **{f"tsog_{k}": v for k, v in errors_over_time(aligned, decoded, times).items()},
+        **{f"tsog_{k}": v for k, v in error_summary(aligned, decoded, times).items()},
         **fourdgs_row(scene, times),
     }
     print(json.dumps({k: v for k, v in row.items() if k != "4dgs_notes"}), flush=True)

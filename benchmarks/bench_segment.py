@@ -14,8 +14,6 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -24,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from doc_sections import write_section
+from common import run_measured, write_section
 from tsog_stream import TimelineType
 from tsog_stream.container.sync import StreamReader
 from tsog_stream.io.ply import write_ply
@@ -136,21 +134,6 @@ def _splatv_options() -> ReadOptions:
     return ReadOptions(duration_s=5.0)
 
 
-def run_measured(cmd: list[str]) -> dict[str, float]:
-    """Wall seconds and peak RSS (MiB) of a child process."""
-    start = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    out = proc.stdout.read().decode() if proc.stdout else ""
-    if os.waitstatus_to_exitcode(status) != 0:
-        err = proc.stderr.read().decode() if proc.stderr else ""
-        raise SystemExit(f"{cmd} failed:\n{out}\n{err}")
-    return {
-        "seconds": round(time.monotonic() - start, 1),
-        "peak_mib": round(usage.ru_maxrss / 1024, 1),
-    }
-
-
 def make_sequence(folder: Path, frames: int, per_frame: int, bands: int) -> int:
     """A PLY sequence: a static set that drifts a little each frame. Returns its bytes."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -188,6 +171,9 @@ def scale(args: argparse.Namespace) -> None:
                 "-q",
             ]
             m = run_measured(cmd)
+            if not m["finished"]:
+                raise SystemExit(f"{cmd} failed:\n{m.get('error', '')}")
+            del m["finished"]
             gaussians = frames * args.per_frame
             row = {
                 "frames": frames,

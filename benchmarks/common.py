@@ -1,0 +1,53 @@
+"""Shared by the benchmark scripts: measured child processes and docs/benchmarks.md sections."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+
+
+def write_section(name: str, body: str, script: str) -> None:
+    """Replace (or append) the section ``name``, keeping every other section as it is."""
+    begin, end = f"<!-- {name}:begin", f"<!-- {name}:end -->"
+    section = f"{begin} (written by benchmarks/{script}) -->\n{body}{end}\n"
+    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\n"
+    if begin in text:
+        head, rest = text.split(begin, 1)
+        text = head + section + rest.split(end, 1)[1].lstrip("\n")
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    DOC.write_text(text)
+
+
+def run_measured(cmd: list[str], timeout: float = 3600) -> dict[str, Any]:
+    """Run ``cmd``: wall seconds, peak RSS (MiB, ru_maxrss of the waited child) and whether it
+    finished in time; stderr goes to a temp file, so a chatty child never blocks on a pipe."""
+    start = time.monotonic()
+    with tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        deadline = start + timeout
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.monotonic() > deadline:
+                proc.kill()
+                os.wait4(proc.pid, 0)
+                return {"finished": False, "seconds": round(timeout, 1)}
+            time.sleep(0.05)
+        ok = os.waitstatus_to_exitcode(status) == 0
+        out: dict[str, Any] = {
+            "finished": ok,
+            "seconds": round(time.monotonic() - start, 2),
+            "peak_mib": round(usage.ru_maxrss / 1024, 1),
+        }
+        if not ok:
+            err.seek(0)
+            out["error"] = err.read().decode(errors="replace")[-500:]
+    return out
