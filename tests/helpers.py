@@ -3,10 +3,19 @@
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
+import socket
+import subprocess
 import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 from aiohttp import web
 
 from tsog_stream import Scene, TimelineType
@@ -77,3 +86,84 @@ class ThreadedServer:
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(10)
         self.loop.close()
+
+
+NGINX = Path("/usr/sbin/nginx")
+
+
+def free_port() -> int:
+    """An unused loopback port."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_listening(port: int, proc: subprocess.Popen[bytes]) -> None:
+    """Wait (at most 10 s) until nginx accepts connections on ``port``."""
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"nginx exited with {proc.returncode}")
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return
+        except OSError:
+            time.sleep(0.05)
+    raise RuntimeError("nginx did not start listening")
+
+
+@contextmanager
+def nginx_origin(root: Path, prefix: Path, max_ranges: int | None = None) -> Iterator[str]:
+    """A plain static nginx (Debian's, installed by scripts/setup) serving ``root`` on
+    127.0.0.1, optionally with ``max_ranges``; yields its base URL and always stops it."""
+    if not os.access(NGINX, os.X_OK):
+        pytest.fail("nginx is not installed: run scripts/setup")
+    port = free_port()
+    prefix.mkdir(parents=True, exist_ok=True)
+    (prefix / "logs").mkdir(exist_ok=True)
+    user = "user root;" if os.geteuid() == 0 else ""
+    mr = f"max_ranges {max_ranges};" if max_ranges is not None else ""
+    temps = "\n".join(
+        f"{k}_temp_path {prefix}/tmp_{k};" for k in ("client_body", "proxy", "fastcgi", "uwsgi")
+    )
+    conf = prefix / "nginx.conf"
+    conf.write_text(
+        f"""{user}
+worker_processes 1;
+daemon off;
+pid {prefix}/nginx.pid;
+error_log {prefix}/logs/error.log warn;
+events {{ worker_connections 256; }}
+http {{
+    default_type application/octet-stream;
+    access_log {prefix}/logs/access.log;
+    {temps}
+    scgi_temp_path {prefix}/tmp_scgi;
+    sendfile on;
+    server_tokens off;
+    server {{
+        listen 127.0.0.1:{port};
+        root {root};
+        etag on;
+        {mr}
+        location / {{ autoindex off; }}
+    }}
+}}
+"""
+    )
+    proc = subprocess.Popen(
+        [NGINX, "-p", str(prefix), "-c", str(conf)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        _wait_listening(port, proc)
+        yield f"http://127.0.0.1:{port}/"
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGQUIT)
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.terminate()
+                proc.wait(5)

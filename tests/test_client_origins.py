@@ -9,13 +9,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import shutil
-import signal
-import socket
-import subprocess
-import threading
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -23,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import ThreadedServer, nginx_origin
 from tsog_stream.client import HttpOptions, StreamClient, SyncClient, open_url
 from tsog_stream.client.cli import add_client_commands, cmd_play
 from tsog_stream.container.ranges import coalesce
@@ -30,14 +25,13 @@ from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import IntegrityError, SourceError
 from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.server.app import make_app, start_server
+from tsog_stream.server.app import make_app
 from tsog_stream.synthetic import small_scene
 
-NGINX = shutil.which("nginx") or "/usr/sbin/nginx"
 TIMES = (0.0, 0.3, 0.7, 1.2, 1.9)
 FAST = HttpOptions(retries=2, backoff_s=0.01, read_timeout_s=5.0)
 
-needs_nginx = pytest.mark.nginx  # the origin fixture fails when nginx is missing
+needs_nginx = pytest.mark.nginx  # nginx_origin fails when nginx is missing
 
 
 @pytest.fixture(scope="module")
@@ -58,103 +52,14 @@ def expected(site: Path) -> list[Gaussians]:
         return [reader.frame_at(t) for t in TIMES]
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _wait_listening(port: int, proc: subprocess.Popen[bytes]) -> None:
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"nginx exited with {proc.returncode}")
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-            return
-        except OSError:
-            time.sleep(0.05)
-    raise RuntimeError("nginx did not start listening")
-
-
-@contextmanager
-def nginx(root: Path, prefix: Path, max_ranges: int | None = None) -> Iterator[str]:
-    """A plain static nginx serving ``root`` on 127.0.0.1; yields its base URL."""
-    port = _free_port()
-    prefix.mkdir(parents=True, exist_ok=True)
-    (prefix / "logs").mkdir(exist_ok=True)
-    user = "user root;" if os.geteuid() == 0 else ""
-    mr = f"max_ranges {max_ranges};" if max_ranges is not None else ""
-    temps = "\n".join(
-        f"{k}_temp_path {prefix}/tmp_{k};" for k in ("client_body", "proxy", "fastcgi", "uwsgi")
-    )
-    conf = prefix / "nginx.conf"
-    conf.write_text(
-        f"""{user}
-worker_processes 1;
-daemon off;
-pid {prefix}/nginx.pid;
-error_log {prefix}/logs/error.log warn;
-events {{ worker_connections 256; }}
-http {{
-    default_type application/octet-stream;
-    access_log {prefix}/logs/access.log;
-    {temps}
-    scgi_temp_path {prefix}/tmp_scgi;
-    sendfile on;
-    server_tokens off;
-    server {{
-        listen 127.0.0.1:{port};
-        root {root};
-        etag on;
-        {mr}
-        location / {{ autoindex off; }}
-    }}
-}}
-"""
-    )
-    proc = subprocess.Popen(
-        [NGINX, "-p", str(prefix), "-c", str(conf)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        _wait_listening(port, proc)
-        yield f"http://127.0.0.1:{port}/"
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGQUIT)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.terminate()
-                proc.wait(5)
-
-
 @contextmanager
 def own_server(root: Path) -> Iterator[str]:
     """Our aiohttp server on 127.0.0.1 in a background loop; yields its ``/files/`` base URL."""
-    loop = asyncio.new_event_loop()
-    started = threading.Event()
-    ports: list[int] = []
-
-    def run() -> None:
-        asyncio.set_event_loop(loop)
-        runner, port = loop.run_until_complete(start_server(make_app(root), port=0))
-        ports.append(port)
-        started.set()
-        loop.run_forever()
-        loop.run_until_complete(runner.cleanup())
-        loop.close()
-
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
+    server = ThreadedServer(make_app(root))
     try:
-        assert started.wait(10)
-        yield f"http://127.0.0.1:{ports[0]}/files/"
+        yield f"http://127.0.0.1:{server.port}/files/"
     finally:
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(10)
+        server.stop()
 
 
 ORIGINS = [
@@ -175,16 +80,14 @@ def base(
             yield url
         return
     prefix = tmp_path_factory.mktemp("nginx")
-    with nginx(site, prefix, 1 if kind.endswith("-1") else None) as url:
+    with nginx_origin(site, prefix, 1 if kind.endswith("-1") else None) as url:
         yield url
 
 
 @pytest.fixture(scope="module")
 def no_ranges(site: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """nginx with ``max_ranges 0``: every GET is a 200 with the whole file."""
-    if not os.access(NGINX, os.X_OK):
-        pytest.fail("nginx is not installed: run scripts/setup")
-    with nginx(site, tmp_path_factory.mktemp("nginx0"), 0) as url:
+    with nginx_origin(site, tmp_path_factory.mktemp("nginx0"), 0) as url:
         yield url
 
 
