@@ -113,9 +113,17 @@ def _wait_listening(port: int, proc: subprocess.Popen[bytes]) -> None:
 
 
 @contextmanager
-def nginx_origin(root: Path, prefix: Path, max_ranges: int | None = None) -> Iterator[str]:
+def nginx_origin(
+    root: Path,
+    prefix: Path,
+    max_ranges: int | None = None,
+    *,
+    http_extra: str = "",
+    server_extra: str = "",
+) -> Iterator[str]:
     """A plain static nginx (Debian's, installed by scripts/setup) serving ``root`` on
-    127.0.0.1, optionally with ``max_ranges``; yields its base URL and always stops it."""
+    127.0.0.1, optionally with ``max_ranges`` and extra ``http``/``server`` directives; yields
+    its base URL and always stops it."""
     if not os.access(NGINX, os.X_OK):
         pytest.fail("nginx is not installed: run scripts/setup")
     port = free_port()
@@ -139,6 +147,7 @@ http {{
     access_log {prefix}/logs/access.log;
     {temps}
     scgi_temp_path {prefix}/tmp_scgi;
+    {http_extra}
     sendfile on;
     server_tokens off;
     server {{
@@ -146,6 +155,7 @@ http {{
         root {root};
         etag on;
         {mr}
+        {server_extra}
         location / {{ autoindex off; }}
     }}
 }}

@@ -68,3 +68,19 @@ VISIBILITY_THRESHOLD: Final = 1.0 / 255.0
 def temporal_file(attr: str, order: int, half: str) -> str:
     """Name of the image holding byte ``half`` ('l' or 'u') of ``attr``'s order-``order`` term."""
     return f"temporal_{attr}_{order}_{half}.webp"
+
+
+# --- Limits on untrusted input (docs/reliability.md) ---------------------------------------
+MAX_IMAGE_PIXELS: Final = WEBP_MAX_SIDE * WEBP_MAX_SIDE
+"""Largest image any reader decodes; Pillow's decompression-bomb limit is set to this."""
+IMAGE_SLACK_TEXELS: Final = 4096
+"""A per-Gaussian image may hold at most 2 * count + this many texels: more is padding no
+writer produces, and refusing it keeps decoded memory proportional to the declared count."""
+MAX_INDEX_RATIO: Final = 256
+"""A zstd index may declare at most this many raw bytes per compressed byte (plus 64 KiB)."""
+MAX_GAUSSIANS_PER_IMAGE_BYTE: Final = 64
+"""A chunk may declare at most this many Gaussians per byte of its WebP files (beyond
+:data:`FREE_GAUSSIANS`): trained data never compresses that far, and the bound keeps a tiny
+file from making a reader decode gigabytes of pixels (lossless WebP reaches 10^5:1)."""
+FREE_GAUSSIANS: Final = 65536
+"""Counts up to this are accepted whatever the image bytes (a 256x256 image per attribute)."""

@@ -13,6 +13,7 @@ pydantic's ``ValidationError``) are translated where they are raised::
     │   └── UnsupportedError  a valid file using a feature we do not implement
     ├── IntegrityError      content that contradicts itself (sizes, hashes, counts)
     └── SourceError         a file or remote source could not be read or written
+        └── AccessError     a private scene asked for without a valid signed URL (HTTP 403)
 """
 
 from __future__ import annotations
@@ -67,7 +68,12 @@ class SourceError(TsogError):
     """A file, folder or remote source that could not be read or written."""
 
 
+class AccessError(SourceError):
+    """A private resource asked for without a valid, unexpired signed URL (HTTP 403)."""
+
+
 __all__ = [
+    "AccessError",
     "FormatError",
     "InputError",
     "IntegrityError",

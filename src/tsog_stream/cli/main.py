@@ -25,7 +25,7 @@ from ..io.ply import write_ply
 from ..io.readers import FORMATS, ReadOptions, detect_format, load_scene
 from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
 from ..model import Scene
-from ..server.cli import add_serve_command, cmd_serve
+from ..server.cli import add_serve_command, add_sign_command, cmd_serve, cmd_sign
 from ..summary import chunk_summary, scene_summary
 from .progress import Progress
 from .stream_commands import (
@@ -139,6 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_stream_commands(sub, _add_input, _add_common)
     add_client_commands(sub, _add_common)
     add_serve_command(sub)
+    add_sign_command(sub)
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
@@ -340,6 +341,7 @@ COMMANDS = {
     "fetch": cmd_fetch,
     "play": cmd_play,
     "serve": cmd_serve,
+    "sign": cmd_sign,
 }
 
 

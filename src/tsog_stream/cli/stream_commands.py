@@ -15,9 +15,12 @@ import numpy as np
 from ..container.sync import StreamReader
 from ..container.unpacked import pack
 from ..errors import InputError
-from ..io.files import atomic_write_bytes, refuse_existing
+from ..io.files import atomic_write_bytes, refuse_existing, remove_stale_temp_files
 from ..io.ply import write_ply
 from ..io.sequence import FrameSequence
+from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
+from ..merge.check import frame_errors
+from ..merge.sequence import MAX_HELD
 from ..model import Scene
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
@@ -29,6 +32,9 @@ from ..segment.segmenter import (
     segment_sequence,
 )
 from .progress import Progress
+
+DEFAULT_TEMPORAL = "fit"
+"""--temporal default, chosen by measurement (docs/design/temporal-merge.md)."""
 
 _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
@@ -42,6 +48,7 @@ def check_segment_args(args: argparse.Namespace) -> None:
         )
     if args.workers < 1:
         raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
+    tolerance_option(args)  # refuses a negative or non-finite tolerance now, not after a read
 
 
 def parse_window(text: str, fps: float | None) -> float:
@@ -87,6 +94,28 @@ def add_stream_commands(sub: Any, add_input: Any, add_common: Any) -> None:
     )
     p.add_argument("--workers", type=int, default=2, help="encoder processes (default 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the SH palette fits")
+    p.add_argument(
+        "--temporal",
+        choices=TEMPORAL_MODES,
+        default=DEFAULT_TEMPORAL,
+        help="frame sequences only: off = one Gaussian per frame (type 0, as in the paper); "
+        "merge = a Gaussian unchanged over frames is stored once with its lifespan; fit = a "
+        f"smoothly moving one also gets polynomial motion (default {DEFAULT_TEMPORAL})",
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        metavar="UNITS",
+        help="--temporal: how far (scene units) a stored position may be from any frame it "
+        "stands for (default: half the per-frame SOG position step at each Gaussian)",
+    )
+    p.add_argument(
+        "--tolerance-steps",
+        type=float,
+        metavar="STEPS",
+        help="--temporal: the same for the other attributes, in codebook steps (default 0.5; "
+        "1 for SOG frames, already rounded to their own codebooks)",
+    )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     add_common(p)
 
@@ -131,6 +160,8 @@ def cmd_segment(
         workers=max(1, args.workers),
         seed=args.seed,
     )
+    for stale in remove_stale_temp_files(args.output):
+        print(f"tsog: note: removed {stale}, left by an interrupted run", file=sys.stderr)
     started = time.monotonic()
 
     def on_chunk(done: int, total: int) -> None:
@@ -138,7 +169,15 @@ def cmd_segment(
         eta = elapsed / done * (total - done)
         progress.bar(f"chunk {done}/{total}, ETA {eta:4.0f}s", done / total)
 
-    if isinstance(source, FrameSequence):
+    if isinstance(source, FrameSequence) and args.temporal != "off":
+        merged = _merged(args, progress, source)
+        if merged is None:
+            report = segment_sequence(source, args.output, options, on_chunk=on_chunk)
+        else:
+            report = segment_scene(merged, args.output, options, on_chunk=on_chunk)
+            progress.done()
+            _report_frame_errors(source, args.output)
+    elif isinstance(source, FrameSequence):
         report = segment_sequence(source, args.output, options, on_chunk=on_chunk)
     else:
         report = segment_scene(source, args.output, options, on_chunk=on_chunk)
@@ -154,6 +193,55 @@ def cmd_segment(
     more = " ..." if len(report.bytes_per_window) > 12 else ""
     print(f"  bytes per window (level 0): {shown}{more}")
     return 0
+
+
+def tolerance_option(args: argparse.Namespace) -> Tolerance | None:
+    """The --tolerance/--tolerance-steps pair (None: the defaults for the input kind)."""
+    if args.tolerance is None and args.tolerance_steps is None:
+        return None
+    steps = args.tolerance_steps if args.tolerance_steps is not None else Tolerance().steps
+    return Tolerance(position=args.tolerance, steps=steps)
+
+
+def _merged(args: argparse.Namespace, progress: Progress, seq: FrameSequence) -> Scene | None:
+    """The sequence merged as --temporal says, or None when merging saves nothing."""
+    started = time.monotonic()
+    scene, stats = merge_sequence(seq, args.temporal, tolerance_option(args), progress=progress)
+    progress.done()
+    seconds = time.monotonic() - started
+    if scene is None:
+        print(
+            f"temporal: merging would hold over {MAX_HELD} Gaussians in memory after "
+            f"{stats.frames} frames; stored one per frame (type 0), window by window"
+        )
+        return None
+    if stats.gaussians_out >= stats.gaussians_in:
+        print("temporal: no Gaussian repeats across frames; stored one per frame (type 0)")
+        return None
+    share = 100.0 * stats.gaussians_out / max(1, stats.gaussians_in)
+    print(
+        f"temporal {args.temporal}: {stats.gaussians_in} Gaussians in {stats.frames} frames -> "
+        f"{stats.gaussians_out} ({share:.1f}%), {stats.moving_out} with motion, {seconds:.1f} s"
+    )
+    worst = ", ".join(f"{k} {v:.3g}" for k, v in sorted(stats.worst.items()))
+    print(f"  largest change from a source frame before encoding: {worst}")
+    return scene
+
+
+def _report_frame_errors(seq: FrameSequence, path: Path, samples: int = 5) -> None:
+    """Decode a few frames of the written container and print their worst error per attribute."""
+    frames = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(samples, seq.count))})
+    worst: dict[str, float] = {}
+    with StreamReader.open(path) as reader:
+        for k in frames:
+            source = seq.read(k, k + 1).scene.gaussians
+            errors, unpaired = frame_errors(source, reader.frame_at(k / seq.fps))
+            if unpaired:
+                print(f"  frame {k}: {unpaired} Gaussians could not be paired with the source")
+            for name, value in errors.items():
+                worst[name] = max(worst.get(name, 0.0), value)
+    shown = ", ".join(f"{k} {v:.3g}" for k, v in sorted(worst.items()))
+    print(f"  worst error after encoding (frames {', '.join(map(str, frames))}): {shown}")
 
 
 def seek_table(reader: StreamReader, samples: int = 8) -> list[dict[str, Any]]:
@@ -207,7 +295,8 @@ def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
         report = reader.verify()
     progress.done()
     for kind, chunk, message in report.problems:
-        print(f"chunk {chunk}: {kind.name.lower()}: {message}")
+        what = f"chunk {chunk}" if chunk >= 0 else "container"
+        print(f"{what}: {kind.name.lower()}: {message}")
     status = "OK" if not report.problems else f"{len(report.problems)} problem(s)"
     print(f"{args.input}: {report.chunks} chunks checked, {status}")
     return report.exit_code

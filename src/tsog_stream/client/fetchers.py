@@ -14,7 +14,7 @@ import os
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from pathlib import Path
-from urllib.parse import unquote, urljoin, urlparse
+from urllib.parse import unquote, urljoin, urlparse, urlsplit, urlunsplit
 
 from ..container.header import PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
 from ..container.ranges import ByteRange
@@ -24,6 +24,7 @@ from ..container.unpacked import MANIFEST
 from ..errors import SourceError
 from ..io.files import read_bytes
 from ..schemas.manifest import ChunkEntry, parse_manifest
+from ..signing import redact_url
 from .http_source import HttpFiles, HttpOptions, HttpSource
 
 MAX_MANIFEST_BYTES = 64 << 20
@@ -78,20 +79,22 @@ class RangeFetcher(ChunkFetcher):
 class FolderFetcher(ChunkFetcher):
     """Chunks as whole files of the unpacked layout, by URL (``base/chunks/NNNNNN.sog``) or path.
 
-    ``base`` is the folder: an http(s) URL ending with ``/`` (uses :class:`HttpFiles`) or a
-    local folder path.
+    ``base`` is the folder: an http(s) URL ending with ``/`` (uses :class:`HttpFiles`; its
+    query, such as a signed URL's, is carried to every file's URL) or a local folder path.
     """
 
     def __init__(self, base: str, options: HttpOptions | None = None) -> None:
-        self.base = base
-        self.name = base
+        parts = urlsplit(base)
+        self._query = parts.query if _is_http(base) else ""
+        self.base = urlunsplit(parts._replace(query="", fragment="")) if self._query else base
+        self.name = redact_url(base)
         self._http = HttpFiles(options) if _is_http(base) else None
         self.stats = self._http.stats if self._http is not None else ReadStats()
 
     async def _get(self, name: str, limit: int) -> bytes:
         """The file ``name`` of the folder, at most ``limit`` bytes (else a SourceError)."""
         if self._http is not None:
-            return await self._http.get(urljoin(self.base, name), limit)
+            return await self._http.get(self._url(name), limit)
         path = Path(self.base) / name
         try:
             size = (await asyncio.to_thread(os.stat, path)).st_size
@@ -126,8 +129,15 @@ class FolderFetcher(ChunkFetcher):
         """Each chunk's file, one request each (a longer file is refused unread)."""
         return list(await asyncio.gather(*(self._get(c.file, c.length) for c in group)))
 
+    def _url(self, name: str) -> str:
+        """The URL of the folder's file ``name``, with the folder URL's query."""
+        url = urljoin(self.base, name)
+        return f"{url}?{self._query}" if self._query else url
+
     def _where(self, name: str) -> str:
-        return urljoin(self.base, name) if self._http is not None else str(Path(self.base) / name)
+        if self._http is not None:
+            return redact_url(self._url(name))
+        return str(Path(self.base) / name)
 
     async def aclose(self) -> None:
         """Close the HTTP session."""
@@ -149,10 +159,12 @@ def make_fetcher(
     """
     text = os.fspath(target)
     if _is_http(text):
-        if text.endswith("/"):
+        parts = urlsplit(text)
+        if parts.path.endswith("/"):
             return FolderFetcher(text, options)
-        if text.endswith("/" + MANIFEST):
-            return FolderFetcher(text[: -len(MANIFEST)], options)
+        if parts.path.endswith("/" + MANIFEST):
+            folder = parts._replace(path=parts.path[: -len(MANIFEST)])
+            return FolderFetcher(urlunsplit(folder), options)
         return RangeFetcher(HttpSource(text, options))
     if urlparse(text).scheme.lower() == "file":
         text = unquote(urlparse(text).path)

@@ -14,6 +14,7 @@ files (kept in memory) and refused for large ones. See docs/client.md.
 from __future__ import annotations
 
 import asyncio
+import json
 import re
 from dataclasses import dataclass
 
@@ -22,14 +23,26 @@ import aiohttp
 from ..container.header import PREFIX_SIZE
 from ..container.ranges import ByteRange
 from ..container.sources import ReadStats
-from ..errors import SourceError
+from ..errors import AccessError, SourceError
+from ..signing import redact_url
 
 _CONTENT_RANGE = re.compile(r"^bytes (\d+)-(\d+)/(\d+)$")
 _UNSATISFIED = re.compile(r"^bytes \*/(\d+)$")
+_MAX_ERROR_BODY = 4096
 
 
 class _RetryableError(Exception):
     """A transient failure (5xx) worth another attempt."""
+
+
+RETRYABLE = (aiohttp.ClientError, TimeoutError, ConnectionError, _RetryableError)
+"""Failures worth another attempt: refused or reset connections (a server restarting),
+bodies cut short, timeouts and 5xx answers."""
+
+
+def backoff(options: HttpOptions, attempt: int) -> float:
+    """Seconds to wait before retry number ``attempt`` (1-based): doubling, capped."""
+    return float(min(options.backoff_s * 2 ** (attempt - 1), options.max_backoff_s))
 
 
 @dataclass(frozen=True)
@@ -38,6 +51,8 @@ class HttpOptions:
 
     retries: int = 4
     backoff_s: float = 0.1
+    max_backoff_s: float = 2.0
+    """Cap of one wait between attempts (the waits double from ``backoff_s``)."""
     connect_timeout_s: float = 10.0
     read_timeout_s: float = 30.0
     max_unranged_bytes: int = 1 << 20
@@ -63,7 +78,7 @@ class HttpSource:
         session: aiohttp.ClientSession | None = None,
     ) -> None:
         self.url = url
-        self.name = url
+        self.name = redact_url(url)  # for messages: a signature is never shown
         self.stats = ReadStats()
         self.options = options or HttpOptions()
         self.etag: str | None = None
@@ -92,7 +107,7 @@ class HttpSource:
             if self._size is None:
                 self._head = await self._fetch(ByteRange(0, PREFIX_SIZE), probe=True)
                 if self._size is None:  # the first answer always sets it; keeps mypy honest
-                    raise SourceError("the server did not say how long the file is", where=self.url)
+                    raise SourceError("the server sent no file length", where=self.name)
             return self._size
 
     async def read(self, span: ByteRange) -> bytes:
@@ -100,7 +115,7 @@ class HttpSource:
         size = await self.size()
         if not span.within(size):
             raise SourceError(
-                f"asked for bytes [{span.start}, {span.end}) of a {size}-byte file", where=self.url
+                f"asked for bytes [{span.start}, {span.end}) of a {size}-byte file", where=self.name
             )
         if span.length == 0:
             return b""
@@ -119,15 +134,15 @@ class HttpSource:
             try:
                 await self._get(rest, got, probe=probe)
                 return bytes(got)
-            except (aiohttp.ClientError, TimeoutError, _RetryableError) as exc:
+            except RETRYABLE as exc:
                 attempt += 1
                 if attempt > self.options.retries:
                     raise SourceError(
                         f"bytes [{rest.start}, {rest.end}) failed after {attempt} attempts: "
                         f"{exc or type(exc).__name__}",
-                        where=self.url,
+                        where=self.name,
                     ) from exc
-                await asyncio.sleep(self.options.backoff_s * 2 ** (attempt - 1))
+                await asyncio.sleep(backoff(self.options, attempt))
 
     def _headers(self, span: ByteRange) -> dict[str, str]:
         """Request headers: one range, no compression, pinned to the known version."""
@@ -146,11 +161,13 @@ class HttpSource:
         self, resp: aiohttp.ClientResponse, span: ByteRange, got: bytearray, *, probe: bool
     ) -> None:
         """Check one response and read its body into ``got``."""
+        if resp.status == 403:
+            raise AccessError(await _denial(resp), where=self.name)
         if resp.status == 412:
             raise SourceError(
                 f"the file changed on the server (ETag {self.etag} no longer matches); "
                 "reopen it to read the new version",
-                where=self.url,
+                where=self.name,
             )
         if resp.status >= 500:
             raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
@@ -158,24 +175,24 @@ class HttpSource:
             raise SourceError(
                 f"expected an unencoded body, got Content-Encoding: "
                 f"{resp.headers['Content-Encoding']}",
-                where=self.url,
+                where=self.name,
             )
         if resp.status == 200:
             await self._take_whole_file(resp, got, span)
         elif resp.status == 416 and probe:
-            self._learn(_parse(_UNSATISFIED, resp, self.url)[0], resp)
+            self._learn(_parse(_UNSATISFIED, resp, self.name)[0], resp)
         elif resp.status == 206:
             expected = self._check_range(resp, span, probe=probe)
             await self._read_body(resp, got, expected)
         else:
             raise SourceError(
                 f"expected HTTP 206 for Range {span.http_header()}, got {resp.status}",
-                where=self.url,
+                where=self.name,
             )
 
     def _check_range(self, resp: aiohttp.ClientResponse, span: ByteRange, *, probe: bool) -> int:
         """Validate ``Content-Range`` against the request and the file; returns the body length."""
-        first, last, total = _parse(_CONTENT_RANGE, resp, self.url)
+        first, last, total = _parse(_CONTENT_RANGE, resp, self.name)
         if probe:
             self._learn(total, resp)
         want_last = min(span.end, self._size or 0) - 1
@@ -183,7 +200,7 @@ class HttpSource:
             raise SourceError(
                 f"asked for bytes {span.start}-{want_last}/{self._size}, the server sent "
                 f"Content-Range: {resp.headers.get('Content-Range')}",
-                where=self.url,
+                where=self.name,
             )
         self._check_etag(resp)
         length = last - first + 1
@@ -191,7 +208,7 @@ class HttpSource:
         if declared is not None and declared != str(length):
             raise SourceError(
                 f"Content-Range has {length} bytes but Content-Length says {declared}",
-                where=self.url,
+                where=self.name,
             )
         return length
 
@@ -206,7 +223,7 @@ class HttpSource:
         etag = resp.headers.get("ETag")
         if self.etag is not None and etag is not None and etag != self.etag:
             raise SourceError(
-                f"the file changed on the server (ETag {self.etag}, now {etag})", where=self.url
+                f"the file changed on the server (ETag {self.etag}, now {etag})", where=self.name
             )
 
     async def _take_whole_file(
@@ -220,7 +237,7 @@ class HttpSource:
             raise SourceError(
                 f"origin ignores Range requests (HTTP 200 with {length} bytes; only files up to "
                 f"{limit} bytes are read whole)",
-                where=self.url,
+                where=self.name,
             )
         if self._size is None:
             self._learn(length, resp)
@@ -237,10 +254,21 @@ class HttpSource:
             received += len(piece)
             self.stats.bytes += len(piece)
             if received > length:
-                raise SourceError(f"expected a {length}-byte body, got more", where=self.url)
+                raise SourceError(f"expected a {length}-byte body, got more", where=self.name)
             got += piece
         if received < length:
             raise aiohttp.ClientPayloadError(f"body ended after {received} of {length} bytes")
+
+
+async def _denial(resp: aiohttp.ClientResponse) -> str:
+    """The reason of a 403: the server's JSON error message when it sent one."""
+    try:
+        body = await resp.content.read(_MAX_ERROR_BODY)
+        message = json.loads(body)["error"]["message"]
+    except (aiohttp.ClientError, TimeoutError, ValueError, TypeError, KeyError):
+        message = None
+    reason = message if isinstance(message, str) else "forbidden"
+    return f"HTTP 403: {reason[:200]} (private scene: open it with a valid signed URL)"
 
 
 def _parse(pattern: re.Pattern[str], resp: aiohttp.ClientResponse, url: str) -> tuple[int, ...]:
@@ -285,40 +313,42 @@ class HttpFiles:
         while True:
             try:
                 return await self._get_once(url, limit)
-            except (aiohttp.ClientError, TimeoutError, _RetryableError) as exc:
+            except RETRYABLE as exc:
                 attempt += 1
                 if attempt > self.options.retries:
                     raise SourceError(
                         f"GET failed after {attempt} attempts: {exc or type(exc).__name__}",
-                        where=url,
+                        where=redact_url(url),
                     ) from exc
-                await asyncio.sleep(self.options.backoff_s * 2 ** (attempt - 1))
+                await asyncio.sleep(backoff(self.options, attempt))
 
     async def _get_once(self, url: str, limit: int) -> bytes:
         """One GET of ``url``; checks status, encoding and length."""
         self.stats.requests += 1
-        headers = {"Accept-Encoding": "identity"}
+        headers, where = {"Accept-Encoding": "identity"}, redact_url(url)
         async with self._client().get(url, headers=headers) as resp:
             if resp.status >= 500:
                 raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
+            if resp.status == 403:
+                raise AccessError(await _denial(resp), where=where)
             if resp.status != 200:
-                raise SourceError(f"expected HTTP 200, got {resp.status}", where=url)
+                raise SourceError(f"expected HTTP 200, got {resp.status}", where=where)
             if resp.headers.get("Content-Encoding", "identity").lower() != "identity":
                 raise SourceError(
                     f"expected an unencoded body, got Content-Encoding: "
                     f"{resp.headers['Content-Encoding']}",
-                    where=url,
+                    where=where,
                 )
             length = resp.content_length
             if length is not None and length > limit:
                 resp.close()
-                raise SourceError(f"{length} bytes, expected at most {limit}", where=url)
+                raise SourceError(f"{length} bytes, expected at most {limit}", where=where)
             body = bytearray()
             async for piece in resp.content.iter_chunked(64 * 1024):
                 self.stats.bytes += len(piece)
                 body += piece
                 if len(body) > limit:
-                    raise SourceError(f"more than the expected {limit} bytes", where=url)
+                    raise SourceError(f"more than the expected {limit} bytes", where=where)
             if length is not None and len(body) < length:
                 raise aiohttp.ClientPayloadError(f"body ended after {len(body)} of {length} bytes")
             return bytes(body)

@@ -8,7 +8,9 @@ as splat-transform writes it.
 from __future__ import annotations
 
 import io
+import struct
 import zipfile
+import zlib
 from collections.abc import Mapping
 
 from ..constants import META_JSON
@@ -19,6 +21,18 @@ MAX_ENTRIES = 4096
 ZIP_MAGIC = b"PK\x03\x04"
 MAX_DEFLATE_RATIO = 1032
 """Deflate cannot expand data more than about 1032:1; a larger claim is a lie or a bomb."""
+ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    zipfile.LargeZipFile,
+    zlib.error,
+    struct.error,
+    OSError,
+    ValueError,
+    EOFError,
+    RuntimeError,
+    NotImplementedError,
+)
+"""What :mod:`zipfile` raises on damaged archives (zlib.error from corrupt deflate streams)."""
 
 
 def is_zip(data: bytes) -> bool:
@@ -43,7 +57,7 @@ def read_bundle(data: bytes, *, where: str = "<bundle>") -> dict[str, bytes]:
     """Entries of a .sog archive (stored or deflated); any damage raises SogError."""
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError) as exc:
+    except ZIP_ERRORS as exc:
         raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
     with archive:
         infos = archive.infolist()
@@ -74,12 +88,5 @@ def _read_entry(archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, whe
         raise SogError("encrypted entries are not supported", where=name)
     try:
         return archive.read(info)
-    except (
-        zipfile.BadZipFile,
-        OSError,
-        ValueError,
-        EOFError,
-        RuntimeError,
-        NotImplementedError,
-    ) as exc:
+    except ZIP_ERRORS as exc:
         raise SogError(f"damaged entry: {exc}", where=name) from exc

@@ -22,7 +22,7 @@ from .layout import image_size
 from .sog_decode import decode_sog
 from .sog_encode import encode_sog
 from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
-from .webp import decode_many, encode_many
+from .webp import decode_many, encode_many, webp_size
 
 Progress = Callable[[str], None]
 U8 = npt.NDArray[np.uint8]
@@ -76,16 +76,31 @@ def read_meta(files: Mapping[str, bytes], *, where: str) -> ChunkMeta:
 
 
 def decode_images(meta: ChunkMeta, files: Mapping[str, bytes], *, where: str) -> dict[str, U8]:
-    """Every image the meta lists, decoded and checked against the count and each other."""
+    """Every image the meta lists, decoded and checked against the count and each other.
+
+    Sizes are read from the WebP headers and checked first, so nothing is decoded (or
+    allocated) for an image larger than the meta's count allows.
+    """
     needed: dict[str, bytes] = {}
     for field, name in listed_files(meta):
         if name not in files:
             raise SogError(f"file {name!r} listed in {field} is missing", where=where)
         needed[name] = files[name]
-    images = decode_many(needed, where=where)
-    sizes = {name: (img.shape[1], img.shape[0]) for name, img in images.items()}
+    _check_plausible_count(meta, sum(len(data) for data in needed.values()), where)
+    sizes = {name: webp_size(data, where=f"{where}/{name}") for name, data in needed.items()}
     check_image_sizes(meta, sizes, where=f"{where}/{C.META_JSON}")
-    return images
+    return decode_many(needed, where=where, sizes=sizes)
+
+
+def _check_plausible_count(meta: ChunkMeta, image_bytes: int, where: str) -> None:
+    """Refuse a count far beyond what the image bytes can describe (a decompression bomb)."""
+    most = max(C.FREE_GAUSSIANS, C.MAX_GAUSSIANS_PER_IMAGE_BYTE * image_bytes)
+    if meta.count > most:
+        raise SogError(
+            f"meta.json declares {meta.count} Gaussians but the images hold {image_bytes} "
+            f"bytes: at most {most} are accepted ({C.MAX_GAUSSIANS_PER_IMAGE_BYTE} per byte)",
+            where=where,
+        )
 
 
 def decode_chunk(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Scene:

@@ -69,6 +69,17 @@ def scale_cap(timeline: Timeline) -> float:
     return C.SCALE_CAP_SPANS * max(span, 1e-3)
 
 
+def _whole_frames(timeline: Timeline, mins: F64, maxs: F64) -> bool:
+    """Type-1 lifespans in whole frames that fit a 16-bit range (they can be stored exactly)."""
+    return bool(
+        timeline.type is TimelineType.START_DURATION
+        and timeline.fps is not None
+        and np.all(maxs - mins <= C.U16_MAX)
+        and np.all(timeline.t0 == np.rint(timeline.t0))
+        and np.all(timeline.t1 == np.rint(timeline.t1))
+    )
+
+
 def encode_timeline(
     timeline: Timeline, width: int, height: int
 ) -> tuple[dict[str, U8], dict[str, Any]]:
@@ -79,6 +90,8 @@ def encode_timeline(
     if timeline.type is TimelineType.CENTER_SCALE:
         values[:, 1] = np.minimum(values[:, 1], scale_cap(timeline))
     mins, maxs = _ranges(values)
+    if _whole_frames(timeline, mins, maxs):
+        maxs = mins + C.U16_MAX  # a step of exactly one frame: start and duration decode exactly
     if timeline.type is TimelineType.FRAME and maxs[0] - mins[0] > C.U16_MAX:
         raise InputError(
             f"frame ids span {maxs[0] - mins[0]:.0f} frames; one chunk holds at most "

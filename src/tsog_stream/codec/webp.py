@@ -16,10 +16,11 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from ..constants import WEBP_MAX_SIDE
+from ..constants import MAX_IMAGE_PIXELS, WEBP_MAX_SIDE
 from ..errors import SogError
 
 U8 = npt.NDArray[np.uint8]
+Size = tuple[int, int]
 
 WEBP_METHOD = 3
 """libwebp method 0-6 (effort)."""
@@ -27,8 +28,10 @@ WEBP_QUALITY = 50
 """For lossless WebP 'quality' is the compression effort too. Measured on real chunks
 (donut, spinach .splatv, wave flipbook): quality 50 / method 3 is within 1 % of the size of
 100 / 4 and 5-15x faster (docs/design/chunk-codec.md)."""
-MAX_DECODED_PIXELS = WEBP_MAX_SIDE * WEBP_MAX_SIDE
+MAX_DECODED_PIXELS = MAX_IMAGE_PIXELS
 """Our own decompression-bomb limit: no WebP can legally hold more."""
+Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS  # Pillow warns above this and refuses above twice it
+VP8L_SIGNATURE = 0x2F
 
 
 def encode_webp(image: U8) -> bytes:
@@ -48,37 +51,80 @@ def encode_many(images: Mapping[str, U8], workers: int | None = None) -> dict[st
         return {name: fut.result() for name, fut in futures.items()}
 
 
-def decode_webp(data: bytes, *, where: str) -> U8:
-    """Decode WebP bytes to an (H, W, 4) uint8 array without colour management or premultiply."""
-    if data[:4] != b"RIFF" or data[8:12] != b"WEBP":
+def webp_size(data: bytes, *, where: str) -> Size:
+    """(width, height) from the first chunk of a WebP (VP8, VP8L or VP8X), nothing decoded.
+
+    Read before Pillow sees the bytes: libwebp allocates the whole canvas when it opens a file.
+    """
+    if len(data) < 30 or data[:4] != b"RIFF" or data[8:12] != b"WEBP":
         raise SogError("not a WebP image (no RIFF/WEBP signature)", where=where)
+    kind = data[12:16]
+    if kind == b"VP8X":
+        width = 1 + int.from_bytes(data[24:27], "little")
+        height = 1 + int.from_bytes(data[27:30], "little")
+    elif kind == b"VP8L" and data[20] == VP8L_SIGNATURE:
+        bits = int.from_bytes(data[21:25], "little")
+        width, height = 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    elif kind == b"VP8 ":
+        width = int.from_bytes(data[26:28], "little") & 0x3FFF
+        height = int.from_bytes(data[28:30], "little") & 0x3FFF
+    else:
+        raise SogError(f"unknown WebP chunk {kind!r}", where=where)
+    if not (0 < width <= WEBP_MAX_SIDE and 0 < height <= WEBP_MAX_SIDE):
+        raise SogError(
+            f"image of {width}x{height} exceeds the WebP limit of {WEBP_MAX_SIDE} px per side",
+            where=where,
+        )
+    return width, height
+
+
+def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
+    """Decode WebP bytes to an (H, W, 4) uint8 array without colour management or premultiply.
+
+    The size is read from the header and checked (against ``expected`` too, when given)
+    before any pixel is decoded; Pillow's decompression-bomb signals become SogError.
+    """
+    width, height = webp_size(data, where=where)
+    if expected is not None and (width, height) != expected:
+        found = f"{width}x{height}"
+        raise SogError(f"expected a {expected[0]}x{expected[1]} image, found {found}", where=where)
     try:
         with warnings.catch_warnings():
-            # Our own limit (MAX_DECODED_PIXELS) is checked below, before any pixel is decoded.
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
             img = Image.open(io.BytesIO(data), formats=["WEBP"])
         with img:
-            width, height = img.size
-            if (
-                width > WEBP_MAX_SIDE
-                or height > WEBP_MAX_SIDE
-                or width * height > MAX_DECODED_PIXELS
-            ):
-                raise SogError(f"image of {width}x{height} exceeds the WebP limits", where=where)
+            if img.size != (width, height):
+                raise SogError(f"header says {width}x{height}, image is {img.size}", where=where)
             rgba = img.convert("RGBA")
             arr = np.asarray(rgba, dtype=np.uint8)
     except SogError:
         raise
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+    except (
+        OSError,
+        ValueError,
+        SyntaxError,
+        EOFError,
+        Image.DecompressionBombError,
+        Image.DecompressionBombWarning,
+    ) as exc:
         raise SogError(f"corrupt WebP image: {exc}", where=where) from exc
     return arr.reshape(height, width, 4)
 
 
 def decode_many(
-    files: Mapping[str, bytes], *, where: str, workers: int | None = None
+    files: Mapping[str, bytes],
+    *,
+    where: str,
+    workers: int | None = None,
+    sizes: Mapping[str, Size] | None = None,
 ) -> dict[str, U8]:
-    """Decode several WebP images concurrently; errors name the file."""
+    """Decode several WebP images concurrently (each checked against ``sizes``); errors name
+    the file."""
     workers = workers or min(len(files), os.cpu_count() or 1) or 1
+    expected = sizes or {}
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = {n: pool.submit(decode_webp, b, where=f"{where}/{n}") for n, b in files.items()}
+        futures = {
+            n: pool.submit(decode_webp, b, where=f"{where}/{n}", expected=expected.get(n))
+            for n, b in files.items()
+        }
         return {name: fut.result() for name, fut in futures.items()}

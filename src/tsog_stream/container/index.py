@@ -6,12 +6,15 @@ import hashlib
 
 import zstandard
 
+from ..constants import MAX_INDEX_RATIO
 from ..errors import FormatError, IntegrityError
 from ..schemas.manifest import Manifest, dump_manifest, parse_manifest
 
 MAX_INDEX_BYTES = 256 * 1024 * 1024
 """Largest decompressed index accepted (about a million chunks); a bigger claim is refused."""
 ZSTD_LEVEL = 19
+INDEX_SLACK = 64 * 1024
+"""Raw bytes any index may declare regardless of its compressed size."""
 
 
 def encode_index(manifest: Manifest) -> tuple[bytes, bytes, int]:
@@ -23,9 +26,12 @@ def encode_index(manifest: Manifest) -> tuple[bytes, bytes, int]:
 
 def decode_index(data: bytes, raw_length: int, sha256: bytes, *, where: str) -> Manifest:
     """Decompress, check length and hash, and validate the index."""
-    if raw_length > MAX_INDEX_BYTES:
+    cap = min(MAX_INDEX_BYTES, INDEX_SLACK + MAX_INDEX_RATIO * len(data))
+    if raw_length > cap:
         raise FormatError(
-            f"index claims {raw_length} bytes, over the {MAX_INDEX_BYTES} limit", where=where
+            f"index claims {raw_length} bytes from {len(data)} compressed bytes, over the "
+            f"limit of {cap} ({MAX_INDEX_BYTES} at most, {MAX_INDEX_RATIO}:1 beyond 64 KiB)",
+            where=where,
         )
     try:
         declared = zstandard.frame_content_size(data)

@@ -14,9 +14,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
+import zstandard
+
 from ..codec.bundle import read_bundle
 from ..codec.chunk import decode_chunk
-from ..errors import InputError, IntegrityError
+from ..errors import FormatError, InputError, IntegrityError
 from ..model import Gaussians, Scene
 from ..schemas.manifest import ChunkEntry, Manifest, check_layout
 from ..segment.plan import WINDOW_EPSILON
@@ -107,9 +109,31 @@ async def open_stream(source: ByteSource) -> StreamIndex:
     span = ByteRange.sized(header.index_offset, header.index_length)
     data = first[span.start : span.end] if span.end <= len(first) else await source.read(span)
     manifest = decode_index(data, header.index_raw_length, header.index_sha256, where=source.name)
+    if zstd_frame_length(data, where=source.name) != len(data):
+        raise FormatError(
+            f"the index's zstd frame does not fill the {len(data)} bytes the header gives it",
+            where=source.name,
+        )
     payload_end = header.index_offset if header.index_offset >= PREFIX_SIZE else size
     check_layout(manifest, PREFIX_SIZE, payload_end, where=source.name)
     return StreamIndex(header, manifest, source.name)
+
+
+def zstd_frame_length(data: bytes, *, where: str) -> int:
+    """Bytes taken by the zstd frame at the start of ``data``, by walking its block headers
+    (RFC 8878 §3.1.1): ``decompress`` ignores trailing bytes, the index must not have any."""
+    try:
+        pos = zstandard.frame_header_size(data)
+        checksum = zstandard.get_frame_parameters(data).has_checksum
+    except zstandard.ZstdError as exc:
+        raise FormatError(f"index is not a valid zstd frame: {exc}", where=where) from exc
+    while pos + 3 <= len(data):
+        block = int.from_bytes(data[pos : pos + 3], "little")
+        kind, size = (block >> 1) & 3, block >> 3
+        pos += 3 + (1 if kind == 1 else size)  # an RLE block stores one byte
+        if block & 1:
+            return pos + (4 if checksum else 0)
+    raise FormatError("the index's zstd frame has no last block", where=where)
 
 
 def verify_chunk(chunk: ChunkEntry, data: bytes, *, where: str) -> bytes:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -14,8 +15,16 @@ from ..codec.chunk import decode_chunk, decode_images, read_meta
 from ..errors import TsogError
 from ..schemas.manifest import ChunkEntry
 from ..temporal import lifespans
+from .header import HEADER_SIZE
+from .ranges import ByteRange
 from .reader import StreamIndex
 from .sources import ByteSource
+
+RESERVED_START = struct.calcsize("<8sHHIIIQQQQ32s")
+"""Header bytes [88, 128) are reserved and written as zeros (docs/spec.md §8.1)."""
+CONTAINER = -1
+"""The "chunk id" of problems with the container itself (header, padding)."""
+_BLOCK = 1 << 20
 
 
 class Check(IntEnum):
@@ -29,7 +38,7 @@ class Check(IntEnum):
 
 @dataclass
 class VerifyReport:
-    """Problems found, by chunk."""
+    """Problems found, by chunk (``CONTAINER`` for the header and padding)."""
 
     chunks: int = 0
     problems: list[tuple[Check, int, str]] = field(default_factory=list)
@@ -72,9 +81,42 @@ def _check_chunk(
     return out
 
 
+def unused_ranges(index: StreamIndex) -> list[ByteRange]:
+    """Bytes no field, index or chunk covers: reserved header bytes and padding, in order."""
+    header = index.header
+    used = [ByteRange(0, RESERVED_START), ByteRange.sized(header.index_offset, header.index_length)]
+    used += [index.chunk_range(c) for c in index.manifest.chunks]
+    gaps: list[ByteRange] = []
+    at = 0
+    for span in sorted(used, key=lambda r: r.start):
+        if span.start > at:
+            gaps.append(ByteRange(at, span.start))
+        at = max(at, span.end)
+    if at < index.size:
+        gaps.append(ByteRange(at, index.size))
+    return gaps
+
+
+async def _check_unused(source: ByteSource, index: StreamIndex) -> list[str]:
+    """Reserved bytes and padding carry no data; our writer zeroes them, so any other value
+    is damage (harmless to readers, but reported: docs/spec.md §8.6)."""
+    found = []
+    for gap in unused_ranges(index):
+        for start in range(gap.start, gap.end, _BLOCK):
+            block = await source.read(ByteRange(start, min(gap.end, start + _BLOCK)))
+            nonzero = len(block) - len(block.lstrip(b"\0"))
+            if nonzero < len(block):
+                where = "reserved header" if start + nonzero < HEADER_SIZE else "padding"
+                found.append(f"non-zero {where} byte at offset {start + nonzero}")
+                break
+    return found
+
+
 async def verify_stream(source: ByteSource, index: StreamIndex) -> VerifyReport:
-    """Read every chunk once and run every check on it."""
+    """Check the container's unused bytes, then read every chunk once and check it."""
     report = VerifyReport(chunks=len(index.manifest.chunks))
+    for msg in await _check_unused(source, index):
+        report.problems.append((Check.INDEX, CONTAINER, msg))
     for chunk in index.manifest.chunks:
         where = f"{source.name} chunk {chunk.id}"
         data = await source.read(index.chunk_range(chunk))

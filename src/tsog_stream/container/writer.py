@@ -2,7 +2,8 @@
 
 At :meth:`ContainerWriter.finish` the index goes into the prefix right after the header when
 it fits (so a reader needs one request), else it is appended after the payloads. The file is
-built under a temporary name and renamed into place, so an interrupted write leaves nothing.
+built under a temporary name and renamed into place, so an interrupted write leaves nothing
+(a killed one leaves a temp file that the next run removes: see ``io.files``).
 """
 
 from __future__ import annotations
@@ -10,12 +11,12 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import secrets
 from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO
 
 from ..errors import SourceError
+from ..io.files import temp_path
 from ..schemas.manifest import Manifest
 from .header import HEADER_SIZE, INDEX_ZSTD, PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
 from .index import encode_index
@@ -71,12 +72,13 @@ class ContainerFile:
     """A container being written to ``path``: temp file beside it, renamed on success.
 
     Use as a context manager; leaving it by an exception (Ctrl-C included) removes the temp
-    file and leaves the destination untouched.
+    file and leaves the destination untouched. An OSError while writing (a full disk) becomes
+    a SourceError naming the destination.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.name}.{secrets.token_hex(6)}.tmp")
+        self.tmp = temp_path(self.path)
         self._file: BinaryIO | None = None
         self.writer: PayloadWriter | None = None
         self.length = 0
@@ -106,9 +108,17 @@ class ContainerFile:
                 os.replace(self.tmp, self.path)
         except OSError as err:
             kind = type(err)
-            raise SourceError(f"cannot write: {err.strerror}", where=str(self.path)) from err
+            raise _write_error(err, self.path) from err
         finally:
             if kind is not None:
-                file.close()
+                with contextlib.suppress(OSError):
+                    file.close()
                 with contextlib.suppress(OSError):
                     self.tmp.unlink()
+        if isinstance(exc, OSError):
+            raise _write_error(exc, self.path) from exc
+
+
+def _write_error(err: OSError, path: Path) -> SourceError:
+    """A SourceError naming the destination (e.g. 'No space left on device')."""
+    return SourceError(f"cannot write: {err.strerror or err}", where=str(path))

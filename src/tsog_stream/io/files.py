@@ -1,9 +1,15 @@
-"""Atomic file publishing: nothing half-written is ever left under the final name."""
+"""Atomic file publishing: nothing half-written is ever left under the final name.
+
+A file is written under a hidden temp name beside its target, ``.<name>.<pid>-<token>.tmp``,
+then renamed. A run killed outright (SIGKILL, power loss) cannot remove its temp file; the pid
+in the name lets the next run recognise it as stale (its writer is gone) and remove it.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 import shutil
 import tempfile
@@ -11,6 +17,52 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from ..errors import SourceError
+
+_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{12}\.tmp$")
+
+
+def temp_path(target: str | os.PathLike[str]) -> Path:
+    """A fresh temp name beside ``target``, tagged with this process id."""
+    path = Path(target)
+    return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(6)}.tmp")
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (one we may not signal counts as alive)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def stale_temp_files(target: str | os.PathLike[str]) -> list[Path]:
+    """Temp files of ``target`` left by writers that no longer run (sorted by name)."""
+    path = Path(target)
+    parent = path.parent if str(path.parent) else Path(".")
+    stale = []
+    with contextlib.suppress(OSError):
+        for entry in parent.iterdir():
+            m = _TEMP.match(entry.name)
+            if not m or m["name"] != path.name or int(m["pid"]) == os.getpid():
+                continue
+            if not _alive(int(m["pid"])) and entry.is_file():
+                stale.append(entry)
+    return sorted(stale)
+
+
+def remove_stale_temp_files(target: str | os.PathLike[str]) -> list[Path]:
+    """Remove the stale temp files of ``target``; returns the ones removed."""
+    removed = []
+    for entry in stale_temp_files(target):
+        try:
+            entry.unlink()
+        except OSError:
+            continue
+        removed.append(entry)
+    return removed
 
 
 def refuse_existing(path: str | os.PathLike[str], *, overwrite: bool) -> None:
@@ -29,7 +81,7 @@ def atomic_write_bytes(
     """
     target = Path(path)
     parts = [data] if isinstance(data, bytes | bytearray | memoryview) else data
-    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+    tmp = temp_path(target)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     except OSError as exc:

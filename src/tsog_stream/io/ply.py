@@ -164,8 +164,9 @@ def _split_columns(columns: F32, k: int) -> Gaussians:
 
 def nonfinite_notes(columns: F32, names: Sequence[str]) -> list[str]:
     """A note counting NaN/inf per column, or nothing when every value is finite."""
-    if np.isfinite(columns.sum(dtype=np.float64)):  # cheap test: no NaN/inf anywhere
-        return []
+    with np.errstate(invalid="ignore", over="ignore"):  # inf + -inf is NaN: that is the test
+        if np.isfinite(columns.sum(dtype=np.float64)):  # cheap test: no NaN/inf anywhere
+            return []
     counts = np.count_nonzero(~np.isfinite(columns), axis=0)
     where = [f"{n}: {int(c)}" for n, c in zip(names, counts, strict=True) if c]
     if not where:

@@ -30,6 +30,8 @@ from ..errors import PlyError, UnsupportedError
 MAX_HEADER_BYTES: Final = 64 * 1024
 """A header that does not end within this many bytes is rejected."""
 MAGICS: Final = (b"ply\n", b"ply\r\n")
+MAX_COUNT_DIGITS: Final = 18
+"""Longest element count accepted (10^18 rows is far beyond any file)."""
 
 PLY_TYPES: Final[Mapping[str, str]] = {
     "char": "i1",
@@ -199,7 +201,10 @@ def _parse_element(words: list[str], seen: list[PlyElement], where: str) -> PlyE
         raise PlyError(f"expected 'element <name> <count>', found {' '.join(words)!r}", where=where)
     if any(e.name == words[1] for e in seen):
         raise PlyError(f"element {words[1]!r} declared twice", where=where)
-    return PlyElement(words[1], int(words[2]), ())
+    digits = words[2].lstrip("0") or "0"
+    if len(digits) > MAX_COUNT_DIGITS:  # int() refuses over 4300 digits; no file holds 10^18
+        raise PlyError(f"element {words[1]!r} declares {len(digits)}-digit count", where=where)
+    return PlyElement(words[1], int(digits), ())
 
 
 def _add_property(element: PlyElement, words: list[str], where: str) -> PlyElement:
@@ -365,5 +370,6 @@ def _ascii_records(block: npt.NDArray[np.float64], element: PlyElement, name: st
                 raise PlyError(
                     f"{element.name}.{prop.name}: {bad!r} is not a valid {kind.name}", where=name
                 )
-        records[prop.name] = column
+        with np.errstate(over="ignore"):  # 1e300 in a float column is inf, kept as read
+            records[prop.name] = column
     return records

@@ -146,7 +146,7 @@ def _read_header(data: bytes | memoryview, name: str) -> tuple[list[dict[str, An
     raw = bytes(data[PREAMBLE.size : PREAMBLE.size + length])
     try:
         parsed = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:  # RecursionError: nesting
         raise FormatError(f"the JSON header is not valid UTF-8 JSON: {exc}", where=name) from None
     return _check_chunks(parsed, name), PREAMBLE.size + length
 

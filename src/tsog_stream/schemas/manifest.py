@@ -120,7 +120,7 @@ def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manife
     """Validate index JSON; a bad document raises MetaError naming the field."""
     try:
         doc: Any = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as exc:
+    except (ValueError, RecursionError) as exc:  # bad UTF-8 or JSON, absurd nesting
         raise MetaError(f"not valid JSON: {exc}", field="<document>", where=where) from exc
     try:
         return Manifest.model_validate(doc)

@@ -13,7 +13,12 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from ..constants import SH_CENTROIDS_PER_ROW, SH_COEFFS_BY_BANDS
+from ..constants import (
+    IMAGE_SLACK_TEXELS,
+    SH_CENTROIDS_PER_ROW,
+    SH_COEFFS_BY_BANDS,
+    SH_PALETTE_MAX,
+)
 from ..errors import MetaError
 from .sog_meta import DOCUMENT, describe, validate_into
 from .tsog_meta import ChunkMeta
@@ -33,6 +38,9 @@ KEY_ORDER = (
     "extras",
 )
 """Top-level key order written by :func:`dump_meta` (splat-transform's order, then ours)."""
+
+MAX_CENTROID_ROWS = SH_PALETTE_MAX // SH_CENTROIDS_PER_ROW
+"""Rows of the largest shN centroid image (a 65536-entry palette)."""
 
 SCHEMA_ID = "https://tsog-stream.invalid/schema/meta.schema.json"
 SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
@@ -130,6 +138,8 @@ def _centroid_problem(meta: ChunkMeta, size: tuple[int, int]) -> str | None:
         return f"expected width {width} (64 x coefficients of {shn.bands} bands), found {size[0]}"
     if size[1] < rows:
         return f"expected height >= {rows} (for {shn.count} palette entries), found {size[1]}"
+    if size[1] > MAX_CENTROID_ROWS:
+        return f"expected height <= {MAX_CENTROID_ROWS} (the largest palette), found {size[1]}"
     return None
 
 
@@ -139,9 +149,11 @@ def check_image_sizes(
     """Check decoded image sizes (file name -> (width, height)) against ``meta``.
 
     Every per-Gaussian image has the size W x H of the first means image and
-    ``count <= W*H`` (any larger size is accepted: padding texels are ignored, and the
+    ``count <= W*H`` (a somewhat larger size is accepted: padding texels are ignored, and the
     writer's own size formula is not required for reading); the shN centroid image is
-    ``64*coeffs`` wide with at least ``ceil(shN.count / 64)`` rows. Raises MetaError whose
+    ``64*coeffs`` wide with at least ``ceil(shN.count / 64)`` rows. Images far larger than
+    the count needs (over ``2 * count + 4096`` texels, or over 1024 centroid rows) are
+    refused, so decoded memory stays proportional to the count. Raises MetaError whose
     ``field`` names the offending ``files`` entry (or ``count``).
     """
     files = listed_files(meta)
@@ -155,6 +167,14 @@ def check_image_sizes(
             f"expected at most {width * height} Gaussians ({first!r} is {width}x{height}), "
             f"found {meta.count}",
             field="count",
+            where=where,
+        )
+    most = 2 * meta.count + IMAGE_SLACK_TEXELS
+    if width * height > most:
+        raise MetaError(
+            f"{first!r}: expected at most {most} texels for {meta.count} Gaussians, found "
+            f"{width}x{height}",
+            field=first_field,
             where=where,
         )
     for field, name in files[1:]:

@@ -6,10 +6,12 @@ scene and options give a byte-identical container whatever the worker count.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -225,7 +227,7 @@ def describe_part(part: Part, plan: Plan) -> PartInfo:
 
 def _encoded(
     parts: Iterable[Part], plan: Plan, options: SegmentOptions
-) -> Iterator[tuple[PartInfo, bytes]]:
+) -> Generator[tuple[PartInfo, bytes], None, None]:
     """(info, payload) in input order, with at most ``workers`` parts in flight.
 
     The parent keeps only each part's small :class:`PartInfo`, so peak memory is the part being
@@ -236,7 +238,10 @@ def _encoded(
             yield describe_part(part, plan), encode_job_payload(part.scene, options.seed)
         return
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=options.workers, mp_context=context) as pool:
+    pool = ProcessPoolExecutor(
+        max_workers=options.workers, mp_context=context, initializer=_ignore_interrupts
+    )
+    try:
         pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
         for part in parts:
             info = describe_part(part, plan)
@@ -248,6 +253,16 @@ def _encoded(
         while pending:
             done, fut = pending.popleft()
             yield done, fut.result()
+    finally:
+        # On Ctrl-C or an error, queued jobs are dropped; the running ones finish and every
+        # worker is joined, so no process outlives the call.
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _ignore_interrupts() -> None:
+    """Workers ignore SIGINT (a terminal's Ctrl-C reaches the whole group): the parent alone
+    handles it, then shuts the pool down, instead of every worker printing a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _union(boxes: Sequence[Box]) -> dict[str, list[float]]:
@@ -273,8 +288,8 @@ def _write_container(
     entries: list[ChunkEntry] = []
     keys: list[NodeKey] = []
     per_level: dict[int, int] = {}
-    with ContainerFile(path) as out:
-        for i, (info, payload) in enumerate(_encoded(parts, plan, options)):
+    with ContainerFile(path) as out, contextlib.closing(_encoded(parts, plan, options)) as encoded:
+        for i, (info, payload) in enumerate(encoded):
             offset, length, digest = out.add(payload)
             entries.append(
                 ChunkEntry(

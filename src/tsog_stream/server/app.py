@@ -22,20 +22,28 @@ from pathlib import Path
 from typing import Any, BinaryIO
 from urllib.parse import quote
 
-from aiohttp import web
+from aiohttp import HttpVersion10, HttpVersion11, web
 from aiohttp.abc import AbstractStreamWriter
 
 from ..container.ranges import ByteRange
-from ..errors import InputError, TsogError
-from .catalog import Catalog, NotFoundError, Representation, SceneEntry
+from ..errors import AccessError, InputError, TsogError
+from .catalog import CONTAINER_SUFFIX, Catalog, NotFoundError, Representation, SceneEntry
 from .conditional import Outcome, evaluate, http_date, if_range_allows
+from .logs import quiet_client_errors
+from .private import (
+    PRIVACY,
+    AccessLog,
+    Privacy,
+    authorize,
+    mark_private_responses,
+    signed_suffix,
+)
 from .ranges import Ignore, Serve, Unsatisfiable, content_range, parse_range, unsatisfied_range
 
 READ_BLOCK = 256 * 1024
 SENDFILE_MIN = 64 * 1024
 REVALIDATE = "public, max-age=0, must-revalidate"
 IMMUTABLE = "public, max-age=31536000, immutable"
-ACCESS_LOG_FORMAT = '%a "%r" %s %b bytes %Tf s "%{Range}i" "%{User-Agent}i"'
 CORS = {
     "Access-Control-Allow-Origin": "*",
     "Access-Control-Expose-Headers": "Content-Range, ETag, Accept-Ranges, Content-Length",
@@ -46,6 +54,7 @@ PREFLIGHT = {
     "If-Modified-Since, If-Unmodified-Since",
     "Access-Control-Max-Age": "86400",
 }
+HTTP_VERSIONS = (HttpVersion10, HttpVersion11)
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
@@ -79,6 +88,10 @@ def _error(status: int, message: str, **extra: Any) -> web.Response:
 @web.middleware
 async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
     """OPTIONS preflight, the concurrency cap, then errors (ours and aiohttp's) as JSON."""
+    if request.version not in HTTP_VERSIONS:
+        resp = _error(505, "only HTTP/1.0 and HTTP/1.1 are served")
+        resp.force_close()
+        return resp
     if request.method == "OPTIONS":
         return web.Response(status=204, headers=PREFLIGHT)
     gate = request.app[GATE]
@@ -89,6 +102,8 @@ async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
     async with gate:
         try:
             return await handler(request)
+        except AccessError as exc:
+            return _error(403, str(exc))
         except NotFoundError as exc:
             return _error(404, str(exc))
         except InputError as exc:
@@ -144,6 +159,8 @@ async def _sendfile(
         sent = await loop.sendfile(transport, file, span.start, span.length, fallback=False)
     except (NotImplementedError, asyncio.SendfileNotAvailableError):
         return False
+    except RuntimeError as exc:  # "Transport is closing": the client went away
+        raise ConnectionResetError("connection lost") from exc
     writer.output_size += sent
     if writer.length is not None:
         writer.length = max(0, writer.length - sent)
@@ -217,7 +234,8 @@ async def send_representation(
     outcome = evaluate(request.method, request.headers, rep.etag, rep.mtime)
     if outcome is not Outcome.PROCEED:
         return web.Response(status=outcome.value, headers=headers)
-    verdict = parse_range(request.headers.get("Range"), rep.length)
+    fields = request.headers.getall("Range", [])
+    verdict = parse_range(fields[0], rep.length) if len(fields) == 1 else Ignore("not one Range")
     if not if_range_allows(request.headers.get("If-Range"), rep.etag, rep.mtime):
         verdict = Ignore("If-Range does not match")
     if isinstance(verdict, Unsatisfiable):
@@ -245,17 +263,25 @@ async def send_representation(
 
 
 async def files(request: web.Request) -> web.StreamResponse:
-    """GET/HEAD /files/{path}: a raw file under the root."""
-    rep = await request.app[CATALOG].file(request.match_info["path"])
+    """GET/HEAD /files/{path}: a raw file under the root (private ones need a signed URL)."""
+    catalog, rel = request.app[CATALOG], request.match_info["path"]
+    request.app[PRIVACY].admit(request, [rel])
+    rep = await catalog.file(rel)
+    request.app[PRIVACY].admit(request, [catalog.relative(rep.path)])
     return await send_representation(request, rep)
 
 
 async def _scene(request: web.Request) -> SceneEntry:
-    """The scene named in the URL; a malformed id is simply not found."""
+    """The scene named in the URL (private ones need a signed URL); a malformed id is not found."""
+    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
+    scene_id = request.match_info["id"]
+    privacy.admit(request, [scene_id + CONTAINER_SUFFIX, scene_id])
     try:
-        return await request.app[CATALOG].scene(request.match_info["id"])
+        scene = await catalog.scene(scene_id)
     except InputError as exc:
-        raise NotFoundError("no such scene", where=request.match_info["id"][:80]) from exc
+        raise NotFoundError("no such scene", where=scene_id[:80]) from exc
+    privacy.admit(request, [catalog.scene_relative(scene)])
+    return scene
 
 
 def _scene_json(scene: SceneEntry) -> dict[str, Any]:
@@ -277,14 +303,17 @@ def _scene_json(scene: SceneEntry) -> dict[str, Any]:
 
 
 async def scenes(request: web.Request) -> web.StreamResponse:
-    """GET /v1/scenes: every readable scene under the root."""
-    catalog = request.app[CATALOG]
+    """GET /v1/scenes: every readable public scene under the root (private ones are not listed)."""
+    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
     items = []
-    for scene_id in catalog.scene_ids():
+    for scene_id in await asyncio.to_thread(catalog.scene_ids):  # a walk: off the loop
         try:
-            items.append(_scene_json(await catalog.scene(scene_id)))
+            scene = await catalog.scene(scene_id)
         except TsogError:
             continue
+        rels = [scene_id + CONTAINER_SUFFIX, scene_id, catalog.scene_relative(scene)]
+        if not any(privacy.is_private(r) for r in rels):
+            items.append(_scene_json(scene))
     return web.json_response({"scenes": items}, headers={"Cache-Control": "no-cache"})
 
 
@@ -319,7 +348,7 @@ async def chunks(request: web.Request) -> web.StreamResponse:
     """GET /v1/scenes/{id}/chunks?t=T&horizon=H: the chunks [T, T+H] needs."""
     t, horizon = _seconds(request, "t", None), _seconds(request, "horizon", 0.0)
     scene = await _scene(request)
-    base = f"/v1/scenes/{quote(scene.id)}/chunks"
+    base, suffix = f"/v1/scenes/{quote(scene.id)}/chunks", signed_suffix(request)
     items = [
         {
             "id": c.id,
@@ -328,7 +357,7 @@ async def chunks(request: web.Request) -> web.StreamResponse:
             "sha256": c.sha256,
             "start_s": c.start_s,
             "end_s": c.end_s,
-            "url": f"{base}/{c.id}.sog?v={c.sha256}",
+            "url": f"{base}/{c.id}.sog?v={c.sha256}{suffix}",
         }
         for c in scene.index.chunks_for_interval(t, t + horizon)
     ]
@@ -355,19 +384,27 @@ async def healthz(request: web.Request) -> web.StreamResponse:
     return web.json_response({"status": "ok"}, headers={"Cache-Control": "no-store"})
 
 
-def make_app(root: Path, *, limits: Limits | None = None) -> web.Application:
-    """The application serving ``root``: a folder, or one file (only that file is served)."""
+def make_app(
+    root: Path, *, limits: Limits | None = None, privacy: Privacy | None = None
+) -> web.Application:
+    """The application serving ``root``: a folder, or one file (only that file is served).
+
+    ``privacy`` names the private paths and the URL secret (docs/http.md, "Private scenes").
+    """
     if not (root.is_dir() or root.is_file()):
         raise InputError("the server root must be a folder or a file", where=str(root))
     app = web.Application(middlewares=[_guard])
     app[CATALOG] = Catalog(root)
     app[LIMITS] = limits or Limits()
     app[GATE] = asyncio.Semaphore(app[LIMITS].max_concurrent)
+    app[PRIVACY] = privacy or Privacy()
     app.on_response_prepare.append(_add_cors)
+    app.on_response_prepare.append(mark_private_responses)
     r = app.router
     r.add_get("/healthz", healthz)
     r.add_get("/files/{path:.+}", files)
     r.add_get("/v1/scenes", scenes)
+    r.add_get("/v1/authorize", authorize)
     r.add_get("/v1/scenes/{id:.+}/manifest", manifest)
     r.add_get("/v1/scenes/{id:.+}/chunks", chunks)
     r.add_get("/v1/scenes/{id:.+}/chunks/{n:[0-9]{1,9}}.sog", chunk)
@@ -379,10 +416,11 @@ async def start_server(
 ) -> tuple[web.AppRunner, int]:
     """Start ``app`` on host:port (0 = any free port); returns the runner and the port."""
     limits = app[LIMITS]
+    quiet_client_errors()
     runner = web.AppRunner(
         app,
         keepalive_timeout=limits.keepalive_s,
-        access_log_format=ACCESS_LOG_FORMAT,
+        access_log_class=AccessLog,
         shutdown_timeout=limits.shutdown_timeout_s,
     )
     await runner.setup()
@@ -391,9 +429,12 @@ async def start_server(
     return runner, int(runner.addresses[0][1])
 
 
-async def serve_forever(root: Path, host: str, port: int, limits: Limits | None = None) -> None:
+async def serve_forever(
+    root: Path, host: str, port: int, limits: Limits | None = None, privacy: Privacy | None = None
+) -> None:
     """Serve until cancelled (Ctrl-C), then shut down gracefully."""
-    runner, bound = await start_server(make_app(root, limits=limits), host, port)
+    app = make_app(root, limits=limits, privacy=privacy)
+    runner, bound = await start_server(app, host, port)
     print(f"serving {root} on http://{host}:{bound}/", flush=True)
     try:
         await asyncio.Event().wait()
@@ -402,11 +443,16 @@ async def serve_forever(root: Path, host: str, port: int, limits: Limits | None 
 
 
 def run_server(
-    root: Path, *, host: str = "127.0.0.1", port: int = 8080, limits: Limits | None = None
+    root: Path,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    limits: Limits | None = None,
+    privacy: Privacy | None = None,
 ) -> None:
     """Blocking: serve ``root`` until interrupted."""
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(serve_forever(root, host, port, limits))
+        asyncio.run(serve_forever(root, host, port, limits, privacy))
 
 
-__all__ = ["Limits", "make_app", "run_server", "send_representation", "start_server"]
+__all__ = ["Limits", "Privacy", "make_app", "run_server", "send_representation", "start_server"]

@@ -5,7 +5,8 @@ or ``..`` segments are refused (:class:`~tsog_stream.errors.InputError`, 400); t
 then resolved with symlinks followed and must stay inside the resolved root, else
 :class:`NotFoundError` (404), the same answer as for a missing file, so nothing leaks.
 Scenes are ``.tsogs`` containers and unpacked layouts (folders with ``manifest.json``); each is
-reopened when its size or mtime changes. A root that is one file serves only that file.
+reopened when it changes (size, mtime, inode or ctime). A root that is one file serves only
+that file.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple, TypeVar
 
 from ..container.header import HEADER_SIZE, INDEX_ZSTD, VERSION_MAJOR, Header, is_container
 from ..container.reader import StreamIndex, open_stream
@@ -27,6 +29,9 @@ CONTAINER_SUFFIX = ".tsogs"
 CONTAINER_TYPE = "application/vnd.tsog-stream"
 SOG_TYPE = "application/x-sog"
 _HASH_BLOCK = 1 << 20
+MAX_CACHED = 4096
+"""Files remembered per cache (ETags, opened scenes): only the current version of each."""
+_V = TypeVar("_V")
 
 
 class NotFoundError(SourceError):
@@ -74,15 +79,25 @@ def safe_path(root: Path, rel: str) -> Path:
     return resolved
 
 
-def _signature(path: Path) -> tuple[int, int]:
-    """(size, mtime_ns) of a regular file, NotFoundError otherwise."""
+class FileVersion(NamedTuple):
+    """What tells one version of a file from the next: a file replaced by rename gets a new
+    inode, one rewritten in place a new ctime (which, unlike mtime, no tool can set back)."""
+
+    size: int
+    mtime_ns: int
+    inode: int
+    ctime_ns: int
+
+
+def _signature(path: Path) -> FileVersion:
+    """The version of a regular file, NotFoundError otherwise."""
     try:
         st = path.stat()
     except OSError as exc:
         raise NotFoundError("no such file", where=path.name) from exc
     if not path.is_file():
         raise NotFoundError("not a regular file", where=path.name)
-    return st.st_size, st.st_mtime_ns
+    return FileVersion(st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns)
 
 
 def _content_etag(path: Path) -> str:
@@ -110,7 +125,8 @@ def _unpacked_index(manifest_json: bytes, where: str) -> StreamIndex:
 
 
 class Catalog:
-    """Files and scenes under one root, with caches keyed by (path, size, mtime_ns).
+    """Files and scenes under one root, with caches holding one entry per resolved file (its
+    current version only, at most MAX_CACHED files).
 
     The root is a folder, or one file (single-file mode): then only that file is served, as
     ``/files/<name>`` and, for a ``.tsogs`` container, as the scene ``<name without .tsogs>``.
@@ -120,8 +136,9 @@ class Catalog:
         resolved = root.resolve()
         self.only: str | None = resolved.name if resolved.is_file() else None
         self.root = resolved.parent if self.only is not None else resolved
-        self._etags: dict[tuple[Path, int, int], str] = {}
-        self._scenes: dict[tuple[Path, int, int], SceneEntry] = {}
+        self._etags: dict[Path, tuple[FileVersion, str]] = {}
+        self._scenes: dict[Path, tuple[FileVersion, SceneEntry]] = {}
+        self._hashing: dict[tuple[Path, FileVersion], asyncio.Future[str]] = {}
 
     def _check_only(self, rel: str) -> None:
         """In single-file mode, anything but that file is not found."""
@@ -132,12 +149,27 @@ class Catalog:
         """The whole file at ``rel`` (relative to the root)."""
         self._check_only(rel)
         path = safe_path(self.root, rel)
-        size, mtime_ns = _signature(path)
-        key = (path, size, mtime_ns)
-        if key not in self._etags:
-            self._etags[key] = await asyncio.to_thread(_content_etag, path)
+        version = _signature(path)
+        cached = self._etags.get(path)
+        if cached is None or cached[0] != version:
+            cached = (version, await self._hash_once(path, version))
+            _remember(self._etags, path, cached)
         kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else _guess_type(path)
-        return Representation(path, 0, size, self._etags[key], mtime_ns / 1e9, kind)
+        return Representation(path, 0, version.size, cached[1], version.mtime_ns / 1e9, kind)
+
+    async def _hash_once(self, path: Path, version: FileVersion) -> str:
+        """The content ETag, computed once however many requests ask for it at the same time
+        (a cold cache must not cost one full read of a big file per request)."""
+        key = (path, version)
+        task = self._hashing.get(key)
+        if task is None:
+            task = asyncio.ensure_future(asyncio.to_thread(_content_etag, path))
+            self._hashing[key] = task
+            task.add_done_callback(lambda t: _retrieved(self._hashing.pop(key, t)))
+        try:
+            return await asyncio.shield(task)  # a client leaving does not cancel the others'
+        except OSError as exc:  # vanished or unreadable since the stat
+            raise NotFoundError("no such file", where=path.name) from exc
 
     async def scene(self, scene_id: str) -> SceneEntry:
         """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
@@ -149,11 +181,14 @@ class Catalog:
             packed = False
         if not packed:
             path = safe_path(self.root, f"{scene_id}/{MANIFEST}")
-        size, mtime_ns = _signature(path)
-        key = (path, size, mtime_ns)
-        if key not in self._scenes:
-            self._scenes[key] = await self._open(scene_id, path, packed, size, mtime_ns)
-        return self._scenes[key]
+        version = _signature(path)
+        cached = self._scenes.get(path)
+        if cached is None or cached[0] != version:
+            scene = await self._open(scene_id, path, packed, version.size, version.mtime_ns)
+            cached = (version, scene)
+            _remember(self._scenes, path, cached)
+        # one entry per file: ids that alias it through symlinks share it, not one entry each
+        return cached[1] if cached[1].id == scene_id else replace(cached[1], id=scene_id)
 
     async def _open(
         self, scene_id: str, path: Path, packed: bool, size: int, mtime_ns: int
@@ -168,9 +203,19 @@ class Catalog:
                 index = _unpacked_index(manifest_json, str(path))
         except TsogError as exc:
             raise NotFoundError(f"not a readable scene: {exc.message}", where=scene_id) from exc
+        except OSError as exc:  # vanished or unreadable since the stat
+            raise NotFoundError("not a readable scene", where=scene_id) from exc
         if not packed:
             size = len(manifest_json) + index.manifest.payload_bytes
         return SceneEntry(scene_id, path, packed, index, manifest_json, mtime_ns / 1e9, size)
+
+    def relative(self, path: Path) -> str:
+        """The root-relative form of a resolved path under the root."""
+        return path.relative_to(self.root).as_posix()
+
+    def scene_relative(self, scene: SceneEntry) -> str:
+        """The root-relative path of a scene: its container file or its folder."""
+        return self.relative(scene.path if scene.packed else scene.path.parent)
 
     def scene_ids(self) -> list[str]:
         """Ids of every container and unpacked layout under the root (symlinks not followed)."""
@@ -200,8 +245,22 @@ class Catalog:
                 scene.path, entry.offset, entry.length, etag, scene.mtime, SOG_TYPE
             )
         path = safe_path(scene.path.parent, entry.file)
-        size, mtime_ns = _signature(path)
-        return Representation(path, 0, size, etag, mtime_ns / 1e9, SOG_TYPE)
+        version = _signature(path)
+        return Representation(path, 0, version.size, etag, version.mtime_ns / 1e9, SOG_TYPE)
+
+
+def _retrieved(task: asyncio.Future[str]) -> None:
+    """Mark a task's exception as seen (its waiters may all have gone)."""
+    if not task.cancelled():
+        task.exception()
+
+
+def _remember(cache: dict[Path, _V], path: Path, value: _V) -> None:
+    """Store ``value`` as the only version of ``path``, the oldest entry dropped past the cap."""
+    cache.pop(path, None)
+    cache[path] = value
+    if len(cache) > MAX_CACHED:
+        del cache[next(iter(cache))]
 
 
 def _guess_type(path: Path) -> str:

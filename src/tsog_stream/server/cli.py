@@ -1,28 +1,72 @@
-"""``tsog serve``: the CLI side of the server (argument parsing only; logic lives in ``app``)."""
+"""``tsog serve`` and ``tsog sign``: the CLI side of the server (argument parsing only)."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
 from ..cli.progress import Progress
 from ..errors import InputError
+from ..signing import load_secret, parse_ttl, sign_url
 from .app import Limits, run_server
+from .private import Privacy
+
+SECRET_HELP = (
+    "file holding the URL-signing secret (default: $TSOG_URL_SECRET_FILE, else the secret "
+    "itself in $TSOG_URL_SECRET); make one with: head -c 32 /dev/urandom | base64 > FILE"
+)
 
 
 def add_serve_command(sub: Any) -> argparse.ArgumentParser:
     """Register ``serve`` on an argparse subparsers object; returns its parser."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "serve", help="serve containers and files over HTTP with byte ranges (docs/http.md)"
+        "serve",
+        help="serve containers and files over HTTP with byte ranges (docs/http.md)",
+        epilog="example: TSOG_URL_SECRET_FILE=secret.key tsog serve media/ --private 'paid/*'",
     )
     p.add_argument("root", help="folder to serve, or one .tsogs file (only that file is served)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free)")
     p.add_argument("--max-concurrent", type=int, default=256, help="requests at once; more get 503")
+    p.add_argument(
+        "--private",
+        action="append",
+        default=[],
+        metavar="GLOB",
+        help="paths under ROOT (files, scene folders, or a folder above them) served only with a "
+        "signed URL (tsog sign); '*' crosses '/'; repeatable",
+    )
+    p.add_argument("--secret-file", type=Path, help=SECRET_HELP)
+    p.add_argument("--keepalive", type=float, default=15.0, help="idle and request-head timeout, s")
+    p.add_argument("--send-timeout", type=float, default=60.0, help="deadline to send one body, s")
     p.add_argument("-q", "--quiet", action="store_true", help="no access log on stderr")
     p.set_defaults(func=cmd_serve)
+    return p
+
+
+def add_sign_command(sub: Any) -> argparse.ArgumentParser:
+    """Register ``sign`` on an argparse subparsers object; returns its parser."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "sign",
+        help="print a signed, expiring URL for a private scene (docs/http.md)",
+        epilog="example: tsog sign http://host:8080/files/paid/show.tsogs --ttl 12h\n"
+        "         tsog sign http://host:8080/v1/scenes/paid/show/manifest "
+        "--scope /v1/scenes/paid/show/",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("url", help="the URL to sign (its path is what the signature covers)")
+    p.add_argument("--ttl", default="1h", help="lifetime: 3600, 90s, 15m, 12h, 7d (default 1h)")
+    p.add_argument(
+        "--scope",
+        help="sign a path prefix ending with '/' instead of the exact path (a folder, or a "
+        "scene's /v1/scenes/ID/ URLs)",
+    )
+    p.add_argument("--secret-file", type=Path, help=SECRET_HELP)
+    p.add_argument("-q", "--quiet", action="store_true", help="no messages on stderr")
+    p.set_defaults(func=cmd_sign)
     return p
 
 
@@ -35,8 +79,28 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
         raise InputError(f"expected a port 0-65535, got {args.port}", where="--port")
     if args.max_concurrent < 1:
         raise InputError("must be at least 1", where="--max-concurrent")
+    for flag, value in (("--keepalive", args.keepalive), ("--send-timeout", args.send_timeout)):
+        if not 0 < value <= 86400:
+            raise InputError(f"expected seconds in (0, 86400], got {value}", where=flag)
+    privacy = Privacy(tuple(args.private), load_secret(args.secret_file))
     if not args.quiet:
         logging.basicConfig(level=logging.INFO, format="%(message)s")
     progress.done()
-    run_server(root, host=args.host, port=args.port, limits=Limits(args.max_concurrent))
+    limits = Limits(
+        args.max_concurrent, send_timeout_s=args.send_timeout, keepalive_s=args.keepalive
+    )
+    run_server(root, host=args.host, port=args.port, limits=limits, privacy=privacy)
+    return 0
+
+
+def cmd_sign(args: argparse.Namespace, progress: Progress) -> int:
+    """Print ``args.url`` signed to expire after ``--ttl``."""
+    secret = load_secret(args.secret_file)
+    if secret is None:
+        raise InputError(
+            "no URL secret: pass --secret-file or set $TSOG_URL_SECRET_FILE or $TSOG_URL_SECRET"
+        )
+    expires = int(time.time()) + parse_ttl(args.ttl)
+    progress.done()
+    print(sign_url(args.url, secret, expires, args.scope))
     return 0

@@ -30,7 +30,7 @@ def parse_http_date(value: str) -> datetime | None:
     """A parsed HTTP date (any of the three RFC 9110 forms), or None when invalid."""
     try:
         parsed = parsedate_to_datetime(value)
-    except (TypeError, ValueError, IndexError):
+    except (TypeError, ValueError, IndexError, OverflowError):  # OverflowError: a huge year
         return None
     return parsed if parsed.tzinfo is not None else parsed.replace(tzinfo=UTC)
 

@@ -49,10 +49,19 @@ class Unsatisfiable:
 RangeVerdict = Serve | Ignore | Unsatisfiable
 
 
-def _num(digits: str) -> int:
-    """A decimal position; absurdly long ones are capped (Python refuses huge int strings)."""
+def _num(digits: str, length: int) -> int:
+    """A decimal position, exact up to ``length + 1``: every larger one clips the same way, and
+    Python refuses to convert huge digit strings, so they are never converted."""
     digits = digits.lstrip("0") or "0"
-    return int(digits) if len(digits) <= 18 else 10**18
+    if len(digits) > len(str(length)) + 1:
+        return length + 1
+    return min(int(digits), length + 1)
+
+
+def _order(digits: str) -> tuple[int, str]:
+    """A sort key giving decimal strings of any length their numeric order."""
+    digits = digits.lstrip("0") or "0"
+    return len(digits), digits
 
 
 def _one(spec: str, length: int) -> ByteRange | bool | None:
@@ -64,16 +73,16 @@ def _one(spec: str, length: int) -> ByteRange | bool | None:
     if not first:
         if not last:
             return False
-        n = _num(last)
+        n = _num(last, length)
         if n == 0 or length == 0:
             return None
         return ByteRange(max(0, length - n), length)
-    start = _num(first)
-    if last and _num(last) < start:
+    if last and _order(last) < _order(first):
         return False
+    start = _num(first, length)
     if start >= length:
         return None
-    end = length if not last else min(_num(last) + 1, length)
+    end = length if not last else min(_num(last, length) + 1, length)
     return ByteRange(start, end)
 
 

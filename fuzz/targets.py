@@ -1,0 +1,318 @@
+"""Fuzz targets: one function per parser, all behind one verdict wrapper (:func:`outcome`).
+
+A target takes arbitrary bytes and calls one of our parsers on them. :func:`outcome` says
+``"decoded"`` or ``"rejected"`` (a :class:`TsogError` with a message); any other exception
+escapes and is a crash. Shared by ``scripts/fuzz`` (atheris), ``tests/test_fuzz_parsers.py``
+(hypothesis) and ``scripts/make_invalid_corpus.py``; :func:`valid_seeds` builds small valid
+inputs to start mutating from.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import hashlib
+import itertools
+import json
+import struct
+import tempfile
+from collections.abc import Callable
+from functools import cache
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import zstandard
+
+from tsog_stream.codec.bundle import bundle_bytes, read_bundle
+from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header
+from tsog_stream.container.index import decode_index, encode_index
+from tsog_stream.container.reader import open_stream, read_scene_chunk
+from tsog_stream.container.sources import MemorySource
+from tsog_stream.errors import TsogError
+from tsog_stream.io.ply import parse_ply, ply_bytes
+from tsog_stream.io.splatv import MAGIC, RECORD, parse_splatv
+from tsog_stream.model import TimelineType
+from tsog_stream.schemas.manifest import check_layout, dump_manifest, parse_manifest
+from tsog_stream.schemas.validate import parse_meta
+from tsog_stream.server.conditional import evaluate, if_range_allows
+from tsog_stream.server.ranges import Ignore, Serve, Unsatisfiable, parse_range
+from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
+
+Target = Callable[[bytes], object]
+MAX_CHUNKS_READ: Final = 4
+"""The container target decodes at most this many chunks per input (bounded work)."""
+ETAG: Final = '"0123456789abcdef"'
+MTIME: Final = 1_700_000_000.0
+
+
+class LieError(AssertionError):
+    """A parser answered, but its answer contradicts the input (e.g. a range past the end)."""
+
+
+def outcome(target: Target, data: bytes) -> str:
+    """Run ``target``: "decoded", or "rejected" for a TsogError with a message; else raise."""
+    try:
+        target(data)
+    except TsogError as exc:
+        if not str(exc).strip():
+            raise LieError(f"{type(exc).__name__} without a message") from exc
+        return "rejected"
+    return "decoded"
+
+
+def fuzz_ply(data: bytes) -> object:
+    """PLY header and body (plain and PlayCanvas compressed)."""
+    contents = parse_ply(data, name="fuzz.ply")
+    if len(contents.gaussians) > len(data):
+        raise LieError(f"{len(contents.gaussians)} Gaussians from {len(data)} bytes")
+    return contents
+
+
+def fuzz_splatv(data: bytes) -> object:
+    """The .splatv reader (preamble, JSON chunk list, records)."""
+    loaded = parse_splatv(data, name="fuzz.splatv")
+    if len(loaded.scene) * RECORD.itemsize > len(data):
+        raise LieError(f"{len(loaded.scene)} records from {len(data)} bytes")
+    return loaded
+
+
+def fuzz_meta(data: bytes) -> object:
+    """A SOG/TSOG meta.json."""
+    return parse_meta(data, where="fuzz/meta.json")
+
+
+def fuzz_sog(data: bytes) -> object:
+    """A bundled chunk: the zip, its meta.json and every image it lists, decoded."""
+    return decode_chunk(read_bundle(data, where="fuzz.sog"), where="fuzz.sog")
+
+
+def fuzz_chunk(data: bytes) -> object:
+    """One member of a valid chunk replaced (first byte: which member), no zip CRC in the way."""
+    files = dict(_sog_files())
+    if data:
+        names = sorted(files)
+        files[names[data[0] % len(names)]] = data[1:]
+    return decode_chunk(files, where="fuzz-chunk")
+
+
+def fuzz_container(data: bytes) -> object:
+    """A .tsogs container in memory: header, index, then a few chunks fetched and decoded."""
+
+    async def run() -> None:
+        source = MemorySource(data, "fuzz.tsogs")
+        index = await open_stream(source)
+        for chunk in index.manifest.chunks[:MAX_CHUNKS_READ]:
+            await read_scene_chunk(source, index, chunk)
+
+    asyncio.run(run())
+    return None
+
+
+def fuzz_index_json(data: bytes) -> object:
+    """Index JSON put into a valid container with a matching SHA-256, then opened and read."""
+    return fuzz_container(container_with_index(_container_seed(), data))
+
+
+def container_with_index(container: bytes, raw: bytes) -> bytes:
+    """``container`` with its index replaced by ``raw`` (zstd, correct hash and lengths)."""
+    header = Header.unpack(container)
+    frame = zstandard.ZstdCompressor(level=3, write_content_size=True).compress(raw)
+    payload = container[PREFIX_SIZE:] if header.index_offset < PREFIX_SIZE else b""
+    if header.index_offset >= PREFIX_SIZE:
+        payload = container[PREFIX_SIZE : header.index_offset]
+    inside = HEADER_SIZE + len(frame) <= PREFIX_SIZE
+    offset = HEADER_SIZE if inside else PREFIX_SIZE + len(payload)
+    total = PREFIX_SIZE + len(payload) + (0 if inside else len(frame))
+    new = dataclasses.replace(
+        header,
+        index_offset=offset,
+        index_length=len(frame),
+        index_raw_length=len(raw),
+        file_length=total,
+        index_sha256=hashlib.sha256(raw).digest(),
+    )
+    prefix = new.pack() + (frame if inside else b"")
+    return prefix.ljust(PREFIX_SIZE, b"\0") + payload + (b"" if inside else frame)
+
+
+def fuzz_index(data: bytes) -> object:
+    """The zstd-compressed index: first 8 bytes the declared raw length, the rest the frame."""
+    raw_length = int.from_bytes(data[:8], "little")
+    return decode_index(data[8:], raw_length, bytes(32), where="fuzz.tsogs")
+
+
+def fuzz_manifest(data: bytes) -> object:
+    """Index JSON (manifest.json) and the chunk layout check."""
+    manifest = parse_manifest(data, where="fuzz/manifest.json")
+    check_layout(manifest, 16384, 1 << 40, where="fuzz/manifest.json")
+    return manifest
+
+
+def fuzz_range(data: bytes) -> object:
+    """A Range header (first 8 bytes: the representation length); must never raise at all."""
+    length = int.from_bytes(data[:8], "little") >> (data[0] % 64 if data else 0)
+    value = data[8:].decode("latin-1")
+    verdict = parse_range(value, length)
+    if isinstance(verdict, Serve):
+        ends = [(r.start, r.end) for r in verdict.ranges]
+        if not ends or any(s >= e or e > length for s, e in ends):
+            raise LieError(f"served {ends} of a {length}-byte file")
+        if any(a[1] >= b[0] for a, b in itertools.pairwise(ends)):
+            raise LieError(f"served ranges overlap or touch: {ends}")
+    elif not isinstance(verdict, Ignore | Unsatisfiable):
+        raise LieError(f"unexpected verdict {verdict!r}")
+    return verdict
+
+
+def fuzz_conditional(data: bytes) -> object:
+    """If-Range / If-Match / If-None-Match / date preconditions; must never raise at all."""
+    fields = data.decode("latin-1").split("\n")
+    names = ("If-Match", "If-None-Match", "If-Modified-Since", "If-Unmodified-Since")
+    headers = {n: v for n, v in zip(names, fields[1:], strict=False)}
+    allowed = if_range_allows(fields[0], ETAG, MTIME)
+    return allowed, evaluate("GET", headers, ETAG, MTIME), evaluate("PUT", headers, ETAG, MTIME)
+
+
+TARGETS: Final[dict[str, Target]] = {
+    "ply": fuzz_ply,
+    "splatv": fuzz_splatv,
+    "meta": fuzz_meta,
+    "sog": fuzz_sog,
+    "container": fuzz_container,
+    "index": fuzz_index,
+    "index_json": fuzz_index_json,
+    "chunk": fuzz_chunk,
+    "manifest": fuzz_manifest,
+    "range": fuzz_range,
+    "conditional": fuzz_conditional,
+}
+EXTENSIONS: Final[dict[str, str]] = {
+    ".ply": "ply",
+    ".splatv": "splatv",
+    ".json": "meta",
+    ".sog": "sog",
+    ".tsogs": "container",
+    ".zst": "index",
+    ".index": "index_json",
+    ".member": "chunk",
+    ".manifest": "manifest",
+    ".range": "range",
+    ".cond": "conditional",
+}
+"""Which target reads a corpus file, by its extension."""
+
+
+def target_for(path: Path) -> str:
+    """The target name for a corpus file (by extension)."""
+    return EXTENSIONS[path.suffix]
+
+
+# --- valid seeds ------------------------------------------------------------------------
+
+
+def _tiny_scene_spec() -> SceneSpec:
+    """A type-2 scene of a few dozen Gaussians with SH and moving means (every image kind)."""
+    return SceneSpec(
+        timeline_type=TimelineType.CENTER_SCALE,
+        background=24,
+        objects=2,
+        per_object=12,
+        duration=1.0,
+        fps=5.0,
+        sh_bands=1,
+        dynamic=("means",),
+        seed=5,
+    )
+
+
+def _splatv_seed(n: int = 6) -> bytes:
+    """A small valid .splatv: n moving Gaussians."""
+    records = np.zeros(n, RECORD)
+    rng = np.random.default_rng(1)
+    records["position"] = rng.normal(size=(n, 3))
+    records["rotation"] = (1, 0, 0, 0)
+    records["scale"] = 0.1
+    records["rgba"] = rng.integers(1, 255, (n, 4))
+    records["motion"] = rng.normal(0, 0.1, (n, 9))
+    records["trbf_center"] = 0.5
+    records["trbf_scale"] = 0.3
+    header = json.dumps([{"type": "splat", "size": n * RECORD.itemsize}]).encode()
+    return struct.pack("<II", MAGIC, len(header)) + header + records.tobytes()
+
+
+@cache
+def _container_seed() -> bytes:
+    """A small valid container (a few chunks, index in the prefix)."""
+    from tsog_stream.segment.segmenter import SegmentOptions, segment_scene  # noqa: PLC0415
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "seed.tsogs"
+        options = SegmentOptions(window_s=0.5, policy="duplicate", max_pixels=16 * 16)
+        segment_scene(generate_scene(_tiny_scene_spec()), path, options)
+        return path.read_bytes()
+
+
+@cache
+def _sog_files() -> dict[str, bytes]:
+    """Files of one small TSOG chunk."""
+    return encode_chunk(generate_scene(_tiny_scene_spec()))
+
+
+def _index_seed(container: bytes) -> bytes:
+    """The index frame of ``container`` prefixed with its declared raw length."""
+    manifest = asyncio.run(open_stream(MemorySource(container))).manifest
+    frame, _sha, raw_length = encode_index(manifest)
+    return raw_length.to_bytes(8, "little") + frame
+
+
+@cache
+def valid_seeds(target: str) -> dict[str, bytes]:
+    """Small valid inputs for ``target`` (file name -> bytes), deterministic."""
+    if target == "ply":
+        return {"static.ply": ply_bytes(static_gaussians(8, sh_bands=1))}
+    if target == "splatv":
+        return {"moving.splatv": _splatv_seed()}
+    if target == "meta":
+        return {"meta.json": _sog_files()["meta.json"]}
+    if target == "sog":
+        return {"chunk.sog": bundle_bytes(_sog_files())}
+    if target == "container":
+        return {"small.tsogs": _container_seed()}
+    if target == "index":
+        return {"index.zst": _index_seed(_container_seed())}
+    if target == "manifest":
+        manifest = asyncio.run(open_stream(MemorySource(_container_seed()))).manifest
+        return {"index.manifest": dump_manifest(manifest)}
+    if target == "index_json":
+        manifest = asyncio.run(open_stream(MemorySource(_container_seed()))).manifest
+        return {"small.index": dump_manifest(manifest)}
+    if target == "chunk":
+        names = sorted(_sog_files())
+        return {f"{n}.member": bytes([i]) + _sog_files()[n] for i, n in enumerate(names)}
+    if target == "range":
+        prefix = (1000).to_bytes(8, "little")
+        return {f"r{i}.range": prefix + v for i, v in enumerate(RANGE_SEEDS)}
+    if target == "conditional":
+        return {f"c{i}.cond": v for i, v in enumerate(CONDITIONAL_SEEDS)}
+    raise KeyError(target)
+
+
+RANGE_SEEDS: Final = (
+    b"bytes=0-99",
+    b"bytes=-500,0-0,100-",
+    b"bytes=5-1,7-9",
+    b"Bytes = 1-2 , 4-5",
+)
+CONDITIONAL_SEEDS: Final = (
+    b'"0123456789abcdef"\n"x", W/"0123456789abcdef"\n*',
+    b"Tue, 14 Nov 2023 22:13:20 GMT\n*\n\nSun, 06 Nov 1994 08:49:37 GMT\n",
+    b'W/"a"\n\n"0123456789abcdef"\nSunday, 06-Nov-94 08:49:37 GMT\nSun Nov  6 08:49:37 1994',
+    b"Mon, 01 Jan 99999999999999999999 00:00:00 GMT\n\n\nMon, 01 Jan 0001 00:00:00 +0100",
+)
+
+
+def digest(data: bytes) -> str:
+    """Short hex name of an input (for crash files)."""
+    return hashlib.sha256(data).hexdigest()[:16]

@@ -1,0 +1,342 @@
+"""Frames -> few Gaussians: runs of frames in which a Gaussian stays within tolerance become one
+Gaussian with a lifespan (timeline type 1), and (with ``fit``) runs in which it moves smoothly
+get polynomial motion on its position.
+
+Frames arrive one at a time; the merger keeps the runs still open and the Gaussians of the runs
+it closed, so memory is the merged result plus one frame (plus a bounded position history per
+moving run). A run stays static while every column's range is at most twice the tolerance (its
+midrange is then within tolerance of every frame). A moving run keeps its positions for at
+most ``max_frames`` frames and stays open while a polynomial of order <= 3 keeps all of them
+within tolerance; its other columns must stay static.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import numpy.typing as npt
+
+from ..model import Gaussians, Scene, Timeline, TimelineType
+from .features import (
+    COLUMN_GROUPS,
+    MEANS,
+    Steps,
+    Tolerance,
+    align_signs,
+    columns,
+    gaussians_from,
+    quat_tolerance,
+    tolerances,
+    unit_quats,
+)
+from .fit import MAX_ORDER, fit_tracks, highest_order, per_second
+from .match import I64, Side, correspond
+
+F64 = npt.NDArray[np.float64]
+DEFAULT_TRACK_FRAMES = 32
+"""Longest run a fitted polynomial covers (a longer motion is cut into several Gaussians)."""
+DEFAULT_REACH = 0.02
+"""Largest per-frame move matched, as a fraction of the reference frame's extent."""
+NEAR_REACH = 0.25
+"""The first, cheap search around a predicted position: this fraction of the full reach."""
+
+
+@dataclass
+class _Runs:
+    """Open runs: per-column range, quaternion range and reference, first frame, index in the
+    previous frame, frames so far, and the positions of the first ``max_frames`` frames."""
+
+    lo: F64
+    hi: F64
+    qlo: F64
+    qhi: F64
+    qref: F64
+    start: I64
+    last: I64
+    count: I64
+    history: F64
+
+    def take(self, index: I64) -> _Runs:
+        return _Runs(*(getattr(self, f.name)[index] for f in fields(self)))
+
+    @staticmethod
+    def join(parts: list[_Runs]) -> _Runs:
+        return _Runs(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(_Runs)))
+
+    def __len__(self) -> int:
+        return int(self.start.shape[0])
+
+
+@dataclass
+class _Closed:
+    """Gaussians of closed runs: columns, quaternions, start, length, motion per frame**k."""
+
+    cols: list[F64] = field(default_factory=list)
+    quats: list[F64] = field(default_factory=list)
+    start: list[I64] = field(default_factory=list)
+    length: list[I64] = field(default_factory=list)
+    motion: list[F64] = field(default_factory=list)
+
+
+@dataclass
+class MergeStats:
+    """What merging did: frames, Gaussians in and out, how many out carry motion."""
+
+    frames: int = 0
+    gaussians_in: int = 0
+    gaussians_out: int = 0
+    moving_out: int = 0
+    worst: dict[str, float] = field(default_factory=dict)
+
+
+class FrameMerger:
+    """Feed frames in order with :meth:`add`; :meth:`scene` gives the merged type-1 scene."""
+
+    def __init__(
+        self,
+        steps: Steps,
+        tolerance: Tolerance,
+        fps: float,
+        sh_coeffs: int,
+        *,
+        fit: bool = False,
+        reach: F64 | None = None,
+        max_frames: int = DEFAULT_TRACK_FRAMES,
+    ) -> None:
+        self.steps, self.tolerance, self.fps, self.sh_coeffs = steps, tolerance, fps, sh_coeffs
+        self.fit, self.max_frames = fit, max_frames if fit else 1
+        self.reach = np.zeros(3) if reach is None else np.asarray(reach, np.float64)
+        self.stats = MergeStats()
+        self._open: _Runs | None = None
+        self._closed = _Closed()
+
+    @property
+    def held(self) -> int:
+        """Gaussians held so far: closed runs' and open runs'."""
+        open_runs = len(self._open) if self._open is not None else 0
+        return sum(len(c) for c in self._closed.start) + open_runs
+
+    def _side(self, cols: F64, quats: F64) -> Side:
+        tol = tolerances(cols, self.steps, self.tolerance)
+        return Side(cols, quats, tol, quat_tolerance(self.tolerance))
+
+    def add(self, g: Gaussians) -> None:
+        """The next frame's Gaussians."""
+        frame = self.stats.frames
+        self.stats.frames += 1
+        self.stats.gaussians_in += len(g)
+        b = self._side(columns(g), unit_quats(g))
+        runs = self._open
+        if runs is None or len(runs) == 0:
+            self._open = self._start(b, np.arange(len(b), dtype=np.int64), frame)
+            return
+        moving = self._moving(runs)
+        ra, rb = self._static_pairs(runs, np.flatnonzero(~moving), b)
+        if self.fit:
+            free_runs = np.setdiff1d(np.arange(len(runs), dtype=np.int64), ra, assume_unique=True)
+            free_runs = free_runs[runs.count[free_runs] < self.max_frames]
+            free_b = np.setdiff1d(np.arange(len(b), dtype=np.int64), rb, assume_unique=True)
+            ma, mb = self._moving_pairs(runs, free_runs, b, free_b)
+            ra, rb = np.concatenate([ra, ma]), np.concatenate([rb, mb])
+        extended = self._extend(runs.take(ra), b, rb)
+        ended = np.setdiff1d(np.arange(len(runs), dtype=np.int64), ra, assume_unique=True)
+        self._close(runs.take(ended), frame)
+        full = self._moving(extended) & (extended.count >= self.max_frames)
+        self._close(extended.take(np.flatnonzero(full)), frame + 1)
+        fresh = np.setdiff1d(np.arange(len(b), dtype=np.int64), rb, assume_unique=True)
+        started = self._start(b.take(fresh), fresh, frame)
+        self._open = _Runs.join([extended.take(np.flatnonzero(~full)), started])
+
+    def _moving(self, runs: _Runs) -> npt.NDArray[np.bool_]:
+        """Runs whose positions already moved beyond the static allowance."""
+        mid = (runs.lo + runs.hi) / 2
+        tol = tolerances(mid, self.steps, self.tolerance)[:, MEANS]
+        return np.asarray(np.any(runs.hi[:, MEANS] - runs.lo[:, MEANS] > 2 * tol, axis=1))
+
+    def _static_pairs(self, runs: _Runs, idx: I64, b: Side) -> tuple[I64, I64]:
+        """(run, Gaussian of b) pairs that keep a static run static."""
+        sub = runs.take(idx)
+        a = self._side((sub.lo + sub.hi) / 2, (sub.qlo + sub.qhi) / 2)
+        reach = a.tol[:, MEANS].max(axis=0, initial=0) + b.tol[:, MEANS].max(axis=0, initial=0)
+        ia, ib = correspond(a, b, reach)
+        ok = self._within(sub, ia, b, ib, with_means=True)
+        return idx[ia[ok]], ib[ok]
+
+    def _within(
+        self, sub: _Runs, ia: I64, b: Side, ib: I64, *, with_means: bool
+    ) -> npt.NDArray[np.bool_]:
+        """Whether adding b[ib] to runs sub[ia] keeps each column's range within 2 tolerances."""
+        lo = np.minimum(sub.lo[ia], b.cols[ib])
+        hi = np.maximum(sub.hi[ia], b.cols[ib])
+        q = align_signs(b.quats[ib], sub.qref[ia])
+        qlo, qhi = np.minimum(sub.qlo[ia], q), np.maximum(sub.qhi[ia], q)
+        excess = hi - lo - 2 * tolerances((lo + hi) / 2, self.steps, self.tolerance)
+        if not with_means:
+            excess[:, MEANS] = 0.0
+        ok = np.all(excess <= 0, axis=1)
+        return np.asarray(ok & np.all(qhi - qlo <= 2 * quat_tolerance(self.tolerance), axis=1))
+
+    def _moving_pairs(self, runs: _Runs, idx: I64, b: Side, bidx: I64) -> tuple[I64, I64]:
+        """(run, Gaussian of b) pairs that continue a run along a polynomial path.
+
+        Searched near the predicted position first (a small reach: cheap, and most tracks go
+        where they went), then the leftovers within the full reach.
+        """
+        found_a, found_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
+        for reach in (self.reach * NEAR_REACH, self.reach):
+            rest = np.setdiff1d(idx, np.concatenate(found_a))
+            free = np.setdiff1d(bidx, np.concatenate(found_b))
+            ra, rb = self._moving_pairs_within(runs, rest, b, free, reach)
+            found_a.append(ra)
+            found_b.append(rb)
+        return np.concatenate(found_a), np.concatenate(found_b)
+
+    def _moving_pairs_within(
+        self, runs: _Runs, idx: I64, b: Side, bidx: I64, reach: F64
+    ) -> tuple[I64, I64]:
+        """Moving pairs whose Gaussian is within ``reach`` of the run's predicted position."""
+        if idx.size == 0 or bidx.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        sub = runs.take(idx)
+        rows = np.arange(len(sub))
+        last = sub.history[rows, sub.count - 1]
+        prev = sub.history[rows, np.maximum(sub.count - 2, 0)]
+        cols = (sub.lo + sub.hi) / 2
+        cols[:, MEANS] = last + (last - prev)
+        a = self._side(cols, (sub.qlo + sub.qhi) / 2)
+        bs = b.take(bidx)
+        ia, ib = correspond(a, bs, reach, moving=True)
+        ok = self._within(sub, ia, bs, ib, with_means=False)
+        ia, ib = ia[ok], ib[ok]
+        fits = np.zeros(ia.size, bool)
+        for n in np.unique(sub.count[ia]):
+            pick = np.flatnonzero(sub.count[ia] == n)
+            new = bs.cols[ib[pick], None, MEANS]
+            track = np.concatenate([sub.history[ia[pick], :n], new], axis=1)
+            tol = bs.tol[ib[pick], MEANS]
+            fits[pick] = fit_tracks(track, tol)[0] >= 0
+        return idx[ia[fits]], bidx[ib[fits]]
+
+    def _extend(self, runs: _Runs, b: Side, ib: I64) -> _Runs:
+        """The runs with one more frame each, b[ib]."""
+        q = align_signs(b.quats[ib], runs.qref)
+        history = runs.history.copy()
+        room = np.flatnonzero(runs.count < history.shape[1])
+        history[room, runs.count[room]] = b.cols[ib[room], MEANS]
+        return _Runs(
+            np.minimum(runs.lo, b.cols[ib]),
+            np.maximum(runs.hi, b.cols[ib]),
+            np.minimum(runs.qlo, q),
+            np.maximum(runs.qhi, q),
+            runs.qref,
+            runs.start,
+            ib,
+            runs.count + 1,
+            history,
+        )
+
+    def _start(self, b: Side, index: I64, frame: int) -> _Runs:
+        """New runs, one per Gaussian of ``b``."""
+        n = len(b)
+        history = np.zeros((n, self.max_frames if self.fit else 0, 3))
+        if self.fit:
+            history[:, 0] = b.cols[:, MEANS]
+        return _Runs(
+            b.cols.copy(),
+            b.cols.copy(),
+            b.quats.copy(),
+            b.quats.copy(),
+            b.quats.copy(),
+            np.full(n, frame, np.int64),
+            index.astype(np.int64),
+            np.ones(n, np.int64),
+            history,
+        )
+
+    def _close(self, runs: _Runs, end: int) -> None:
+        """Turn runs ending before frame ``end`` into Gaussians.
+
+        A moving run is stored as one Gaussian with motion when a polynomial of an order its
+        length supports (``highest_order``) fits it, else as one Gaussian per frame.
+        """
+        if len(runs) == 0:
+            return
+        cols = (runs.lo + runs.hi) / 2
+        deviation = (runs.hi - runs.lo) / 2
+        motion = np.zeros((len(runs), MAX_ORDER, 3))
+        keep = np.ones(len(runs), bool)
+        moving = np.flatnonzero(self._moving(runs))
+        for n in np.unique(runs.count[moving]):
+            pick = moving[runs.count[moving] == n]
+            tol = tolerances(cols[pick], self.steps, self.tolerance)[:, MEANS]
+            orders, coeffs, residual = fit_tracks(runs.history[pick, :n], tol, highest_order(n))
+            cols[pick, MEANS] = coeffs[:, 0]
+            motion[pick] = coeffs[:, 1:]
+            deviation[pick, MEANS] = residual
+            unfit = pick[orders < 0]
+            keep[unfit] = False
+            self._unfold(runs.take(unfit), cols[unfit])
+        kept = np.flatnonzero(keep)
+        self._note_worst(deviation[kept], (runs.qhi - runs.qlo)[kept] / 2)
+        self._closed.cols.append(cols[kept])
+        self._closed.quats.append((runs.qlo + runs.qhi)[kept] / 2)
+        self._closed.start.append(runs.start[kept])
+        self._closed.length.append(end - runs.start[kept])
+        self._closed.motion.append(motion[kept])
+
+    def _unfold(self, runs: _Runs, cols: F64) -> None:
+        """Store runs as one static Gaussian per frame (positions from their history)."""
+        if len(runs) == 0:
+            return
+        n = int(runs.count[0])
+        rows = np.repeat(np.arange(len(runs)), n)
+        frames = np.tile(np.arange(n), len(runs))
+        out = cols[rows]
+        out[:, MEANS] = runs.history[rows, frames]
+        deviation = (runs.hi - runs.lo)[rows] / 2
+        deviation[:, MEANS] = 0.0  # each frame keeps its own position
+        self._note_worst(deviation, (runs.qhi - runs.qlo)[rows] / 2)
+        self._closed.cols.append(out)
+        self._closed.quats.append((runs.qlo + runs.qhi)[rows] / 2)
+        self._closed.start.append(runs.start[rows] + frames)
+        self._closed.length.append(np.ones(rows.size, np.int64))
+        self._closed.motion.append(np.zeros((rows.size, MAX_ORDER, 3)))
+
+    def _note_worst(self, deviation: F64, quats: F64) -> None:
+        """Keep the largest deviation of a merged value from a frame it stands for."""
+        worst = self.stats.worst
+        for name, part in COLUMN_GROUPS.items():
+            value = float(deviation[:, part].max(initial=0.0))
+            worst[name] = max(worst.get(name, 0.0), value)
+        worst["quats"] = max(worst.get("quats", 0.0), float(quats.max(initial=0.0)))
+
+    def scene(self) -> Scene:
+        """The merged scene: type-1 timeline in frames at ``fps``, motion as ``temporal.means``."""
+        if self._open is not None:
+            self._close(self._open, self.stats.frames)
+            self._open = None
+        c = self._closed
+        width = 10 + 3 * self.sh_coeffs
+        cols = np.concatenate(c.cols) if c.cols else np.zeros((0, width))
+        quats = np.concatenate(c.quats) if c.quats else np.zeros((0, 4))
+        start = np.concatenate(c.start) if c.start else np.zeros(0, np.int64)
+        length = np.concatenate(c.length) if c.length else np.zeros(0, np.int64)
+        motion = np.concatenate(c.motion) if c.motion else np.zeros((0, 3, 3))
+        order = np.lexsort((length, start))
+        g = gaussians_from(cols[order], quats[order], self.sh_coeffs)
+        self.stats.gaussians_out = len(g)
+        timeline = Timeline(
+            TimelineType.START_DURATION,
+            start[order].astype(np.float64),
+            length[order].astype(np.float64),
+            fps=self.fps,
+            scene_length=self.stats.frames / self.fps,
+        )
+        moving = np.any(motion[order] != 0, axis=(1, 2))
+        self.stats.moving_out = int(moving.sum())
+        if not moving.any():
+            return Scene(g, timeline)
+        used = max(k + 1 for k in range(3) if np.any(motion[order][:, k] != 0))
+        temporal = {"means": per_second(motion[order][:, :used], self.fps).astype(np.float32)}
+        return Scene(g, timeline, temporal)
