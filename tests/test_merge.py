@@ -158,6 +158,8 @@ def test_no_redundancy_is_not_made_larger(tmp_path: Path) -> None:
     seq = write_frames(tmp_path / "seq", frames)
     scene, stats = merge_sequence(seq, "merge")
     assert len(scene) == stats.gaussians_in == 9000
+    _, fitted = merge_sequence(seq, "fit")  # nothing follows a path: motion would not pay
+    assert "merged lifespans only" in fitted.note and fitted.moving_out == 0
     options = SegmentOptions(window_s=0.5, workers=1)
     flip = segment_sequence(seq, tmp_path / "off.tsogs", options)
     merged = segment_scene(scene, tmp_path / "merge.tsogs", options)
@@ -216,3 +218,39 @@ def test_cli_segment_temporal_reports_and_falls_back(
     bad = ["segment", str(tmp_path / "seq"), "-o", str(tmp_path / "x.tsogs"), "--tolerance", "-1"]
     assert main(bad) == 1
     assert "tolerance" in capsys.readouterr().err
+
+
+def test_fit_follows_fading_and_turning_gaussians(
+    tmp_path: Path, parts: dict[str, Gaussians]
+) -> None:
+    """Opacity fading (linear in logit) and a steady turn about z: one Gaussian each, with
+    temporal opacity and rotation coefficients; every frame within budget."""
+    base = parts["blink"]
+    n = len(base)
+    frames = []
+    for k in range(FRAMES):
+        t = k / FPS
+        half = 0.5 * np.radians(20.0) * t  # 20 degrees per second
+        turn = np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
+        w1, v1 = turn[0], turn[1:]
+        q = base.quats.astype(np.float64)
+        w2, v2 = q[:, 0], q[:, 1:]
+        vec = w1 * v2 + w2[:, None] * v1 + np.cross(v1, v2)
+        quats = np.column_stack([w1 * w2 - v2 @ v1, vec])
+        fading = base.opacities - 0.8 * t
+        frames.append(
+            Gaussians.from_arrays(base.means, base.scales, quats, fading, base.sh0, shN=base.shN)
+        )
+    seq = write_frames(tmp_path / "seq", frames)
+    scene, stats = merge_sequence(seq, "fit")
+    assert len(scene) == n and stats.moving_out == n
+    assert {"opacity", "quats"} <= set(scene.temporal) and "means" not in scene.temporal
+    out = tmp_path / "turn.tsogs"
+    segment_scene(scene, out, SegmentOptions(window_s=0.5, workers=1))
+    with StreamReader.open(out) as reader:
+        for k in (0, 5, FRAMES - 1):
+            own = decode_chunk(encode_chunk(Scene(frames[k]))).gaussians
+            alone = matched_errors(frames[k], own)
+            merged = matched_errors(frames[k], reader.frame_at(k / FPS))
+            assert merged["alpha"] <= alone["alpha"] + 1 / 255 + 1e-6, (k, merged, alone)
+            assert merged["quats"] <= alone["quats"] + 0.01, (k, merged, alone)

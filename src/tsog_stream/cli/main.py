@@ -27,6 +27,7 @@ from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
 from ..model import Scene
 from ..server.cli import add_serve_command, add_sign_command, cmd_serve, cmd_sign
 from ..summary import chunk_summary, scene_summary
+from . import interrupt
 from .progress import Progress
 from .stream_commands import (
     add_stream_commands,
@@ -350,7 +351,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     progress = Progress(quiet=args.quiet)
     try:
-        return COMMANDS[args.command](args, progress)
+        with interrupt.latched():
+            return COMMANDS[args.command](args, progress)
     except TsogError as exc:
         progress.done()
         print(f"tsog: error: {exc}", file=sys.stderr)

@@ -6,6 +6,8 @@ import sys
 import time
 from typing import TextIO
 
+from . import interrupt
+
 QUIET_SECONDS = 2.0
 """Without a terminal, stages are logged only once the work has lasted this long."""
 
@@ -25,7 +27,8 @@ class Progress:
         self._open_line = False
 
     def __call__(self, stage: str) -> None:
-        """Announce that ``stage`` has begun."""
+        """Announce that ``stage`` has begun (and stop here if Ctrl-C was pressed)."""
+        interrupt.check()
         if self.quiet:
             return
         elapsed = time.monotonic() - self.start

@@ -218,6 +218,8 @@ def _merged(args: argparse.Namespace, progress: Progress, seq: FrameSequence) ->
     if stats.gaussians_out >= stats.gaussians_in:
         print("temporal: no Gaussian repeats across frames; stored one per frame (type 0)")
         return None
+    if stats.note:
+        print(f"temporal: {stats.note}")
     share = 100.0 * stats.gaussians_out / max(1, stats.gaussians_in)
     print(
         f"temporal {args.temporal}: {stats.gaussians_in} Gaussians in {stats.frames} frames -> "

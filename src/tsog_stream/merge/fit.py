@@ -27,13 +27,13 @@ def _projector(length: int, order: int) -> tuple[F64, F64]:
 
 
 def highest_order(length: int) -> int:
-    """Highest order kept for ``length`` frames: 1 for up to 5, then one more every 2 frames.
+    """Highest order kept for ``length`` frames: 1 up to 5 frames, 2 for 6-7, 3 from 8 on.
 
     A stored fit must be overdetermined (about two frames per coefficient) to show smooth
     motion rather than interpolate noise, whose high-order coefficients would be huge and
     would coarsen the 16-bit coefficient range of the whole chunk.
     """
-    return max(1, (length - 2) // 2) if length >= 2 else 0
+    return min(MAX_ORDER, max(1, (length - 2) // 2)) if length >= 2 else 0
 
 
 def fit_tracks(tracks: F64, tol: F64, max_order: int = MAX_ORDER) -> tuple[I64, F64, F64]:
@@ -50,7 +50,7 @@ def fit_tracks(tracks: F64, tol: F64, max_order: int = MAX_ORDER) -> tuple[I64, 
     lo, hi = tracks.min(axis=1), tracks.max(axis=1)
     fits = np.all(hi - lo <= 2 * tol, axis=1)
     orders[fits], coeffs[fits, 0], worst[fits] = 0, ((lo + hi) / 2)[fits], ((hi - lo) / 2)[fits]
-    for order in range(1, min(max_order, length - 1) + 1):
+    for order in range(1, min(max_order, MAX_ORDER, length - 1) + 1):
         todo = np.flatnonzero(orders < 0)
         if todo.size == 0:
             break

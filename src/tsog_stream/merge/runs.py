@@ -1,13 +1,14 @@
 """Frames -> few Gaussians: runs of frames in which a Gaussian stays within tolerance become one
-Gaussian with a lifespan (timeline type 1), and (with ``fit``) runs in which it moves smoothly
-get polynomial motion on its position.
+Gaussian with a lifespan (timeline type 1), and (with ``fit``) runs in which it changes smoothly
+get polynomial coefficients on the attributes that change (position, scale, colour, opacity,
+rotation: the track channels of :mod:`.tracks`).
 
 Frames arrive one at a time; the merger keeps the runs still open and the Gaussians of the runs
-it closed, so memory is the merged result plus one frame (plus a bounded position history per
+it closed, so memory is the merged result plus one frame (plus a bounded track history per
 moving run). A run stays static while every column's range is at most twice the tolerance (its
-midrange is then within tolerance of every frame). A moving run keeps its positions for at
-most ``max_frames`` frames and stays open while a polynomial of order <= 3 keeps all of them
-within tolerance; its other columns must stay static.
+midrange is then within tolerance of every frame). A moving run keeps its track for at most
+``max_frames`` frames and stays open while a polynomial of order <= 3 keeps every channel of
+every frame within tolerance; its SH rest coefficients must stay static.
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ import numpy.typing as npt
 
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from .features import (
+    ALPHA,
     COLUMN_GROUPS,
     MEANS,
+    SH_REST,
     Steps,
     Tolerance,
     align_signs,
@@ -32,6 +35,16 @@ from .features import (
 )
 from .fit import MAX_ORDER, fit_tracks, highest_order, per_second
 from .match import I64, Side, correspond
+from .tracks import (
+    COLUMN_OF,
+    TRACK_GROUPS,
+    TRACK_WIDTH,
+    apply_track,
+    predict,
+    static_groups,
+    track_tolerance,
+    track_values,
+)
 
 F64 = npt.NDArray[np.float64]
 DEFAULT_TRACK_FRAMES = 32
@@ -40,12 +53,15 @@ DEFAULT_REACH = 0.02
 """Largest per-frame move matched, as a fraction of the reference frame's extent."""
 NEAR_REACH = 0.25
 """The first, cheap search around a predicted position: this fraction of the full reach."""
+ATTRIBUTE_REACH = 32.0
+"""The second, wider search also lets attributes differ from the prediction by this many
+tolerances (one frame gives no rate of change); the fit over the run then decides."""
 
 
 @dataclass
 class _Runs:
     """Open runs: per-column range, quaternion range and reference, first frame, index in the
-    previous frame, frames so far, and the positions of the first ``max_frames`` frames."""
+    previous frame, frames so far, and the track of the first ``max_frames`` frames."""
 
     lo: F64
     hi: F64
@@ -70,7 +86,8 @@ class _Runs:
 
 @dataclass
 class _Closed:
-    """Gaussians of closed runs: columns, quaternions, start, length, motion per frame**k."""
+    """Gaussians of closed runs: columns, quaternions, start, length, and motion per frame**k
+    (orders 1..MAX_ORDER x the 14 track channels)."""
 
     cols: list[F64] = field(default_factory=list)
     quats: list[F64] = field(default_factory=list)
@@ -88,6 +105,8 @@ class MergeStats:
     gaussians_out: int = 0
     moving_out: int = 0
     worst: dict[str, float] = field(default_factory=dict)
+    note: str = ""
+    """Set when the result is not what was asked for, and why."""
 
 
 class FrameMerger:
@@ -149,10 +168,11 @@ class FrameMerger:
         self._open = _Runs.join([extended.take(np.flatnonzero(~full)), started])
 
     def _moving(self, runs: _Runs) -> npt.NDArray[np.bool_]:
-        """Runs whose positions already moved beyond the static allowance."""
-        mid = (runs.lo + runs.hi) / 2
-        tol = tolerances(mid, self.steps, self.tolerance)[:, MEANS]
-        return np.asarray(np.any(runs.hi[:, MEANS] - runs.lo[:, MEANS] > 2 * tol, axis=1))
+        """Runs that already changed beyond the static allowance (in any column or rotation)."""
+        tol = tolerances((runs.lo + runs.hi) / 2, self.steps, self.tolerance)
+        still = np.all(runs.hi - runs.lo <= 2 * tol, axis=1)
+        still &= np.all(runs.qhi - runs.qlo <= 2 * quat_tolerance(self.tolerance), axis=1)
+        return np.asarray(~still)
 
     def _static_pairs(self, runs: _Runs, idx: I64, b: Side) -> tuple[I64, I64]:
         """(run, Gaussian of b) pairs that keep a static run static."""
@@ -160,20 +180,21 @@ class FrameMerger:
         a = self._side((sub.lo + sub.hi) / 2, (sub.qlo + sub.qhi) / 2)
         reach = a.tol[:, MEANS].max(axis=0, initial=0) + b.tol[:, MEANS].max(axis=0, initial=0)
         ia, ib = correspond(a, b, reach)
-        ok = self._within(sub, ia, b, ib, with_means=True)
+        ok = self._within(sub, ia, b, ib)
         return idx[ia[ok]], ib[ok]
 
     def _within(
-        self, sub: _Runs, ia: I64, b: Side, ib: I64, *, with_means: bool
+        self, sub: _Runs, ia: I64, b: Side, ib: I64, *, sh_rest_only: bool = False
     ) -> npt.NDArray[np.bool_]:
-        """Whether adding b[ib] to runs sub[ia] keeps each column's range within 2 tolerances."""
+        """Whether adding b[ib] to runs sub[ia] keeps each column's range (and the rotation's)
+        within 2 tolerances; only the SH rest columns with ``sh_rest_only`` (a moving run)."""
         lo = np.minimum(sub.lo[ia], b.cols[ib])
         hi = np.maximum(sub.hi[ia], b.cols[ib])
+        excess = hi - lo - 2 * tolerances((lo + hi) / 2, self.steps, self.tolerance)
+        if sh_rest_only:
+            return np.asarray(np.all(excess[:, SH_REST:] <= 0, axis=1))
         q = align_signs(b.quats[ib], sub.qref[ia])
         qlo, qhi = np.minimum(sub.qlo[ia], q), np.maximum(sub.qhi[ia], q)
-        excess = hi - lo - 2 * tolerances((lo + hi) / 2, self.steps, self.tolerance)
-        if not with_means:
-            excess[:, MEANS] = 0.0
         ok = np.all(excess <= 0, axis=1)
         return np.asarray(ok & np.all(qhi - qlo <= 2 * quat_tolerance(self.tolerance), axis=1))
 
@@ -184,38 +205,37 @@ class FrameMerger:
         where they went), then the leftovers within the full reach.
         """
         found_a, found_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-        for reach in (self.reach * NEAR_REACH, self.reach):
+        for reach, loose in ((self.reach * NEAR_REACH, 1.0), (self.reach, ATTRIBUTE_REACH)):
             rest = np.setdiff1d(idx, np.concatenate(found_a))
             free = np.setdiff1d(bidx, np.concatenate(found_b))
-            ra, rb = self._moving_pairs_within(runs, rest, b, free, reach)
+            ra, rb = self._moving_pairs_within(runs, rest, b, free, reach=reach, loose=loose)
             found_a.append(ra)
             found_b.append(rb)
         return np.concatenate(found_a), np.concatenate(found_b)
 
     def _moving_pairs_within(
-        self, runs: _Runs, idx: I64, b: Side, bidx: I64, reach: F64
+        self, runs: _Runs, idx: I64, b: Side, bidx: I64, *, reach: F64, loose: float
     ) -> tuple[I64, I64]:
-        """Moving pairs whose Gaussian is within ``reach`` of the run's predicted position."""
+        """Moving pairs whose Gaussian is within ``reach`` of the run's predicted position and
+        within ``loose`` times the tolerance of its predicted attributes (a run seen in one
+        frame has no rate of change yet); the polynomial fit decides."""
         if idx.size == 0 or bidx.size == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         sub = runs.take(idx)
-        rows = np.arange(len(sub))
-        last = sub.history[rows, sub.count - 1]
-        prev = sub.history[rows, np.maximum(sub.count - 2, 0)]
-        cols = (sub.lo + sub.hi) / 2
-        cols[:, MEANS] = last + (last - prev)
-        a = self._side(cols, (sub.qlo + sub.qhi) / 2)
+        cols, quats = apply_track((sub.lo + sub.hi) / 2, predict(sub.history, sub.count))
+        a = self._side(cols, quats)
+        a = Side(a.cols, a.quats, a.tol * loose, a.quat_tol * loose)
         bs = b.take(bidx)
         ia, ib = correspond(a, bs, reach, moving=True)
-        ok = self._within(sub, ia, bs, ib, with_means=False)
+        ok = self._within(sub, ia, bs, ib, sh_rest_only=True)
         ia, ib = ia[ok], ib[ok]
+        new = track_values(bs.cols[ib], align_signs(bs.quats[ib], sub.qref[ia]))
+        tol = track_tolerance(bs.cols[ib], self.steps, self.tolerance)
         fits = np.zeros(ia.size, bool)
         for n in np.unique(sub.count[ia]):
             pick = np.flatnonzero(sub.count[ia] == n)
-            new = bs.cols[ib[pick], None, MEANS]
-            track = np.concatenate([sub.history[ia[pick], :n], new], axis=1)
-            tol = bs.tol[ib[pick], MEANS]
-            fits[pick] = fit_tracks(track, tol)[0] >= 0
+            track = np.concatenate([sub.history[ia[pick], :n], new[pick, None]], axis=1)
+            fits[pick] = fit_tracks(track, tol[pick])[0] >= 0
         return idx[ia[fits]], bidx[ib[fits]]
 
     def _extend(self, runs: _Runs, b: Side, ib: I64) -> _Runs:
@@ -223,7 +243,7 @@ class FrameMerger:
         q = align_signs(b.quats[ib], runs.qref)
         history = runs.history.copy()
         room = np.flatnonzero(runs.count < history.shape[1])
-        history[room, runs.count[room]] = b.cols[ib[room], MEANS]
+        history[room, runs.count[room]] = track_values(b.cols[ib[room]], q[room])
         return _Runs(
             np.minimum(runs.lo, b.cols[ib]),
             np.maximum(runs.hi, b.cols[ib]),
@@ -239,9 +259,9 @@ class FrameMerger:
     def _start(self, b: Side, index: I64, frame: int) -> _Runs:
         """New runs, one per Gaussian of ``b``."""
         n = len(b)
-        history = np.zeros((n, self.max_frames if self.fit else 0, 3))
+        history = np.zeros((n, self.max_frames if self.fit else 0, TRACK_WIDTH))
         if self.fit:
-            history[:, 0] = b.cols[:, MEANS]
+            history[:, 0] = track_values(b.cols, b.quats)
         return _Runs(
             b.cols.copy(),
             b.cols.copy(),
@@ -258,50 +278,61 @@ class FrameMerger:
         """Turn runs ending before frame ``end`` into Gaussians.
 
         A moving run is stored as one Gaussian with motion when a polynomial of an order its
-        length supports (``highest_order``) fits it, else as one Gaussian per frame.
+        length supports (``highest_order``) fits it, else as one Gaussian per frame. Only the
+        attributes that changed get coefficients; the others keep their midrange.
         """
         if len(runs) == 0:
             return
-        cols = (runs.lo + runs.hi) / 2
-        deviation = (runs.hi - runs.lo) / 2
-        motion = np.zeros((len(runs), MAX_ORDER, 3))
+        cols, quats = (runs.lo + runs.hi) / 2, (runs.qlo + runs.qhi) / 2
+        deviation, qdev = (runs.hi - runs.lo) / 2, (runs.qhi - runs.qlo) / 2
+        motion = np.zeros((len(runs), MAX_ORDER, TRACK_WIDTH))
         keep = np.ones(len(runs), bool)
         moving = np.flatnonzero(self._moving(runs))
         for n in np.unique(runs.count[moving]):
             pick = moving[runs.count[moving] == n]
-            tol = tolerances(cols[pick], self.steps, self.tolerance)[:, MEANS]
-            orders, coeffs, residual = fit_tracks(runs.history[pick, :n], tol, highest_order(n))
-            cols[pick, MEANS] = coeffs[:, 0]
-            motion[pick] = coeffs[:, 1:]
-            deviation[pick, MEANS] = residual
+            history = runs.history[pick, :n]
+            tol = track_tolerance(cols[pick], self.steps, self.tolerance)
+            orders, coeffs, residual = fit_tracks(history, tol, highest_order(n))
+            fitted, fitted_q = apply_track(cols[pick], coeffs[:, 0])
+            still = static_groups(history.min(axis=1), history.max(axis=1), tol)
+            for name, part in TRACK_GROUPS.items():
+                rows = np.flatnonzero(~still[name])
+                motion[pick[rows], :, part] = coeffs[rows, 1:, part]
+                if name == "quats":
+                    quats[pick[rows]] = fitted_q[rows]
+                    qdev[pick[rows]] = residual[rows, part]
+                    continue
+                column = COLUMN_OF[name]
+                cols[pick[rows], column] = fitted[rows, column]
+                scale = _alpha_slope(fitted[rows]) if name == "opacity" else 1.0
+                deviation[pick[rows], column] = residual[rows, part] * scale
             unfit = pick[orders < 0]
             keep[unfit] = False
             self._unfold(runs.take(unfit), cols[unfit])
         kept = np.flatnonzero(keep)
-        self._note_worst(deviation[kept], (runs.qhi - runs.qlo)[kept] / 2)
+        self._note_worst(deviation[kept], qdev[kept])
         self._closed.cols.append(cols[kept])
-        self._closed.quats.append((runs.qlo + runs.qhi)[kept] / 2)
+        self._closed.quats.append(quats[kept])
         self._closed.start.append(runs.start[kept])
         self._closed.length.append(end - runs.start[kept])
         self._closed.motion.append(motion[kept])
 
     def _unfold(self, runs: _Runs, cols: F64) -> None:
-        """Store runs as one static Gaussian per frame (positions from their history)."""
+        """Store runs as one static Gaussian per frame (values from their track)."""
         if len(runs) == 0:
             return
         n = int(runs.count[0])
         rows = np.repeat(np.arange(len(runs)), n)
         frames = np.tile(np.arange(n), len(runs))
-        out = cols[rows]
-        out[:, MEANS] = runs.history[rows, frames]
+        out, quats = apply_track(cols[rows], runs.history[rows, frames])
         deviation = (runs.hi - runs.lo)[rows] / 2
-        deviation[:, MEANS] = 0.0  # each frame keeps its own position
-        self._note_worst(deviation, (runs.qhi - runs.qlo)[rows] / 2)
+        deviation[:, :SH_REST] = 0.0  # each frame keeps its own values but SH rest
+        self._note_worst(deviation, np.zeros_like(quats))
         self._closed.cols.append(out)
-        self._closed.quats.append((runs.qlo + runs.qhi)[rows] / 2)
+        self._closed.quats.append(quats)
         self._closed.start.append(runs.start[rows] + frames)
         self._closed.length.append(np.ones(rows.size, np.int64))
-        self._closed.motion.append(np.zeros((rows.size, MAX_ORDER, 3)))
+        self._closed.motion.append(np.zeros((rows.size, MAX_ORDER, TRACK_WIDTH)))
 
     def _note_worst(self, deviation: F64, quats: F64) -> None:
         """Keep the largest deviation of a merged value from a frame it stands for."""
@@ -312,7 +343,7 @@ class FrameMerger:
         worst["quats"] = max(worst.get("quats", 0.0), float(quats.max(initial=0.0)))
 
     def scene(self) -> Scene:
-        """The merged scene: type-1 timeline in frames at ``fps``, motion as ``temporal.means``."""
+        """The merged scene: type-1 timeline in frames at ``fps``, motion as ``temporal``."""
         if self._open is not None:
             self._close(self._open, self.stats.frames)
             self._open = None
@@ -322,7 +353,7 @@ class FrameMerger:
         quats = np.concatenate(c.quats) if c.quats else np.zeros((0, 4))
         start = np.concatenate(c.start) if c.start else np.zeros(0, np.int64)
         length = np.concatenate(c.length) if c.length else np.zeros(0, np.int64)
-        motion = np.concatenate(c.motion) if c.motion else np.zeros((0, 3, 3))
+        motion = np.concatenate(c.motion) if c.motion else np.zeros((0, MAX_ORDER, TRACK_WIDTH))
         order = np.lexsort((length, start))
         g = gaussians_from(cols[order], quats[order], self.sh_coeffs)
         self.stats.gaussians_out = len(g)
@@ -333,10 +364,23 @@ class FrameMerger:
             fps=self.fps,
             scene_length=self.stats.frames / self.fps,
         )
-        moving = np.any(motion[order] != 0, axis=(1, 2))
-        self.stats.moving_out = int(moving.sum())
-        if not moving.any():
-            return Scene(g, timeline)
-        used = max(k + 1 for k in range(3) if np.any(motion[order][:, k] != 0))
-        temporal = {"means": per_second(motion[order][:, :used], self.fps).astype(np.float32)}
-        return Scene(g, timeline, temporal)
+        motion = motion[order]
+        self.stats.moving_out = int(np.any(motion != 0, axis=(1, 2)).sum())
+        return Scene(g, timeline, _temporal(motion, self.fps))
+
+
+def _temporal(motion: F64, fps: float) -> dict[str, npt.NDArray[np.float32]]:
+    """Per-second coefficients of each attribute that moves, up to its highest used order."""
+    out = {}
+    for name, part in TRACK_GROUPS.items():
+        used = [k for k in range(MAX_ORDER) if np.any(motion[:, k, part] != 0)]
+        if used:
+            coeffs = per_second(motion[:, : used[-1] + 1, part], fps)
+            out[name] = coeffs.astype(np.float32)
+    return out
+
+
+def _alpha_slope(cols: F64) -> F64:
+    """(M, 1) d alpha / d logit at each row's alpha: turns a logit residual into an alpha one."""
+    alpha = cols[:, ALPHA]
+    return np.asarray(alpha * (1.0 - alpha), np.float64)

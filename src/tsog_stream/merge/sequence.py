@@ -25,6 +25,10 @@ SOG_FRAME_STEPS: Final = 1.0
 """Default tolerance in steps for SOG frames: each frame is already rounded to its own
 codebooks, so one unchanged Gaussian differs between frames by up to a step."""
 
+FIT_PAYS_BELOW: Final = 0.8
+"""``fit`` keeps its motion only when it stores at most this share of the frames' Gaussians:
+above it (little follows a path), the coefficient images every Gaussian of a chunk then carries
+outweigh the Gaussians saved, and ``merge`` is smaller (measured: docs/design/temporal-merge.md)."""
 MAX_HELD: Final = 4_000_000
 """Gaussians a merge may hold in memory (a few GiB) before the sequence is stored per frame."""
 
@@ -93,6 +97,13 @@ def merge_sequence(
             yield seq.read(k, k + 1).scene.gaussians
 
     tol = default_tolerance(seq, tolerance)
-    return merge_frames(
-        frames(), fps=seq.fps, sh_coeffs=seq.sh_coeffs, mode=mode, tolerance=tol, max_held=max_held
+    options = {"fps": seq.fps, "sh_coeffs": seq.sh_coeffs, "tolerance": tol, "max_held": max_held}
+    scene, stats = merge_frames(frames(), mode=mode, **options)  # type: ignore[arg-type]
+    if scene is None or mode != "fit" or stats.gaussians_out <= FIT_PAYS_BELOW * stats.gaussians_in:
+        return scene, stats
+    merged, merged_stats = merge_frames(frames(), mode="merge", **options)  # type: ignore[arg-type]
+    merged_stats.note = (
+        f"fitted motion kept {stats.gaussians_out} of {stats.gaussians_in} Gaussians, too many to "
+        "pay for the coefficient images: merged lifespans only"
     )
+    return merged, merged_stats

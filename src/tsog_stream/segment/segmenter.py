@@ -245,7 +245,9 @@ def _encoded(
         pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
         for part in parts:
             info = describe_part(part, plan)
-            pending.append((info, pool.submit(encode_job_payload, part.scene, options.seed)))
+            with _sigint_blocked():  # a worker started here inherits the block (see below)
+                job = pool.submit(encode_job_payload, part.scene, options.seed)
+            pending.append((info, job))
             del part
             if len(pending) >= options.workers:
                 done, fut = pending.popleft()
@@ -259,10 +261,24 @@ def _encoded(
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+@contextlib.contextmanager
+def _sigint_blocked() -> Iterator[None]:
+    """SIGINT held (not lost) in this thread while it may start worker processes: a worker
+    inherits the blocked mask, so a Ctrl-C during its start-up (imports) cannot interrupt it
+    before :func:`_ignore_interrupts` runs."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _ignore_interrupts() -> None:
     """Workers ignore SIGINT (a terminal's Ctrl-C reaches the whole group): the parent alone
-    handles it, then shuts the pool down, instead of every worker printing a traceback."""
+    handles it, then shuts the pool down, instead of every worker printing a traceback. A
+    SIGINT held since the worker started is discarded on unblocking."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _union(boxes: Sequence[Box]) -> dict[str, list[float]]:

@@ -1,0 +1,40 @@
+"""Ctrl-C that cannot be lost.
+
+Python may raise the KeyboardInterrupt of a SIGINT inside a callback whose exceptions it only
+prints ("Exception ignored in ..."), e.g. during an import in the middle of a long run; the
+command would then carry on and finish as if nothing happened. The CLI's handler also latches
+the request, and progress reports (called per frame and per chunk) raise it again.
+"""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import FrameType
+
+_requested: set[int] = set()
+"""Holds the signal number once Ctrl-C was pressed (a set: mutable without ``global``)."""
+
+
+def _on_sigint(signum: int, frame: FrameType | None) -> None:
+    """Latch the request, then interrupt as Python's default handler does."""
+    _requested.add(signum)
+    raise KeyboardInterrupt
+
+
+def check() -> None:
+    """Raise KeyboardInterrupt if Ctrl-C was pressed (even if its first raise was swallowed)."""
+    if _requested:
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def latched() -> Iterator[None]:
+    """Install the latching SIGINT handler for the duration of a command."""
+    _requested.clear()
+    previous = signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
