@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from tsog_stream import TimelineType
+from tsog_stream.cli import interrupt
 from tsog_stream.cli.main import main
+from tsog_stream.cli.progress import Progress
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.io.chunks import read_chunk
@@ -145,3 +150,23 @@ def test_encode_to_4dgs_refuses_unrepresentable_motion_unless_lossy(
     assert main(["encode", str(source), str(out), "--lossy", "-q"]) == 0
     assert out.stat().st_size > 0
     assert "note:" in capsys.readouterr().err
+
+
+def test_a_swallowed_ctrl_c_is_raised_again_at_the_next_progress_report() -> None:
+    """Python may swallow the KeyboardInterrupt of a SIGINT (raised inside a callback): the
+    latch makes the next progress report raise it, and its "Exception ignored" report is quiet."""
+    seen: list[object] = []
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = seen.append
+    try:
+        with pytest.raises(KeyboardInterrupt), interrupt.latched():
+            with contextlib.suppress(KeyboardInterrupt):  # as a weakref or import-lock callback
+                signal.raise_signal(signal.SIGINT)
+            sys.unraisablehook(SimpleNamespace(exc_value=KeyboardInterrupt()))  # kept quiet
+            sys.unraisablehook(SimpleNamespace(exc_value=ValueError()))  # passed on
+            Progress(quiet=True)("next stage")
+        with interrupt.latched():
+            Progress(quiet=True)("the next command starts unlatched")
+    finally:
+        sys.unraisablehook = previous_hook
+    assert len(seen) == 1
