@@ -29,6 +29,7 @@ from ..server.cli import add_serve_command, add_sign_command, cmd_serve, cmd_sig
 from ..summary import chunk_summary, scene_summary
 from . import interrupt
 from .progress import Progress
+from .render_commands import add_render_commands, cmd_eval, cmd_render
 from .stream_commands import (
     add_stream_commands,
     check_segment_args,
@@ -141,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_client_commands(sub, _add_common)
     add_serve_command(sub)
     add_sign_command(sub)
+    add_render_commands(sub, _add_input, _add_common)
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
@@ -343,6 +345,8 @@ COMMANDS = {
     "play": cmd_play,
     "serve": cmd_serve,
     "sign": cmd_sign,
+    "render": cmd_render,
+    "eval": cmd_eval,
 }
 
 

@@ -1,0 +1,255 @@
+"""``tsog render`` and ``tsog eval``: draw a scene at time t; compare two scenes by PSNR/SSIM.
+
+Thin: parse arguments, call :mod:`tsog_stream.render.evaluate`, print results. The renderer is
+imported when a command runs, so other commands do not pay for loading it (and numba).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..errors import InputError
+from ..io.files import refuse_existing
+from ..io.readers import ReadOptions
+from .progress import Progress
+
+if TYPE_CHECKING:
+    from ..render.evaluate import CameraSetup, EvalReport, RenderStyle, Source
+
+AddOptions = Callable[[argparse.ArgumentParser], None]
+
+RENDER_EPILOG = """examples:
+  tsog render scene.ply -o view.png                      orbit view 0 at 640x480
+  tsog render clip.tsogs --t 1.5 --view 3 --views 8 -o v.png
+  tsog render scene.sog --cameras cameras.json --view 12 --width 320 --height 240 -o v.png
+  tsog render http://host:8080/files/clip.tsogs --t 2 --background 1,1,1 -o v.png
+
+Views 0..M-1 orbit the scene at t (--views M, default 8), or are the cameras of a 3DGS
+cameras.json (scaled to --width/--height when given). Images are 8-bit RGB PNG."""
+
+EVAL_EPILOG = """examples:
+  tsog eval scene.ply scene.sog                          PSNR/SSIM of a SOG round trip
+  tsog eval clip.splatv clip.tsogs --times 10 --views 6 --plot psnr.png
+  tsog eval scene.ply scene.sog --cameras cameras.json --width 320 --height 240 --json
+
+Both inputs are rendered at the same times (centres of --times equal slices of the
+reference's time range; t = 0 for a static scene) from the same cameras (an orbit around the
+reference at each t, or a cameras.json). PSNR is over all pixels and channels of the 8-bit
+images; SSIM uses the 3DGS evaluation's 11x11 Gaussian window, zero-padded (docs/eval.md)."""
+
+
+def _add_views(p: argparse.ArgumentParser, views_help: str) -> None:
+    """Camera, image-size and rasterizer options shared by render and eval."""
+    p.add_argument("--views", type=int, help=views_help)
+    p.add_argument("--width", type=int, help="image width in pixels (orbits: default 640)")
+    p.add_argument("--height", type=int, help="image height in pixels (orbits: default 480)")
+    p.add_argument("--cameras", type=Path, help="a 3DGS cameras.json instead of orbit cameras")
+    p.add_argument(
+        "--background",
+        default="0,0,0",
+        help="background colour R,G,B in [0, 1] (default 0,0,0)",
+    )
+    p.add_argument(
+        "--antialiased", action="store_true", help="the antialiased (Mip-Splatting) variant"
+    )
+    p.add_argument(
+        "--up",
+        default="0,0,1",
+        help="up axis X,Y,Z of orbit cameras (default 0,0,1; COLMAP-style captures: 0,-1,0)",
+    )
+
+
+def add_render_commands(sub: Any, add_input: AddOptions, add_common: AddOptions) -> None:
+    """Register ``render`` and ``eval`` on the main parser."""
+    p = sub.add_parser(
+        "render",
+        help="render a scene at time t from one camera to a PNG (CPU rasterizer)",
+        epilog=RENDER_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_input(p)
+    p.add_argument("--t", type=float, default=0.0, help="time in seconds (default 0)")
+    p.add_argument("--view", type=int, default=0, help="camera index, from 0 (default 0)")
+    _add_views(p, "orbit cameras around the scene (default 8); with --cameras: all")
+    p.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
+    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_common(p)
+
+    p = sub.add_parser(
+        "eval",
+        help="render two scenes at the same times and cameras; report PSNR/SSIM",
+        epilog=EVAL_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("reference", help="the reference: any input, a .tsogs, its folder or a URL")
+    p.add_argument("candidate", help="the candidate, in any of the same forms")
+    p.add_argument("--times", type=int, default=5, help="times sampled (default 5)")
+    _add_views(p, "views per time (default 4 orbit cameras; with --cameras: all)")
+    p.add_argument("--plot", type=Path, help="also draw PSNR over time to this PNG")
+    p.add_argument("-f", "--force", action="store_true", help="replace the PLOT if it exists")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    g = p.add_argument_group("reading options (each applies to the inputs of the formats named)")
+    g.add_argument("--fps", type=float, help="frame rate of PLY/SOG frame sequences")
+    g.add_argument("--duration-s", type=float, help=".splatv: seconds spanned by the clip")
+    g.add_argument("--scene-length-s", type=float, help="FreeTimeGS: seconds of normalised time")
+    g.add_argument(
+        "--duration-mode",
+        choices=("log", "linear"),
+        default="log",
+        help="FreeTimeGS PLY: durations stored as log sigma (default) or sigma",
+    )
+    add_common(p)
+
+
+def parse_up(text: str) -> tuple[float, float, float]:
+    """'X,Y,Z', a non-zero direction."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(map(math.isfinite, values)) or not any(values):
+        raise InputError(f"expected a direction X,Y,Z, got {text!r}", where="--up")
+    return values[0], values[1], values[2]
+
+
+def parse_background(text: str) -> tuple[float, float, float]:
+    """'R,G,B' with each value in [0, 1]."""
+    parts = text.split(",")
+    try:
+        values = [float(v) for v in parts]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
+        raise InputError(
+            f"expected R,G,B with values in [0, 1], got {text!r}", where="--background"
+        )
+    return values[0], values[1], values[2]
+
+
+def _setup(args: argparse.Namespace, default_views: int) -> tuple[CameraSetup, RenderStyle]:
+    """The camera setup and render style the options ask for."""
+    from ..render.evaluate import CameraSetup, RenderStyle  # noqa: PLC0415 - loads the renderer
+
+    views = args.views if args.views is not None or args.cameras else default_views
+    setup = CameraSetup(views, args.width, args.height, args.cameras, parse_up(args.up))
+    setup.check()
+    return setup, RenderStyle(parse_background(args.background), args.antialiased)
+
+
+def _notes(source: Source) -> None:
+    """The reader's warnings, one line each on stderr."""
+    for note in source.notes:
+        print(f"tsog: note: {note}", file=sys.stderr)
+
+
+def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog render."""
+    from ..render import save_png  # noqa: PLC0415 - loads the renderer
+    from ..render.evaluate import open_source, render_view  # noqa: PLC0415
+
+    refuse_existing(args.output, overwrite=args.force)
+    setup, style = _setup(args, default_views=8)
+    options = ReadOptions(args.fps, args.duration_s, args.scene_length_s, args.duration_mode)
+    progress(f"reading {args.input}")
+    with open_source(args.input, format=args.format, options=options, progress=progress) as src:
+        _notes(src)
+        progress(f"rendering t = {args.t:g} s, view {args.view}")
+        image = render_view(src, args.t, args.view, setup, style)
+    save_png(image, args.output)
+    progress.done()
+    height, width = image.shape[:2]
+    print(f"{args.output}: {width}x{height}, t = {args.t:g} s, view {args.view}")
+    return 0
+
+
+def _open_pair(
+    args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress
+) -> tuple[Source, Source]:
+    """Open REFERENCE and CANDIDATE, each with the reading options that apply to it."""
+    from ..render.evaluate import OPTION_KINDS, fit_options, open_source  # noqa: PLC0415
+
+    options = ReadOptions(args.fps, args.duration_s, args.scene_length_s, args.duration_mode)
+    sources = []
+    for target in (args.reference, args.candidate):
+        progress(f"reading {target}")
+        kind = _kind(target)
+        fitted = fit_options(kind, options) if kind else options
+        sources.append(stack.enter_context(open_source(target, options=fitted, progress=progress)))
+        _notes(sources[-1])
+    for name, kinds in OPTION_KINDS.items():
+        if getattr(options, name) is not None and not any(s.kind in kinds for s in sources):
+            flag = "--" + name.replace("_", "-")
+            raise InputError(f"applies to {', '.join(kinds)} inputs only", where=flag)
+    return sources[0], sources[1]
+
+
+def _kind(target: str) -> str | None:
+    """The detected format of a local input; None for URLs (streams take no options)."""
+    from ..io.readers import detect_format  # noqa: PLC0415
+
+    if target.lower().startswith(("http://", "https://", "file://")):
+        return None
+    return detect_format(target)
+
+
+def cmd_eval(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog eval."""
+    from ..render.evaluate import evaluate  # noqa: PLC0415 - loads the renderer
+
+    if args.plot is not None:
+        refuse_existing(args.plot, overwrite=args.force)
+    setup, style = _setup(args, default_views=4)
+    with contextlib.ExitStack() as stack:
+        reference, candidate = _open_pair(args, stack, progress)
+        report = evaluate(
+            reference,
+            candidate,
+            times=args.times,
+            setup=setup,
+            style=style,
+            on_step=lambda done, total: progress.bar("rendering", done / total),
+        )
+    if args.plot is not None:
+        from ..render.plot import write_psnr_plot  # noqa: PLC0415
+
+        write_psnr_plot(report, args.plot)
+    progress.done()
+    if args.json:
+        out = report.to_dict()
+        out["plot"] = str(args.plot) if args.plot is not None else None
+        print(json.dumps(out, indent=2))
+    else:
+        print_report(report, args.plot)
+    return 0
+
+
+def _db(value: float) -> str:
+    return "inf" if math.isinf(value) else f"{value:.2f}"
+
+
+def print_report(report: EvalReport, plot: Path | None) -> None:
+    """The report as a text table with means and worst cases."""
+    print(f"reference: {report.reference}")
+    print(f"candidate: {report.candidate}")
+    print(f"images: {report.width}x{report.height}, 8-bit RGB")
+    print(f"{'t (s)':>10} {'view':>5} {'PSNR (dB)':>10} {'SSIM':>8}")
+    for r in report.rows:
+        print(f"{r.t:>10.4g} {r.view:>5d} {_db(r.psnr):>10} {r.ssim:>8.5f}")
+    s = report.summary()
+    identical = f", {s['identical']} identical" if s["identical"] else ""
+    print(
+        f"mean: PSNR {_db(s['psnr_mean'])} dB, SSIM {s['ssim_mean']:.5f} "
+        f"over {s['images']} images{identical}"
+    )
+    wp, ws = s["psnr_worst"], s["ssim_worst"]
+    print(f"worst PSNR: {_db(wp['psnr'])} dB at t = {wp['t']:.4g} s, view {wp['view']}")
+    print(f"worst SSIM: {ws['ssim']:.5f} at t = {ws['t']:.4g} s, view {ws['view']}")
+    if plot is not None:
+        print(f"plot: {plot}")

@@ -1,0 +1,369 @@
+"""Render a reference and a candidate at the same times and cameras; compare with PSNR/SSIM.
+
+A "source" is anything the readers know, opened as *a scene at time t*: a PLY, SOG/TSOG chunk,
+FreeTimeGS file, ``.splatv``, frame sequence (loaded whole), a ``.tsogs`` container or its
+unpacked folder (read chunk by chunk), or a stream URL. Times are sampled over the reference's
+time range; cameras orbit the reference at each time (or come from a 3DGS ``cameras.json``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..client.sync import open_url
+from ..container.sync import StreamReader
+from ..errors import InputError
+from ..io.readers import ReadOptions, detect_format, load_scene
+from ..model import Gaussians, Scene
+from ..schemas.manifest import SceneInfo
+from ..temporal import time_range
+from . import render, to_uint8
+from .camera import Camera, load_cameras_json, scene_orbit
+from .metrics import mse, psnr_from_mse, ssim
+
+Span = tuple[float, float]
+StepCallback = Callable[[int, int], None]
+"""Called with (steps done, steps in all) while an evaluation runs."""
+URL_SCHEMES = ("http://", "https://", "file://")
+OPTION_KINDS = {
+    "fps": ("ply-sequence", "sog-sequence"),
+    "duration_s": ("splatv",),
+    "scene_length_s": ("freetimegs-ply", "freetimegs-npz"),
+}
+"""The input formats each reading option applies to (as in io.readers)."""
+
+
+@dataclass
+class Source:
+    """A scene that can be shown at any time: ``at(t)`` gives its static Gaussians."""
+
+    name: str
+    kind: str
+    span: Span | None
+    """(first, last) second of a 4D scene; None for a static one (shown at t = 0)."""
+    frame: Callable[[float], Gaussians]
+    closer: Callable[[], None] = lambda: None
+    notes: list[str] = field(default_factory=list)
+    fps: float | None = None
+    """Frame rate of a frame-based scene (timeline types 0 and 1 with ``fps``), else None."""
+
+    def at(self, t: float) -> Gaussians:
+        """The Gaussians visible at ``t`` seconds."""
+        return self.frame(t)
+
+    def close(self) -> None:
+        """Release the reader behind the source (files, event loop, HTTP session)."""
+        self.closer()
+
+    def __enter__(self) -> Source:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def _stream_span(info: SceneInfo) -> Span | None:
+    """The time range a container declares (None when it holds a static scene)."""
+    return None if info.timeline_type is None else (info.start_s, info.end_s)
+
+
+def fit_options(kind: str, options: ReadOptions) -> ReadOptions:
+    """``options`` without the reading options that do not apply to inputs of ``kind``."""
+
+    def keep(name: str) -> Any:
+        return getattr(options, name) if kind in OPTION_KINDS[name] else None
+
+    return ReadOptions(
+        fps=keep("fps"),
+        duration_s=keep("duration_s"),
+        scene_length_s=keep("scene_length_s"),
+        duration_mode=options.duration_mode,
+    )
+
+
+def open_source(
+    target: str | os.PathLike[str],
+    *,
+    format: str | None = None,
+    options: ReadOptions | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Source:
+    """Open any input as a :class:`Source`; containers and URLs are read chunk by chunk."""
+    text = os.fspath(target)
+    is_url = text.lower().startswith(URL_SCHEMES)
+    kind = "stream" if is_url else (format or detect_format(text))
+    if kind in ("stream", "tsogs-dir"):
+        client = open_url(text)
+        info = client.client.index.manifest.scene
+        return Source(text, kind, _stream_span(info), client.frame_at, client.close, fps=info.fps)
+    if kind == "tsogs":
+        reader = StreamReader.open(text)
+        info = reader.index.manifest.scene
+        return Source(text, kind, _stream_span(info), reader.frame_at, reader.close, fps=info.fps)
+    loaded = load_scene(text, format=kind, options=options, progress=progress)
+    source = scene_source(loaded.scene, text)
+    return replace(source, kind=loaded.format, notes=list(loaded.notes))
+
+
+def scene_source(scene: Scene, name: str = "scene") -> Source:
+    """An in-memory scene as a :class:`Source` (for scripts, tests and benchmarks)."""
+    timeline = scene.timeline
+    span = time_range(timeline) if timeline is not None else None
+    fps = timeline.fps if timeline is not None else None
+    return Source(name, "scene", span, scene.at, fps=fps)
+
+
+def sample_times(span: Span | None, count: int, fps: float | None = None) -> list[float]:
+    """``count`` times at the centres of equal slices of ``span``; [0.0] for a static scene.
+
+    Centres rather than edges: a lifespan's end is exclusive, so the last second of a scene
+    may show nothing, and the midpoints keep every sample inside the range. With ``fps`` (a
+    frame-based reference) each time moves back to the start of its frame: the reference holds
+    a frame for 1/fps while a candidate with fitted motion moves on, and what is compared is
+    the frames themselves.
+    """
+    if count < 1:
+        raise InputError(f"expected at least 1 time, got {count}", where="--times")
+    if span is None:
+        return [0.0]
+    start, end = span
+    if not end > start:
+        return [start]
+    step = (end - start) / count
+    times = [start + (i + 0.5) * step for i in range(count)]
+    if fps:
+        times = [math.floor(t * fps + 1e-9) / fps for t in times]
+    return times
+
+
+def pick_evenly(items: Sequence[Camera], count: int | None) -> list[Camera]:
+    """``count`` items spread evenly over ``items`` (all of them when ``count`` is None)."""
+    if count is None or count >= len(items):
+        return list(items)
+    if count < 1:
+        raise InputError(f"expected at least 1 view, got {count}", where="--views")
+    picks = np.linspace(0, len(items) - 1, count).round().astype(int)
+    return [items[i] for i in picks]
+
+
+@dataclass(frozen=True)
+class CameraSetup:
+    """Where cameras come from: an orbit of ``views`` around the scene, or a cameras.json."""
+
+    views: int | None = 4
+    width: int | None = None
+    height: int | None = None
+    cameras_json: str | os.PathLike[str] | None = None
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """The orbit's up axis (+z by default; COLMAP-style captures are usually -y up)."""
+
+    def size(self) -> tuple[int, int]:
+        """Image size of orbit cameras (640x480 unless given)."""
+        return (self.width or 640, self.height or 480)
+
+    def check(self) -> None:
+        """Refuse sizes and counts that cannot make an image."""
+        for name, value in (("--width", self.width), ("--height", self.height)):
+            if value is not None and not 1 <= value <= 16384:
+                raise InputError(f"expected 1-16384 pixels, got {value}", where=name)
+        if self.views is not None and self.views < 1:
+            raise InputError(f"expected at least 1 view, got {self.views}", where="--views")
+
+    def fixed(self) -> list[Camera] | None:
+        """The cameras of the cameras.json (the same at every t), or None for orbits."""
+        if self.cameras_json is None:
+            return None
+        cameras = load_cameras_json(self.cameras_json, self.width, self.height)
+        if not cameras:
+            raise InputError("holds no cameras", where=os.fspath(self.cameras_json))
+        return pick_evenly(cameras, self.views)
+
+    def around(self, frame: Gaussians, t: float) -> list[Camera]:
+        """Orbit cameras around ``frame`` (the reference at ``t``)."""
+        if len(frame) == 0:
+            raise InputError(f"the reference shows no Gaussians at t = {t:g} s to aim cameras at")
+        width, height = self.size()
+        return scene_orbit(frame, self.views or 4, width, height, up=self.up)
+
+
+@dataclass(frozen=True)
+class RenderStyle:
+    """How images are drawn: background colour (RGB in [0, 1]) and the rasterizer variant."""
+
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    antialiased: bool = False
+
+    def image(self, frame: Gaussians, camera: Camera) -> npt.NDArray[np.uint8]:
+        """The 8-bit RGB image of ``frame`` seen by ``camera``."""
+        drawn = render(frame, camera, background=self.background, antialiased=self.antialiased)
+        return to_uint8(drawn)
+
+
+def render_view(
+    source: Source,
+    t: float,
+    view: int,
+    setup: CameraSetup,
+    style: RenderStyle | None = None,
+) -> npt.NDArray[np.uint8]:
+    """The 8-bit image of ``source`` at ``t`` from camera ``view`` (0-based) of ``setup``."""
+    setup.check()
+    frame = source.at(t)
+    cameras = setup.fixed() or setup.around(frame, t)
+    if not 0 <= view < len(cameras):
+        raise InputError(f"no view {view}; there are views 0-{len(cameras) - 1}", where="--view")
+    return (style or RenderStyle()).image(frame, cameras[view])
+
+
+def json_psnr(value: float) -> float | None:
+    """A PSNR for JSON, which has no infinity: null stands for identical images."""
+    return None if math.isinf(value) else value
+
+
+@dataclass(frozen=True)
+class EvalRow:
+    """One comparison: time, view, and the metrics of the candidate against the reference."""
+
+    t: float
+    view: int
+    psnr: float
+    ssim: float
+    mse: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe: an infinite PSNR (identical images) is written as null."""
+        return {
+            "t": self.t,
+            "view": self.view,
+            "psnr": json_psnr(self.psnr),
+            "ssim": self.ssim,
+            "mse": self.mse,
+        }
+
+
+@dataclass(frozen=True)
+class TimeSummary:
+    """Mean and worst metrics over the views at one time."""
+
+    t: float
+    psnr_mean: float
+    psnr_worst: float
+    ssim_mean: float
+    ssim_worst: float
+
+
+def mean_psnr(values: Sequence[float]) -> float:
+    """Mean of per-image PSNRs; identical images (inf) are left out unless all are identical."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.inf
+
+
+@dataclass(frozen=True)
+class EvalReport:
+    """Every (t, view) comparison with the size and names of what was compared."""
+
+    reference: str
+    candidate: str
+    width: int
+    height: int
+    rows: tuple[EvalRow, ...]
+
+    def times(self) -> list[TimeSummary]:
+        """Per-time means and worst cases, in time order."""
+        out = []
+        for t in sorted({r.t for r in self.rows}):
+            at = [r for r in self.rows if r.t == t]
+            ps, ss = [r.psnr for r in at], [r.ssim for r in at]
+            out.append(TimeSummary(t, mean_psnr(ps), min(ps), float(np.mean(ss)), min(ss)))
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """Means over all rows, the worst rows and how many images were identical."""
+        worst_p = min(self.rows, key=lambda r: r.psnr)
+        worst_s = min(self.rows, key=lambda r: r.ssim)
+        return {
+            "images": len(self.rows),
+            "identical": sum(1 for r in self.rows if r.mse == 0),
+            "psnr_mean": mean_psnr([r.psnr for r in self.rows]),
+            "ssim_mean": float(np.mean([r.ssim for r in self.rows])),
+            "psnr_worst": {"t": worst_p.t, "view": worst_p.view, "psnr": worst_p.psnr},
+            "ssim_worst": {"t": worst_s.t, "view": worst_s.view, "ssim": worst_s.ssim},
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """The whole report, JSON-safe (infinite PSNRs, from identical images, as null)."""
+        summary = self.summary()
+        summary["psnr_mean"] = json_psnr(summary["psnr_mean"])
+        summary["psnr_worst"]["psnr"] = json_psnr(summary["psnr_worst"]["psnr"])
+        return {
+            "reference": self.reference,
+            "candidate": self.candidate,
+            "width": self.width,
+            "height": self.height,
+            "summary": summary,
+            "rows": [r.to_dict() for r in self.rows],
+        }
+
+
+def compare_views(
+    reference: Gaussians,
+    candidate: Gaussians,
+    cameras: Sequence[Camera],
+    style: RenderStyle,
+    on_view: Callable[[], None] | None = None,
+) -> list[tuple[float, float, float]]:
+    """(PSNR, SSIM, MSE) of the candidate's image against the reference's, per camera."""
+    out = []
+    for camera in cameras:
+        a, b = style.image(reference, camera), style.image(candidate, camera)
+        err = mse(a, b)
+        out.append((psnr_from_mse(err), ssim(a, b), err))
+        if on_view is not None:
+            on_view()
+    return out
+
+
+def evaluate(
+    reference: Source,
+    candidate: Source,
+    *,
+    times: int = 5,
+    setup: CameraSetup | None = None,
+    style: RenderStyle | None = None,
+    on_step: StepCallback | None = None,
+) -> EvalReport:
+    """Render both sources at ``times`` times of the reference's range and compare each view."""
+    setup = setup or CameraSetup()
+    style = style or RenderStyle()
+    setup.check()
+    moments = sample_times(reference.span, times, reference.fps)
+    fixed = setup.fixed()
+    total = len(moments) * (len(fixed) if fixed is not None else setup.views or 4)
+    done = [0]
+
+    def step() -> None:
+        done[0] += 1
+        if on_step is not None:
+            on_step(done[0], total)
+
+    rows: list[EvalRow] = []
+    size = (0, 0)
+    for t in moments:
+        ref_frame, cand_frame = reference.at(t), candidate.at(t)
+        cameras = fixed if fixed is not None else setup.around(ref_frame, t)
+        size = (cameras[0].width, cameras[0].height)
+        for view, (p, s, e) in enumerate(
+            compare_views(ref_frame, cand_frame, cameras, style, step)
+        ):
+            rows.append(EvalRow(t, view, p, s, e))
+    return EvalReport(reference.name, candidate.name, size[0], size[1], tuple(rows))

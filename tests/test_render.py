@@ -1,0 +1,370 @@
+"""The CPU rasterizer against hand-computed cases, invariances and its two backends."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from PIL import Image
+
+from tsog_stream.constants import SH_C0
+from tsog_stream.errors import FormatError, InputError, SourceError
+from tsog_stream.model import Gaussians
+from tsog_stream.render import (
+    Backend,
+    Camera,
+    load_cameras_json,
+    look_at,
+    numba_available,
+    orbit_cameras,
+    project,
+    raster,
+    render,
+    save_png,
+    scene_orbit,
+    to_uint8,
+)
+from tsog_stream.render.sh import SH_C1, sh_basis, sh_colors
+
+project_module = importlib.import_module("tsog_stream.render.project")  # shadowed by project()
+SIZE = 63  # odd: the principal point cx = 31.5 lands on pixel index 31
+FOCAL = 100.0
+BG = (0.1, 0.2, 0.3)
+
+
+def head_on_camera(size: int = SIZE) -> Camera:
+    """Camera at the origin looking down +z (identity world-to-camera)."""
+    return Camera(size, size, FOCAL, FOCAL, size / 2, size / 2, np.eye(4))
+
+
+def logit(p: float) -> float:
+    """The opacity logit of probability ``p``."""
+    return math.log(p / (1 - p))
+
+
+def gaussian(
+    mean: tuple[float, float, float],
+    sigma: float,
+    opacity: float,
+    rgb: tuple[float, float, float],
+    sh_rest: npt.ArrayLike | None = None,
+) -> Gaussians:
+    """One isotropic Gaussian with a base colour ``rgb`` (DC only unless ``sh_rest``)."""
+    dc = (np.array(rgb) - 0.5) / SH_C0
+    return Gaussians.from_arrays(
+        [mean],
+        [[math.log(sigma)] * 3],
+        [[1.0, 0.0, 0.0, 0.0]],
+        [logit(opacity)],
+        [dc],
+        shN=None if sh_rest is None else np.asarray(sh_rest)[None],
+    )
+
+
+def random_scene(n: int, seed: int, sh_coeffs: int = 15) -> Gaussians:
+    """``n`` random anisotropic Gaussians in front of the origin, ``sh_coeffs`` SH per channel."""
+    rng = np.random.default_rng(seed)
+    means = rng.normal([0.0, 0.0, 6.0], [1.0, 1.0, 1.0], (n, 3))
+    return Gaussians.from_arrays(
+        means,
+        rng.normal(-2.5, 0.6, (n, 3)),
+        rng.normal(size=(n, 4)),
+        rng.normal(0.5, 1.5, n),
+        rng.normal(0, 0.8, (n, 3)),
+        shN=rng.normal(0, 0.2, (n, sh_coeffs, 3)),
+    )
+
+
+def test_single_gaussian_peak_and_footprint() -> None:
+    """Peak = a c + (1 - a) bg; the footprint is the disk alpha >= 1/255, inside 3 sigma tiles."""
+    sigma_px, opacity, rgb = 2.0, 0.7, (0.8, 0.4, 0.2)
+    scene = gaussian((0.0, 0.0, 5.0), sigma_px * 5.0 / FOCAL, opacity, rgb)
+    image = render(scene, head_on_camera(), background=BG, backend="numpy")
+    centre = SIZE // 2
+    expected = opacity * np.array(rgb) + (1 - opacity) * np.array(BG)
+    np.testing.assert_allclose(image[centre, centre], expected, atol=1e-6)
+
+    variance = sigma_px**2 + 0.3  # the low-pass adds 0.3 px^2
+    proj = project(scene, head_on_camera())
+    assert proj.radius.tolist() == [math.ceil(3 * math.sqrt(variance))] == [7]
+    ys, xs = np.mgrid[:SIZE, :SIZE]
+    r2 = (xs - centre) ** 2 + (ys - centre) ** 2
+    analytic = opacity * np.exp(-0.5 * r2 / variance) >= 1 / 255
+    touched = np.any(np.abs(image - np.array(BG, np.float32)) > 0, axis=2)
+    assert np.array_equal(touched, analytic)
+    assert np.sqrt(r2[touched].max()) <= math.sqrt(2 * variance * math.log(255 * opacity))
+
+
+def test_front_to_back_order_by_depth_not_input() -> None:
+    """The nearer Gaussian dominates; input order does not matter."""
+    near = gaussian((0.0, 0.0, 4.0), 0.08, 0.9, (1.0, 0.0, 0.0))
+    far = gaussian((0.0, 0.0, 6.0), 0.12, 0.9, (0.0, 1.0, 0.0))
+    a = render(Gaussians.concat([near, far]), head_on_camera(), background=BG, backend="numpy")
+    b = render(Gaussians.concat([far, near]), head_on_camera(), background=BG, backend="numpy")
+    assert np.array_equal(a, b)
+    c = SIZE // 2
+    red, green, bg = np.eye(3)[0], np.eye(3)[1], np.array(BG)
+    expected = 0.9 * red + 0.1 * 0.9 * green + 0.1 * 0.1 * bg
+    np.testing.assert_allclose(a[c, c], expected, atol=1e-6)
+    assert a[c, c, 0] > 5 * a[c, c, 1]
+
+
+def test_early_termination_drops_the_gaussian_that_crosses_the_threshold() -> None:
+    """Two alpha-0.99 layers leave T = 1e-4 (kept); a third would go below 1e-4 and is dropped."""
+    layers = [
+        gaussian((0.0, 0.0, z), 0.5, 0.999, rgb)
+        for z, rgb in ((4, (1, 0, 0)), (5, (0, 1, 0)), (6, (0, 0, 1)))
+    ]
+    image = render(Gaussians.concat(layers), head_on_camera(), background=BG, backend="numpy")
+    c = SIZE // 2
+    t_two = 0.01 * 0.01  # alpha is clamped to 0.99
+    expected = np.array([0.99, 0.01 * 0.99, 0.0])
+    if t_two * 0.01 >= 1e-4:  # pragma: no cover - guards the arithmetic of the test itself
+        pytest.fail("the third layer should terminate the pixel")
+    np.testing.assert_allclose(image[c, c], expected + t_two * np.array(BG), atol=1e-7)
+
+
+def test_sh_degree1_colour_for_a_known_direction() -> None:
+    """Direction (2, -3, 6) / 7: 0.5 + C0 dc - C1 y k1 + C1 z k2 - C1 x k3, clamped at 0."""
+    dc = np.array([[0.2, -0.1, 0.0]])
+    rest = np.array([[[0.3, 0.1, -0.2], [0.4, -0.5, 0.6], [0.7, 0.8, 6.0]]])
+    camera_position = np.array([1.0, 1.0, 1.0])
+    got = sh_colors(camera_position + np.array([[2.0, -3.0, 6.0]]), dc, rest, camera_position)
+    x, y, z = 2 / 7, -3 / 7, 6 / 7
+    by_hand = 0.5 + SH_C0 * dc[0] - SH_C1 * y * rest[0, 0] + SH_C1 * z * rest[0, 1]
+    by_hand -= SH_C1 * x * rest[0, 2]
+    assert by_hand[2] < 0 < by_hand[1] < by_hand[0]  # blue is negative by hand: clamped to 0
+    np.testing.assert_allclose(got[0], [by_hand[0], by_hand[1], 0.0], atol=1e-12)
+
+
+def test_sh_degree1_in_a_rendered_pixel() -> None:
+    """Seen along +z only the z band (k = 2nd coefficient) adds: colour = base + C1 k."""
+    rest = [[0.0, 0.0, 0.0], [0.2, -0.3, 0.1], [5.0, 5.0, 5.0]]
+    scene = gaussian((0.0, 0.0, 5.0), 0.1, 0.6, (0.5, 0.5, 0.5), sh_rest=rest)
+    image = render(scene, head_on_camera(), backend="numpy")
+    c = SIZE // 2
+    expected = 0.6 * (0.5 + SH_C1 * np.array(rest[1]))
+    np.testing.assert_allclose(image[c, c], expected, atol=1e-6)
+
+
+def test_sh_basis_is_orthonormal_on_the_sphere() -> None:
+    """The 16 basis functions integrate to the identity (Fibonacci-lattice quadrature)."""
+    n = 20000
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    phi = math.pi * (1 + math.sqrt(5)) * k
+    ring = np.sqrt(1 - z * z)
+    dirs = np.stack([ring * np.cos(phi), ring * np.sin(phi), z], axis=1)
+    basis = sh_basis(dirs, 16)
+    gram = 4 * math.pi * basis.T @ basis / n
+    np.testing.assert_allclose(gram, np.eye(16), atol=1e-3)
+
+
+def test_numpy_batches_equal_the_sequential_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Batch size 1 is the reference loop literally; other sizes give the same image."""
+    scene = random_scene(400, seed=4)
+    camera = Camera(48, 40, 45.0, 45.0, 24.0, 20.0, look_at([0, 0, 0], [0, 0, 6.0], [0, -1, 0]))
+    images = []
+    for batch in (1, 7, 32):
+        monkeypatch.setattr(raster, "BATCH", batch)
+        images.append(render(scene, camera, background=BG, backend="numpy"))
+    assert np.abs(images[1] - images[0]).max() <= 1e-6
+    assert np.abs(images[2] - images[0]).max() <= 1e-6
+
+
+def test_blocked_projection_equals_one_block(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Projecting in blocks (big scenes) gives the same rows, indices into the whole input."""
+    scene = random_scene(300, seed=5)
+    camera = Camera(64, 48, 50.0, 50.0, 32.0, 24.0, look_at([0, 0, 3.0], [0, 0, 6.0], [0, -1, 0]))
+    whole = project(scene, camera, antialiased=True)
+    monkeypatch.setattr(project_module, "BLOCK", 64)
+    blocked = project(scene, camera, antialiased=True)
+    assert 0 < whole.index.size < 300  # some culled (behind the camera at z = 3)
+    for name in ("index", "xy", "conic", "opacity", "color", "depth", "radius", "rect"):
+        assert np.array_equal(getattr(whole, name), getattr(blocked, name)), name
+
+
+def test_translating_scene_and_camera_together_changes_nothing() -> None:
+    """Same image when the scene and the camera move by the same vector (SH degree 3)."""
+    scene = random_scene(300, seed=1)
+    camera = Camera(
+        80, 60, 70.0, 72.0, 41.0, 29.0, look_at([0.5, -0.3, 0.0], [0.0, 0.0, 6.0], [0, -1, 0])
+    )
+    shift = np.array([3.0, -7.0, 11.0])
+    moved = Gaussians(
+        scene.means + shift, scene.scales, scene.quats, scene.opacities, scene.sh0, scene.shN
+    )
+    undo = np.eye(4)
+    undo[:3, 3] = -shift
+    moved_camera = Camera(80, 60, 70.0, 72.0, 41.0, 29.0, camera.world_to_camera @ undo)
+    a = render(scene, camera, background=BG, backend="numpy")
+    b = render(moved, moved_camera, background=BG, backend="numpy")
+    assert np.abs(a - b).max() <= 1e-5
+    assert a.std() > 0.05  # the scene is visible
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_numba_matches_numpy(antialiased: bool) -> None:
+    """Both backends give the same image (tiles, early termination, SH degree 3)."""
+    if not numba_available():
+        pytest.skip("numba is not installed (pip install 'tsog-stream[render]')")
+    scene = random_scene(2000, seed=2)
+    camera = Camera(
+        96, 72, 80.0, 80.0, 48.0, 36.0, look_at([0.0, 0.0, 0.0], [0.1, 0.0, 6.0], [0, -1, 0])
+    )
+    a = render(scene, camera, background=BG, antialiased=antialiased, backend="numpy")
+    b = render(scene, camera, background=BG, antialiased=antialiased, backend="numba")
+    assert np.abs(a - b).max() <= 1e-5
+    assert (a != np.array(BG, np.float32)).any()
+
+
+def test_gaussians_behind_or_too_near_the_camera_are_culled() -> None:
+    """z <= 0.2 in view space contributes nothing: the image is the background exactly."""
+    behind = gaussian((0.0, 0.0, -5.0), 1.0, 0.9, (1, 1, 1))
+    too_near = gaussian((0.0, 0.0, 0.15), 0.05, 0.9, (1, 1, 1))
+    scene = Gaussians.concat([behind, too_near])
+    assert project(scene, head_on_camera()).index.size == 0
+    image = render(scene, head_on_camera(), background=BG, backend="numpy")
+    assert np.array_equal(image, np.broadcast_to(np.array(BG, np.float32), image.shape))
+    just_in_front = gaussian((0.0, 0.0, 0.25), 0.001, 0.9, (1, 1, 1))
+    kept = project(Gaussians.concat([scene, just_in_front]), head_on_camera())
+    assert kept.index.tolist() == [2]
+
+
+def test_guard_band_clamps_the_jacobian_and_off_screen_culling_uses_the_footprint() -> None:
+    """Off-screen means: J uses x/z clamped to 1.3 tan(fov/2); only empty tile rects are culled."""
+    z, sigma = 5.0, 0.5
+    half = SIZE / (2 * FOCAL)  # tan of the half field of view
+    x = 2.0 * half * z  # twice the half frustum: x/z is clamped to 1.3 half
+    proj = project(gaussian((x, 0.0, z), sigma, 0.9, (1, 1, 1)), head_on_camera())
+    t = 1.3 * half
+    a = sigma**2 * (FOCAL / z) ** 2 * (1 + t * t) + 0.3
+    c = sigma**2 * (FOCAL / z) ** 2 + 0.3
+    np.testing.assert_allclose(proj.conic, [[1 / a, 0.0, 1 / c]], rtol=1e-6, atol=1e-12)
+    screen_x = FOCAL * x / z + SIZE / 2 - 0.5
+    assert screen_x - proj.radius[0] < SIZE  # its footprint reaches into the image: kept
+    tiny = project(gaussian((x, 0.0, z), 0.01, 0.9, (1, 1, 1)), head_on_camera())
+    assert tiny.index.size == 0  # same mean, a footprint wholly outside: culled
+
+
+def test_empty_and_fully_culled_scenes_render_the_background() -> None:
+    """No Gaussians at all, with either backend."""
+    backends: list[Backend] = ["numpy", "numba"] if numba_available() else ["numpy"]
+    for backend in backends:
+        image = render(Gaussians.empty(3), head_on_camera(), background=BG, backend=backend)
+        assert np.array_equal(image, np.broadcast_to(np.array(BG, np.float32), image.shape))
+
+
+def test_antialiased_scales_opacity_by_the_determinant_ratio() -> None:
+    """A 0.3-px Gaussian: opacity * sqrt(det(cov) / det(cov + 0.3 I)) = 0.9 * 0.09 / 0.39."""
+    scene = gaussian((0.0, 0.0, 5.0), 0.3 * 5.0 / FOCAL, 0.9, (1.0, 1.0, 1.0))
+    classic = project(scene, head_on_camera())
+    aa = project(scene, head_on_camera(), antialiased=True)
+    np.testing.assert_allclose(classic.opacity, [0.9], atol=1e-12)
+    np.testing.assert_allclose(aa.opacity, [0.9 * 0.09 / 0.39], atol=1e-9)
+    image = render(scene, head_on_camera(), antialiased=True, backend="numpy")
+    c = SIZE // 2
+    np.testing.assert_allclose(image[c, c], [0.9 * 0.09 / 0.39] * 3, atol=1e-6)
+
+
+def test_orbit_cameras_look_at_the_centre() -> None:
+    """Every orbit camera sees the centre on its optical axis at the orbit radius."""
+    centre = np.array([1.0, 2.0, 3.0])
+    cams = orbit_cameras(centre, 4.0, 5, 64, 48, fov_deg=60, elevation_deg=30)
+    assert len(cams) == 5
+    for cam in cams:
+        p = cam.world_to_camera @ np.append(centre, 1.0)
+        np.testing.assert_allclose(p[:3], [0.0, 0.0, 4.0], atol=1e-9)
+        np.testing.assert_allclose(np.linalg.norm(cam.position - centre), 4.0)
+    assert cams[0].fy == pytest.approx(24 / math.tan(math.radians(30)))
+
+
+def test_scene_orbit_frames_the_scene() -> None:
+    """The median of the means is at the image centre and the scene covers part of the view."""
+    scene = random_scene(500, seed=3, sh_coeffs=0)
+    cams = scene_orbit(scene, 3, 64, 48)
+    image = render(scene, cams[0], backend="numpy")
+    assert image.shape == (48, 64, 3)
+    assert 0.2 < np.mean(image.sum(axis=2) > 0.05) < 1.0
+
+
+def test_cameras_json_is_scaled_and_checked(tmp_path: Path) -> None:
+    """3DGS cameras.json: rotation is camera-to-world; intrinsics follow the requested size."""
+    rot = look_at([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [0, 0, 1])[:3, :3].T
+    entry = {
+        "id": 0,
+        "img_name": "a",
+        "width": 800,
+        "height": 600,
+        "position": [1.0, 2.0, 3.0],
+        "rotation": rot.tolist(),
+        "fx": 700.0,
+        "fy": 710.0,
+    }
+    path = tmp_path / "cameras.json"
+    path.write_text(json.dumps([entry]))
+    (cam,) = load_cameras_json(path, width=400)
+    assert (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy) == (
+        400,
+        300,
+        350.0,
+        355.0,
+        200.0,
+        150.0,
+    )
+    np.testing.assert_allclose(cam.position, [1.0, 2.0, 3.0], atol=1e-12)
+    np.testing.assert_allclose(
+        cam.world_to_camera @ [0, 0, 0, 1.0], [0, 0, math.sqrt(14), 1], atol=1e-12
+    )
+    assert cam.name == "a"
+    path.write_text(json.dumps([{k: v for k, v in entry.items() if k != "fx"}]))
+    with pytest.raises(FormatError, match="'fx'"):
+        load_cameras_json(path)
+    path.write_text(json.dumps([{**entry, "rotation": [[1, 0], [0, 1]]}]))
+    with pytest.raises(FormatError, match=r"\[0\].*'rotation'"):
+        load_cameras_json(path)
+    path.write_text("{not json")
+    with pytest.raises(FormatError):
+        load_cameras_json(path)
+    with pytest.raises(SourceError):
+        load_cameras_json(tmp_path / "missing.json")
+    with pytest.raises(InputError):
+        load_cameras_json(path, width=0)
+
+
+def test_bad_arguments_raise_input_errors() -> None:
+    """Unknown backend, bad background, bad camera."""
+    scene = gaussian((0.0, 0.0, 5.0), 0.1, 0.5, (1, 1, 1))
+    with pytest.raises(InputError):
+        render(scene, head_on_camera(), backend="cuda")  # type: ignore[arg-type]
+    with pytest.raises(InputError):
+        render(scene, head_on_camera(), background=(0.0, 1.0))  # type: ignore[arg-type]
+    with pytest.raises(InputError):
+        Camera(0, 10, 1.0, 1.0, 0.0, 0.0, np.eye(4))
+    with pytest.raises(InputError, match="last row"):
+        Camera(10, 10, 1.0, 1.0, 5.0, 5.0, np.zeros((4, 4)))
+
+
+def test_cameras_compare_by_value() -> None:
+    """Equal fields make equal, hashable cameras; the matrix is read-only."""
+    a, b = orbit_cameras([0, 0, 0], 3.0, 2, 10, 10), orbit_cameras([0, 0, 0], 3.0, 2, 10, 10)
+    assert a == b
+    assert a[0] != a[1]
+    assert len({a[0], b[0], a[1]}) == 2
+    assert not a[0].world_to_camera.flags.writeable
+    assert a[0].scaled(20, 40).fy == 4 * a[0].fy
+
+
+def test_to_uint8_and_save_png(tmp_path: Path) -> None:
+    """round(clip(x) * 255), written as an RGB PNG that reads back identical."""
+    image = np.array([[[-0.5, 0.5, 1.5], [0.2, 0.998, 0.001]]], np.float32)
+    assert to_uint8(image).tolist() == [[[0, 128, 255], [51, 254, 0]]]
+    save_png(image, tmp_path / "x.png")
+    with Image.open(tmp_path / "x.png") as png:
+        assert png.mode == "RGB"
+        assert np.array_equal(np.asarray(png), to_uint8(image))
