@@ -257,6 +257,14 @@ def interrupt_at(
         stderr=subprocess.PIPE,
         start_new_session=True,
     )
+    with proc:  # closes the pipes whatever happens (an unclosed pipe warns in a later test)
+        return _interrupt(proc, out, full, point, sig)
+
+
+def _interrupt(
+    proc: subprocess.Popen[bytes], out: Path, full: int, point: str, sig: signal.Signals
+) -> tuple[subprocess.CompletedProcess[bytes], set[int]]:
+    """The body of interrupt_at, with the process and its pipes owned by the caller."""
     try:
 
         def reached() -> bool:

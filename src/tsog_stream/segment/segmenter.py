@@ -255,10 +255,28 @@ def _encoded(
         while pending:
             done, fut = pending.popleft()
             yield done, fut.result()
-    finally:
-        # On Ctrl-C or an error, queued jobs are dropped; the running ones finish and every
-        # worker is joined, so no process outlives the call.
-        pool.shutdown(wait=True, cancel_futures=True)
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
+    """Stop a pool after Ctrl-C or an error: queued jobs dropped, workers terminated and joined.
+
+    Not ``shutdown(wait=True)``: waiting for the running jobs after a KeyboardInterrupt can hang
+    (seen once in CI: the process printed "interrupted" and never exited), and their results
+    are discarded anyway. The worker list is the executor's private ``_processes``.
+    """
+    workers = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for worker in workers:
+        worker.terminate()
+    for worker in workers:
+        worker.join(grace_s)
+        if worker.is_alive():
+            worker.kill()
+            worker.join(grace_s)
 
 
 @contextlib.contextmanager

@@ -30,6 +30,7 @@ from ..errors import AccessError, InputError, TsogError
 from .catalog import CONTAINER_SUFFIX, Catalog, NotFoundError, Representation, SceneEntry
 from .conditional import Outcome, evaluate, http_date, if_range_allows
 from .logs import quiet_client_errors
+from .player import add_player_routes
 from .private import (
     PRIVACY,
     AccessLog,
@@ -408,6 +409,7 @@ def make_app(
     r.add_get("/v1/scenes/{id:.+}/manifest", manifest)
     r.add_get("/v1/scenes/{id:.+}/chunks", chunks)
     r.add_get("/v1/scenes/{id:.+}/chunks/{n:[0-9]{1,9}}.sog", chunk)
+    add_player_routes(app)
     return app
 
 

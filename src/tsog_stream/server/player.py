@@ -1,0 +1,187 @@
+"""The web player routes: an index of scenes, a player page per scene and its static files.
+
+``GET /play/`` lists the public scenes, ``GET /play/{scene}`` is the player page (its module
+reads the scene through the ``/v1`` API), ``GET /player/{file}`` serves the ES modules and CSS
+of the ``player/`` folder next to this module (only files directly in it, by exact name) and
+``GET /player/engine/playcanvas.mjs`` the PlayCanvas engine built file from npm (docs/http.md).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import html
+import json
+import os
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+from aiohttp import web
+
+from ..errors import InputError, TsogError
+from . import app as server  # a cycle (app.py registers these routes): names used at call time
+from .catalog import CONTAINER_SUFFIX, NotFoundError, Representation
+from .private import PRIVACY
+
+PLAYER_DIR = Path(__file__).with_name("player")
+ENGINE_ENV = "TSOG_PLAYCANVAS_DIR"
+ENGINE_FILE = "playcanvas.mjs"
+REPO_ROOT = Path(__file__).resolve().parents[3]
+ASSET_TYPES = {
+    ".js": "text/javascript",
+    ".mjs": "text/javascript",
+    ".css": "text/css",
+}
+HTML_TYPE = "text/html"
+PAGE_HEADERS = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
+TEMPLATE = "index.html"
+INSTALL_HINT = (
+    "the PlayCanvas engine is not installed: run scripts/setup (npm ci) in the repository, "
+    f"or set {ENGINE_ENV} to the folder holding {ENGINE_FILE}"
+)
+ETAGS = web.AppKey("player_etags", dict)
+
+
+def engine_path() -> Path | None:
+    """The engine's ``playcanvas.mjs``: from $TSOG_PLAYCANVAS_DIR, else node_modules."""
+    custom = os.environ.get(ENGINE_ENV)
+    if custom:
+        candidates = [Path(custom) / ENGINE_FILE, Path(custom) / "build" / ENGINE_FILE]
+    else:
+        candidates = [REPO_ROOT / "node_modules" / "playcanvas" / "build" / ENGINE_FILE]
+    return next((p for p in candidates if p.is_file()), None)
+
+
+def asset_path(name: str) -> Path:
+    """A static file directly in the player folder, by exact name; NotFoundError otherwise."""
+    suffix = os.path.splitext(name)[1]
+    if suffix not in ASSET_TYPES or name not in os.listdir(PLAYER_DIR):
+        raise NotFoundError("no such player file", where=name[:80])
+    path = PLAYER_DIR / name
+    if path.is_symlink() or not path.is_file():
+        raise NotFoundError("no such player file", where=name[:80])
+    return path
+
+
+def _etag(path: Path) -> str:
+    """SHA-256 of the file's content as a strong ETag."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            digest.update(block)
+    return f'"{digest.hexdigest()}"'
+
+
+async def _representation(request: web.Request, path: Path) -> Representation:
+    """The whole file with its ETag (cached per size, mtime and inode)."""
+    st = await asyncio.to_thread(path.stat)
+    version = (st.st_size, st.st_mtime_ns, st.st_ino)
+    cache: dict[Path, tuple[tuple[int, int, int], str]] = request.app[ETAGS]
+    cached = cache.get(path)
+    if cached is None or cached[0] != version:
+        cached = (version, await asyncio.to_thread(_etag, path))
+        cache[path] = cached
+    kind = ASSET_TYPES[path.suffix]
+    return Representation(path, 0, st.st_size, cached[1], st.st_mtime_ns / 1e9, kind)
+
+
+async def _send(request: web.Request, path: Path) -> web.StreamResponse:
+    """Send a static file with validators, 304 and ranges (the server's own file sender)."""
+    rep = await _representation(request, path)
+    return await server.send_representation(request, rep)
+
+
+async def player_file(request: web.Request) -> web.StreamResponse:
+    """GET /player/{file}: one ES module or stylesheet of the player."""
+    return await _send(request, asset_path(request.match_info["file"]))
+
+
+async def engine(request: web.Request) -> web.StreamResponse:
+    """GET /player/engine/playcanvas.mjs: the engine's ES module build from npm."""
+    path = await asyncio.to_thread(engine_path)
+    if path is None:
+        raise NotFoundError(INSTALL_HINT, where=ENGINE_FILE)
+    return await _send(request, path)
+
+
+async def _public_ids(request: web.Request) -> list[str]:
+    """Ids of the readable scenes that are not private."""
+    catalog, privacy = request.app[server.CATALOG], request.app[PRIVACY]
+    ids = []
+    for scene_id in await asyncio.to_thread(catalog.scene_ids):
+        try:
+            scene = await catalog.scene(scene_id)
+        except TsogError:
+            continue
+        rels = [scene_id + CONTAINER_SUFFIX, scene_id, catalog.scene_relative(scene)]
+        if not any(privacy.is_private(r) for r in rels):
+            ids.append(scene_id)
+    return ids
+
+
+def _page(title: str, body: str) -> web.Response:
+    """An HTML response that every cache must revalidate."""
+    doc = (
+        '<!doctype html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f"<title>{html.escape(title)}</title>\n"
+        '<link rel="stylesheet" href="/player/style.css">\n</head>\n'
+        f"<body>\n{body}</body>\n</html>\n"
+    )
+    return web.Response(text=doc, content_type=HTML_TYPE, headers=PAGE_HEADERS)
+
+
+async def index(request: web.Request) -> web.StreamResponse:
+    """GET /play/: links to the player of every public scene."""
+    items = "".join(
+        f'<li><a href="/play/{quote(i)}">{html.escape(i)}</a></li>\n'
+        for i in await _public_ids(request)
+    )
+    body = f'<main class="index">\n<h1>Scenes</h1>\n<ul class="scenes">\n{items}</ul>\n</main>\n'
+    if not items:
+        body = '<main class="index">\n<h1>Scenes</h1>\n<p>No scenes here.</p>\n</main>\n'
+    return _page("tsog-stream scenes", body)
+
+
+def _config_json(config: dict[str, Any]) -> str:
+    """JSON safe inside a <script> element (no '<', '>' or '&' left raw)."""
+    text = json.dumps(config)
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
+
+
+async def play(request: web.Request) -> web.StreamResponse:
+    """GET /play/{scene}: the player page of one scene (404 for an unknown scene)."""
+    catalog, privacy = request.app[server.CATALOG], request.app[PRIVACY]
+    scene_id = request.match_info["id"]
+    privacy.admit(request, [scene_id + CONTAINER_SUFFIX, scene_id])
+    try:
+        scene = await catalog.scene(scene_id)
+    except InputError as exc:
+        raise NotFoundError("no such scene", where=scene_id[:80]) from exc
+    privacy.admit(request, [catalog.scene_relative(scene)])
+    api = f"/v1/scenes/{quote(scene.id)}"
+    config = {"scene": scene.id, "manifest": f"{api}/manifest", "chunks": f"{api}/chunks"}
+    template = await asyncio.to_thread((PLAYER_DIR / TEMPLATE).read_text, "utf-8")
+    text = template.replace("{{TITLE}}", html.escape(scene.id)).replace(
+        "{{CONFIG}}", _config_json(config)
+    )
+    return web.Response(text=text, content_type=HTML_TYPE, headers=PAGE_HEADERS)
+
+
+async def to_index(request: web.Request) -> web.StreamResponse:
+    """GET /play: redirect to the index page."""
+    raise web.HTTPFound("/play/")
+
+
+def add_player_routes(app: web.Application) -> None:
+    """Register the player routes on ``app`` (made by :func:`~.app.make_app`)."""
+    app[ETAGS] = {}
+    r = app.router
+    r.add_get("/play", to_index)
+    r.add_get("/play/", index)
+    r.add_get("/play/{id:.+}", play)
+    r.add_get("/player/engine/" + ENGINE_FILE, engine)
+    r.add_get("/player/{file}", player_file)
+
+
+__all__ = ["add_player_routes", "engine_path"]

@@ -1,0 +1,143 @@
+// tsog-stream web player: the page's entry module (plain ES module, no build step).
+// Reads the scene's manifest from the /v1 API, plays its time range with the chunks that
+// ChunkStream keeps loaded, and shows controls and an overlay. See docs/design/player.md.
+import * as pc from 'playcanvas';
+import { ChunkStream } from './stream.js';
+import { OrbitCamera } from './orbit.js';
+
+const $ = (id) => document.getElementById(id);
+
+/** The page's configuration, written by the server into a JSON script element. */
+function readConfig() {
+    const config = JSON.parse($('tsog-config').textContent);
+    const params = new URLSearchParams(window.location.search);
+    const t = Number.parseFloat(params.get('t') ?? '');
+    return { ...config, t: Number.isFinite(t) ? t : null, paused: params.has('paused') };
+}
+
+/** Show an error in the middle of the page (and keep it for tests). */
+function fail(message) {
+    const box = $('error');
+    box.textContent = message;
+    box.hidden = false;
+    window.tsogPlayer = { ...(window.tsogPlayer ?? {}), error: message };
+}
+
+/** The application, a camera orbiting the scene's bounding box. */
+function createApp(manifest) {
+    const canvas = $('view');
+    const app = new pc.Application(canvas, { graphicsDeviceOptions: { antialias: false } });
+    app.setCanvasFillMode(pc.FILLMODE_FILL_WINDOW);
+    app.setCanvasResolution(pc.RESOLUTION_AUTO);
+    window.addEventListener('resize', () => app.resizeCanvas());
+    const camera = new pc.Entity('camera');
+    camera.addComponent('camera', { clearColor: new pc.Color(0.07, 0.07, 0.07), fov: 60 });
+    app.root.addChild(camera);
+    const box = manifest.scene.bbox;
+    const center = box.min.map((v, i) => (v + box.max[i]) / 2);
+    const size = Math.hypot(...box.max.map((v, i) => v - box.min[i])) || 1;
+    const orbit = new OrbitCamera(camera, canvas, new pc.Vec3(...center), 1.2 * size);
+    return { app, camera, orbit };
+}
+
+/** Playback state: time, speed, loop, and what the controls show. */
+class Playback {
+    constructor(manifest, config) {
+        this.start = manifest.scene.start_s;
+        this.end = manifest.scene.end_s;
+        this.t = config.t === null ? this.start : Math.min(Math.max(config.t, this.start), this.end);
+        this.playing = !config.paused;
+        this.speed = 1;
+        this.loop = true;
+        this.buffering = false;
+    }
+
+    /** Advance by dt seconds of wall time unless paused or waiting for chunks. */
+    advance(dt) {
+        if (!this.playing || this.buffering) return;
+        this.t += dt * this.speed;
+        if (this.t > this.end) {
+            if (this.loop) this.t = this.start;
+            else {
+                this.t = this.end;
+                this.playing = false;
+            }
+        }
+    }
+
+    get state() {
+        if (this.buffering) return 'buffering';
+        return this.playing ? 'playing' : 'paused';
+    }
+}
+
+/** Wire the controls to the playback state. */
+function bindControls(playback) {
+    const scrub = $('scrub');
+    scrub.min = String(playback.start);
+    scrub.max = String(playback.end);
+    scrub.step = String(Math.max((playback.end - playback.start) / 1000, 1e-4));
+    $('play').addEventListener('click', () => { playback.playing = !playback.playing; });
+    scrub.addEventListener('input', () => { playback.t = Number.parseFloat(scrub.value); });
+    $('speed').addEventListener('change', (e) => { playback.speed = Number.parseFloat(e.target.value); });
+    $('loop').addEventListener('change', (e) => { playback.loop = e.target.checked; });
+}
+
+/** Draw the buffered time ranges above the scrub bar. */
+function drawBuffered(playback, ranges) {
+    const canvas = $('buffered');
+    const width = canvas.clientWidth || 1;
+    if (canvas.width !== width) canvas.width = width;
+    const ctx = canvas.getContext('2d');
+    ctx.clearRect(0, 0, canvas.width, canvas.height);
+    ctx.fillStyle = '#4a8';
+    const span = playback.end - playback.start || 1;
+    for (const [a, b] of ranges) {
+        const x0 = ((Math.max(a, playback.start) - playback.start) / span) * width;
+        const x1 = ((Math.min(b, playback.end) - playback.start) / span) * width;
+        ctx.fillRect(x0, 0, Math.max(x1 - x0, 1), canvas.height);
+    }
+}
+
+/** Refresh the overlay and the controls (a few times a second is enough). */
+function showState(playback, stream, fps) {
+    const stats = stream.stats();
+    $('o-t').textContent = playback.t.toFixed(3);
+    $('o-fps').textContent = fps.toFixed(0);
+    $('o-chunks').textContent = String(stats.known);
+    $('o-loaded').textContent = String(stats.ready);
+    $('o-bytes').textContent = stats.bytes.toLocaleString('en');
+    $('o-state').textContent = stats.error ? `${playback.state} (${stats.error})` : playback.state;
+    $('play').textContent = playback.playing ? 'pause' : 'play';
+    if (document.activeElement !== $('scrub')) $('scrub').value = String(playback.t);
+    drawBuffered(playback, stream.buffered());
+}
+
+async function main() {
+    const config = readConfig();
+    const response = await fetch(config.manifest);
+    if (!response.ok) throw new Error(`manifest: HTTP ${response.status}`);
+    const manifest = await response.json();
+    const { app, orbit } = createApp(manifest);
+    const stream = new ChunkStream(pc, app, config, manifest);
+    const playback = new Playback(manifest, config);
+    bindControls(playback);
+    let fps = 0;
+    let sinceShown = 1;
+    app.on('update', (dt) => {
+        playback.advance(dt);
+        stream.update(playback.t);
+        playback.buffering = !stream.covered(playback.t);
+        orbit.update();
+        fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;
+        sinceShown += dt;
+        if (sinceShown >= 0.2) {
+            sinceShown = 0;
+            showState(playback, stream, fps);
+        }
+    });
+    window.tsogPlayer = { app, stream, playback, manifest, fetchLog: stream.fetchLog };
+    app.start();
+}
+
+main().catch((err) => fail(`player error: ${err.message ?? err}`));

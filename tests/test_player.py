@@ -1,0 +1,204 @@
+"""The web player routes over HTTP: scene index, player page, static files and the engine."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from helpers import ThreadedServer
+from tsog_stream.container.sync import StreamReader
+from tsog_stream.model import TimelineType
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import Privacy, make_app
+from tsog_stream.server.player import ENGINE_ENV, PLAYER_DIR, REPO_ROOT
+from tsog_stream.synthetic import small_scene
+
+SECRET = b"player-test-secret-0123456789abcdef"
+OUTSIDE = b"OUTSIDE-THE-PLAYER-FOLDER"
+ENGINE = REPO_ROOT / "node_modules" / "playcanvas" / "build" / "playcanvas.mjs"
+
+
+class Resp:
+    """Status, headers and body of one response."""
+
+    def __init__(self, r: http.client.HTTPResponse) -> None:
+        self.status = r.status
+        self.headers = r.headers
+        self.body = r.read()
+
+
+def fetch(port: int, path: str, headers: dict[str, Any] | None = None) -> Resp:
+    """One GET over a fresh connection, the target sent exactly as given."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        conn.putrequest("GET", path, skip_accept_encoding=True)
+        for k, v in (headers or {}).items():
+            conn.putheader(k, v)
+        conn.endheaders()
+        return Resp(conn.getresponse())
+    finally:
+        conn.close()
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder with a packed scene, its unpacked layout, a private scene and a file beside."""
+    base = tmp_path_factory.mktemp("play")
+    (base / "outside.js").write_bytes(OUTSIDE)
+    root = base / "root"
+    (root / "paid").mkdir(parents=True)
+    scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0)
+    segment_scene(scene, root / "clip.tsogs", SegmentOptions(window_s=0.5))
+    with StreamReader.open(root / "clip.tsogs") as reader:
+        reader.unpack(root / "unpacked")
+    (root / "paid" / "secret.tsogs").write_bytes((root / "clip.tsogs").read_bytes())
+    return root
+
+
+@pytest.fixture(scope="module")
+def port(root: Path) -> Iterator[int]:
+    """Our server on the folder, with ``paid/`` private."""
+    server = ThreadedServer(make_app(root, privacy=Privacy(("paid",), SECRET)))
+    try:
+        yield server.port
+    finally:
+        server.stop()
+
+
+def test_index_lists_public_scenes_with_links(port: int) -> None:
+    r = fetch(port, "/play/")
+    assert r.status == 200
+    assert r.headers["Content-Type"] == "text/html; charset=utf-8"
+    assert r.headers["Cache-Control"] == "no-cache"
+    assert r.headers["Access-Control-Allow-Origin"] == "*"
+    links = re.findall(r'<a href="([^"]+)">([^<]+)</a>', r.body.decode())
+    assert links == [("/play/clip", "clip"), ("/play/unpacked", "unpacked")]
+    assert b"secret" not in r.body and b"paid" not in r.body
+
+
+def test_play_without_slash_redirects(port: int) -> None:
+    r = fetch(port, "/play")
+    assert r.status == 302 and r.headers["Location"] == "/play/"
+
+
+@pytest.mark.parametrize("scene", ["clip", "unpacked"])
+def test_scene_page(port: int, scene: str) -> None:
+    r = fetch(port, f"/play/{scene}")
+    assert r.status == 200
+    assert r.headers["Content-Type"] == "text/html; charset=utf-8"
+    assert r.headers["Cache-Control"] == "no-cache"
+    page = r.body.decode()
+    assert '<script type="module" src="/player/player.js"></script>' in page
+    assert '"playcanvas": "/player/engine/playcanvas.mjs"' in page
+    found = re.search(r'<script type="application/json" id="tsog-config">(.*?)</script>', page)
+    assert found is not None
+    config = json.loads(found.group(1))
+    assert config == {
+        "scene": scene,
+        "manifest": f"/v1/scenes/{scene}/manifest",
+        "chunks": f"/v1/scenes/{scene}/chunks",
+    }
+    assert fetch(port, config["manifest"]).status == 200
+
+
+@pytest.mark.parametrize("path", ["/play/nothing", "/play/clip/more", "/play/..%2Fclip"])
+def test_unknown_scene_is_404_json(port: int, path: str) -> None:
+    r = fetch(port, path)
+    assert r.status == 404
+    assert r.headers["Content-Type"].startswith("application/json")
+    assert json.loads(r.body)["error"]["status"] == 404
+
+
+def test_private_scene_page_needs_a_signature(port: int) -> None:
+    assert fetch(port, "/play/paid/secret").status == 403
+
+
+@pytest.mark.parametrize(
+    ("name", "kind"),
+    [("player.js", "text/javascript"), ("stream.js", "text/javascript"), ("style.css", "text/css")],
+)
+def test_static_files_with_etag_and_304(port: int, name: str, kind: str) -> None:
+    r = fetch(port, f"/player/{name}")
+    assert r.status == 200
+    assert r.body == (PLAYER_DIR / name).read_bytes()
+    assert r.headers["Content-Type"].split(";")[0] == kind
+    assert r.headers["Cache-Control"] == "public, max-age=0, must-revalidate"
+    assert r.headers["Access-Control-Allow-Origin"] == "*"
+    etag = r.headers["ETag"]
+    again = fetch(port, f"/player/{name}", {"If-None-Match": etag})
+    assert again.status == 304 and again.body == b""
+    assert again.headers["ETag"] == etag
+
+
+def test_engine_is_the_npm_build_file(port: int) -> None:
+    if not ENGINE.is_file():
+        pytest.fail(f"{ENGINE} is missing: run scripts/setup (npm ci installs playcanvas)")
+    r = fetch(port, "/player/engine/playcanvas.mjs")
+    assert r.status == 200
+    assert r.headers["Content-Type"].split(";")[0] == "text/javascript"
+    assert r.body == ENGINE.read_bytes()
+    assert (
+        fetch(port, "/player/engine/playcanvas.mjs", {"If-None-Match": r.headers["ETag"]}).status
+        == 304
+    )
+
+
+def test_engine_missing_says_how_to_install(
+    root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(ENGINE_ENV, str(tmp_path))
+    server = ThreadedServer(make_app(root))
+    try:
+        r = fetch(server.port, "/player/engine/playcanvas.mjs")
+    finally:
+        server.stop()
+    assert r.status == 404
+    message = json.loads(r.body)["error"]["message"]
+    assert "npm ci" in message and ENGINE_ENV in message
+
+
+def test_engine_from_the_environment_folder(
+    root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "playcanvas.mjs").write_bytes(b"export const fake = 1;\n")
+    monkeypatch.setenv(ENGINE_ENV, str(tmp_path))
+    server = ThreadedServer(make_app(root))
+    try:
+        r = fetch(server.port, "/player/engine/playcanvas.mjs")
+    finally:
+        server.stop()
+    assert r.status == 200 and r.body == b"export const fake = 1;\n"
+
+
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/player/../outside.js",
+        "/player/%2e%2e/outside.js",
+        "/player/%2E%2E%2Foutside.js",
+        "/player/..%2F..%2Foutside.js",
+        "/player/..%5Coutside.js",
+        "/player/%2e%2e",
+        "/player/.",
+        "/player/index.html",
+        "/player/player.py",
+        "/player/engine/../player.js/../../app.py",
+        "/player/engine/playcanvas.js",
+        "/player/nope.js",
+        "/player/player.js%00",
+        "/player/PLAYER.JS",
+        "/player/",
+    ],
+)
+def test_traversal_is_refused(port: int, path: str) -> None:
+    r = fetch(port, path)
+    assert r.status == 404, path
+    assert OUTSIDE not in r.body
+    assert r.headers["Content-Type"].startswith("application/json")
+    assert b"import" not in r.body and b"def " not in r.body
