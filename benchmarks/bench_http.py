@@ -27,13 +27,10 @@ from typing import Any
 import aiohttp
 import numpy as np
 
-from common import write_section
-from tsog_stream import TimelineType
+from common import segmented_clip, write_section
 from tsog_stream.client.http_source import HttpSource
 from tsog_stream.client.stream import StreamClient
 from tsog_stream.container.ranges import ByteRange
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.synthetic import SceneSpec, generate_scene
 
 REPO = Path(__file__).resolve().parents[1]
 TSOG = REPO / ".venv" / "bin" / "tsog"
@@ -220,19 +217,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="tsog-http-") as tmp:
         root = Path(tmp) / "www"
         root.mkdir()
-        scene = generate_scene(
-            SceneSpec(
-                timeline_type=TimelineType.CENTER_SCALE,
-                background=150000,
-                objects=30,
-                per_object=5000,
-                duration=8.0,
-                sh_bands=0,
-                seed=2,
-            )
+        path = segmented_clip(
+            root / "clip.tsogs", background=150000, objects=30, per_object=5000, seed=2
         )
-        path = root / "clip.tsogs"
-        segment_scene(scene, path, SegmentOptions(window_s=1.0, workers=2))
         p1, p2 = free_port(), free_port()
         ours = subprocess.Popen([str(TSOG), "serve", str(root), "--port", str(p1), "-q"])
         nginx = start_nginx(root, p2, Path(tmp))

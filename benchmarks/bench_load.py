@@ -32,12 +32,9 @@ from typing import Any
 import aiohttp
 
 from bench_http import free_port, start_nginx, wait_up
-from common import write_section
-from tsog_stream import TimelineType
+from common import segmented_clip, write_section
 from tsog_stream.container.reader import open_stream
 from tsog_stream.container.sources import FileSource
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.synthetic import SceneSpec, generate_scene
 
 REPO = Path(__file__).resolve().parents[1]
 TSOG = REPO / ".venv" / "bin" / "tsog"
@@ -72,20 +69,9 @@ end
 
 def make_file(root: Path) -> Path:
     """A synthetic 8 s scene segmented into a .tsogs container of a few MB."""
-    scene = generate_scene(
-        SceneSpec(
-            timeline_type=TimelineType.CENTER_SCALE,
-            background=60000,
-            objects=20,
-            per_object=3000,
-            duration=8.0,
-            sh_bands=0,
-            seed=4,
-        )
+    return segmented_clip(
+        root / "clip.tsogs", background=60000, objects=20, per_object=3000, seed=4
     )
-    path = root / "clip.tsogs"
-    segment_scene(scene, path, SegmentOptions(window_s=1.0, workers=2))
-    return path
 
 
 def plays(path: Path, count: int, seed: int = 1) -> list[list[tuple[int, int]]]:

@@ -9,6 +9,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tsog_stream.model import TimelineType
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.synthetic import SceneSpec, generate_scene
+
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
 
@@ -51,3 +55,20 @@ def run_measured(cmd: list[str], timeout: float = 3600) -> dict[str, Any]:
             err.seek(0)
             out["error"] = err.read().decode(errors="replace")[-500:]
     return out
+
+
+def segmented_clip(
+    path: Path, *, background: int, objects: int, per_object: int, seed: int
+) -> Path:
+    """A synthetic 8 s type-2 scene (SH0) segmented into a .tsogs at ``path`` (1 s windows)."""
+    spec = SceneSpec(
+        timeline_type=TimelineType.CENTER_SCALE,
+        background=background,
+        objects=objects,
+        per_object=per_object,
+        duration=8.0,
+        sh_bands=0,
+        seed=seed,
+    )
+    segment_scene(generate_scene(spec), path, SegmentOptions(window_s=1.0, workers=2))
+    return path

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import http.client
 import os
 import signal
 import socket
@@ -12,6 +13,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -177,3 +179,25 @@ http {{
             except subprocess.TimeoutExpired:
                 proc.terminate()
                 proc.wait(5)
+
+
+class Resp:
+    """Status, headers and body of one response."""
+
+    def __init__(self, r: http.client.HTTPResponse) -> None:
+        self.status = r.status
+        self.headers = r.headers
+        self.body = r.read()
+
+
+def fetch(port: int, path: str, method: str = "GET", headers: dict[str, Any] | None = None) -> Resp:
+    """One request to 127.0.0.1 on a fresh connection, target and headers sent as given."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        conn.putrequest(method, path, skip_accept_encoding=True)
+        for k, v in (headers or {}).items():
+            conn.putheader(k, v)
+        conn.endheaders()
+        return Resp(conn.getresponse())
+    finally:
+        conn.close()

@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import http.client
 import json
 import re
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
-from helpers import ThreadedServer
+from helpers import ThreadedServer, fetch
 from tsog_stream.container.sync import StreamReader
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -22,28 +20,6 @@ from tsog_stream.synthetic import small_scene
 SECRET = b"player-test-secret-0123456789abcdef"
 OUTSIDE = b"OUTSIDE-THE-PLAYER-FOLDER"
 ENGINE = REPO_ROOT / "node_modules" / "playcanvas" / "build" / "playcanvas.mjs"
-
-
-class Resp:
-    """Status, headers and body of one response."""
-
-    def __init__(self, r: http.client.HTTPResponse) -> None:
-        self.status = r.status
-        self.headers = r.headers
-        self.body = r.read()
-
-
-def fetch(port: int, path: str, headers: dict[str, Any] | None = None) -> Resp:
-    """One GET over a fresh connection, the target sent exactly as given."""
-    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-    try:
-        conn.putrequest("GET", path, skip_accept_encoding=True)
-        for k, v in (headers or {}).items():
-            conn.putheader(k, v)
-        conn.endheaders()
-        return Resp(conn.getresponse())
-    finally:
-        conn.close()
 
 
 @pytest.fixture(scope="module")
@@ -131,7 +107,7 @@ def test_static_files_with_etag_and_304(port: int, name: str, kind: str) -> None
     assert r.headers["Cache-Control"] == "public, max-age=0, must-revalidate"
     assert r.headers["Access-Control-Allow-Origin"] == "*"
     etag = r.headers["ETag"]
-    again = fetch(port, f"/player/{name}", {"If-None-Match": etag})
+    again = fetch(port, f"/player/{name}", headers={"If-None-Match": etag})
     assert again.status == 304 and again.body == b""
     assert again.headers["ETag"] == etag
 
@@ -144,7 +120,9 @@ def test_engine_is_the_npm_build_file(port: int) -> None:
     assert r.headers["Content-Type"].split(";")[0] == "text/javascript"
     assert r.body == ENGINE.read_bytes()
     assert (
-        fetch(port, "/player/engine/playcanvas.mjs", {"If-None-Match": r.headers["ETag"]}).status
+        fetch(
+            port, "/player/engine/playcanvas.mjs", headers={"If-None-Match": r.headers["ETag"]}
+        ).status
         == 304
     )
 

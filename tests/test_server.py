@@ -6,7 +6,6 @@ import argparse
 import asyncio
 import email.parser
 import hashlib
-import http.client
 import json
 import logging
 from collections.abc import Iterator
@@ -16,7 +15,7 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from helpers import ThreadedServer, nginx_origin
+from helpers import Resp, ThreadedServer, fetch, nginx_origin
 from tsog_stream.cli.progress import Progress
 from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import InputError
@@ -30,28 +29,6 @@ from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
 DATA = bytes(range(256)) * 400 + b"tail"  # 102 404 bytes
-
-
-class Resp:
-    """Status, headers and body of one response."""
-
-    def __init__(self, r: http.client.HTTPResponse) -> None:
-        self.status = r.status
-        self.headers = r.headers
-        self.body = r.read()
-
-
-def fetch(port: int, path: str, method: str = "GET", headers: dict[str, Any] | None = None) -> Resp:
-    """One request over a fresh connection, headers sent exactly as given."""
-    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-    try:
-        conn.putrequest(method, path, skip_accept_encoding=True)
-        for k, v in (headers or {}).items():
-            conn.putheader(k, v)
-        conn.endheaders()
-        return Resp(conn.getresponse())
-    finally:
-        conn.close()
 
 
 @pytest.fixture(scope="module")
