@@ -17,7 +17,7 @@ from .. import __version__
 from ..client.cli import add_client_commands, cmd_fetch, cmd_play
 from ..codec.chunk import decode_chunk, encode_chunk
 from ..demo import run_demo
-from ..errors import InputError, TsogError
+from ..errors import TsogError
 from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.files import refuse_existing
 from ..io.fourdgs import write_4dgs
@@ -39,6 +39,7 @@ from .stream_commands import (
     cmd_verify,
     stream_frame,
     stream_info,
+    write_frame,
 )
 from .stream_commands import cmd_segment as segment_command
 
@@ -246,18 +247,11 @@ def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     """tsog frame."""
     refuse_existing(args.output, overwrite=args.force)
     if (args.format or detect_format(args.input)) == "tsogs":
-        if args.output.suffix.lower() != ".ply":
-            raise InputError("frames of a stream are written as .ply", where=str(args.output))
-        return stream_frame(Path(args.input), args.t, args.output, args.verbose)
+        return stream_frame(Path(args.input), args.t, args.output, args.verbose, progress)
     scene = _load(args, progress)
     progress(f"evaluating t = {args.t} s")
     frame = scene.at(args.t)
-    if args.output.suffix.lower() == ".ply":
-        write_ply(args.output, frame)
-    else:
-        write_chunk_files(
-            args.output, encode_chunk(Scene(frame), progress=progress), overwrite=True
-        )
+    write_frame(args.output, frame, progress)
     progress.done()
     print(f"{args.output}: {len(frame)} Gaussians visible at t = {args.t} s")
     return 0

@@ -12,16 +12,18 @@ from typing import Any
 
 import numpy as np
 
+from ..codec.chunk import encode_chunk
 from ..container.sync import StreamReader
 from ..container.unpacked import pack
 from ..errors import InputError
+from ..io.chunks import write_chunk_files
 from ..io.files import atomic_write_bytes, refuse_existing, remove_stale_temp_files
 from ..io.ply import write_ply
 from ..io.sequence import FrameSequence
 from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
 from ..merge.check import frame_errors
 from ..merge.sequence import MAX_HELD
-from ..model import Scene
+from ..model import Gaussians, Scene
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
     DEFAULT_MAX_PIXELS,
@@ -278,12 +280,21 @@ def stream_info(path: Path) -> dict[str, Any]:
         }
 
 
-def stream_frame(path: Path, t: float, output: Path, verbose: bool) -> int:
+def write_frame(output: Path, frame: Gaussians, progress: Progress) -> None:
+    """A static frame as a float PLY (``.ply``) or, for any other name, a SOG v2 chunk."""
+    if output.suffix.lower() == ".ply":
+        write_ply(output, frame)
+    else:
+        write_chunk_files(output, encode_chunk(Scene(frame), progress=progress), overwrite=True)
+
+
+def stream_frame(path: Path, t: float, output: Path, verbose: bool, progress: Progress) -> int:
     """tsog frame on a container: only the chunks t needs are read."""
     with StreamReader.open(path) as reader:
         frame = reader.frame_at(t)
         stats = reader.source.stats
-    write_ply(output, frame)
+    write_frame(output, frame, progress)
+    progress.done()
     print(f"{output}: {len(frame)} Gaussians visible at t = {t} s")
     if verbose:
         print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)

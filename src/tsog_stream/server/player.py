@@ -160,7 +160,7 @@ async def play(request: web.Request) -> web.StreamResponse:
         raise NotFoundError("no such scene", where=scene_id[:80]) from exc
     privacy.admit(request, [catalog.scene_relative(scene)])
     api = f"/v1/scenes/{quote(scene.id)}"
-    config = {"scene": scene.id, "manifest": f"{api}/manifest", "chunks": f"{api}/chunks"}
+    config = {"scene": scene.id, "manifest": f"{api}/manifest", "chunks": f"{api}/chunks/"}
     template = await asyncio.to_thread((PLAYER_DIR / TEMPLATE).read_text, "utf-8")
     text = template.replace("{{TITLE}}", html.escape(scene.id)).replace(
         "{{CONFIG}}", _config_json(config)

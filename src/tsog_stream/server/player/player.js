@@ -1,18 +1,30 @@
 // tsog-stream web player: the page's entry module (plain ES module, no build step).
-// Reads the scene's manifest from the /v1 API, plays its time range with the chunks that
-// ChunkStream keeps loaded, and shows controls and an overlay. See docs/design/player.md.
+// Reads a scene's manifest (from tsog serve's /v1 API or any static origin), plays its time
+// range with the chunks that ChunkStream keeps loaded and evaluated at t on the GPU, and shows
+// controls and an overlay. See docs/design/player.md.
 import * as pc from 'playcanvas';
 import { ChunkStream } from './stream.js';
 import { OrbitCamera } from './orbit.js';
 
 const $ = (id) => document.getElementById(id);
 
-/** The page's configuration, written by the server into a JSON script element. */
+/** The page's configuration (written by the server) and its query: t, paused, manifest. */
 function readConfig() {
     const config = JSON.parse($('tsog-config').textContent);
     const params = new URLSearchParams(window.location.search);
     const t = Number.parseFloat(params.get('t') ?? '');
-    return { ...config, t: Number.isFinite(t) ? t : null, paused: params.has('paused') };
+    const manifest = new URL(config.manifest, window.location.href);
+    return { ...config, manifest, t: Number.isFinite(t) ? t : null, paused: params.has('paused') };
+}
+
+/** Where a chunk's bytes are: the /v1 chunk URL (immutable by its hash), or its file beside
+ * the manifest on a static origin. */
+function chunkUrlFor(config) {
+    if (config.chunks) {
+        const signed = config.query ? `&${config.query}` : '';
+        return (c) => `${config.chunks}${c.id}.sog?v=${c.sha256}${signed}`;
+    }
+    return (c) => new URL(c.file, config.manifest).href;
 }
 
 /** Show an error in the middle of the page (and keep it for tests). */
@@ -104,7 +116,7 @@ function showState(playback, stream, fps) {
     const stats = stream.stats();
     $('o-t').textContent = playback.t.toFixed(3);
     $('o-fps').textContent = fps.toFixed(0);
-    $('o-chunks').textContent = String(stats.known);
+    $('o-chunks').textContent = String(stats.shown.length);
     $('o-loaded').textContent = String(stats.ready);
     $('o-bytes').textContent = stats.bytes.toLocaleString('en');
     $('o-state').textContent = stats.error ? `${playback.state} (${stats.error})` : playback.state;
@@ -115,18 +127,23 @@ function showState(playback, stream, fps) {
 
 async function main() {
     const config = readConfig();
-    const response = await fetch(config.manifest);
-    if (!response.ok) throw new Error(`manifest: HTTP ${response.status}`);
+    const fetchLog = [];
+    window.tsogPlayer = { fetchLog };
+    const manifestUrl = config.manifest.href;
+    fetchLog.push(manifestUrl);
+    const response = await fetch(manifestUrl);
+    if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${manifestUrl}`);
     const manifest = await response.json();
-    const { app, orbit } = createApp(manifest);
-    const stream = new ChunkStream(pc, app, config, manifest);
+    if (manifest.format !== 'tsogs') throw new Error(`${manifestUrl} is not a TSOG stream manifest`);
+    const { app, camera, orbit } = createApp(manifest);
+    const stream = new ChunkStream(pc, app, manifest, chunkUrlFor(config), fetchLog);
     const playback = new Playback(manifest, config);
     bindControls(playback);
     let fps = 0;
     let sinceShown = 1;
     app.on('update', (dt) => {
         playback.advance(dt);
-        stream.update(playback.t);
+        stream.update(playback.t, playback.playing);
         playback.buffering = !stream.covered(playback.t);
         orbit.update();
         fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;
@@ -136,7 +153,7 @@ async function main() {
             showState(playback, stream, fps);
         }
     });
-    window.tsogPlayer = { app, stream, playback, manifest, fetchLog: stream.fetchLog };
+    Object.assign(window.tsogPlayer, { pc, app, camera, orbit, stream, playback, manifest });
     app.start();
 }
 

@@ -1,136 +1,191 @@
 // tsog-stream web player: which chunks the playhead needs, fetched ahead and dropped behind.
-// The chunk list comes from GET {chunks}?t=&horizon= (docs/http.md); each chunk is loaded by
-// the engine as a gsplat asset from its ".sog" URL (the engine picks its parser by extension).
+// Chunks are chosen from the manifest (manifest.js), fetched once each, checked against the
+// manifest's SHA-256, handed to the engine as a ".sog" gsplat asset, and given the TSOG time
+// evaluation (tsog.js). Works against tsog serve's /v1 API and any static origin alike.
+import { SceneIndex } from './manifest.js';
+import { readZip } from './zip.js';
+import { chunkUniforms, createTextures, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
 
 const MAX_LOADING = 4;
-const RETRY_MS = 1000;
 
-/** Chunk scheduling for one scene: asks the server, loads with the engine, unloads behind. */
+/** Hex SHA-256 of an ArrayBuffer, or null where the browser offers no digest (not secure). */
+async function sha256(buffer) {
+    if (!globalThis.crypto?.subtle) return null;
+    const digest = new Uint8Array(await crypto.subtle.digest('SHA-256', buffer));
+    return [...digest].map((b) => b.toString(16).padStart(2, '0')).join('');
+}
+
+/** Chunk scheduling for one scene: loads what t needs (and, playing, what follows), drops the rest. */
 export class ChunkStream {
     /**
      * @param {object} pc the PlayCanvas module
      * @param {object} app the running pc.Application
-     * @param {object} config {manifest, chunks} URLs of the /v1 API
      * @param {object} manifest the parsed scene manifest
+     * @param {(chunk: object) => string} chunkUrl where a chunk's bytes are
+     * @param {string[]} fetchLog every URL fetched is appended here (for the overlay and tests)
      */
-    constructor(pc, app, config, manifest) {
+    constructor(pc, app, manifest, chunkUrl, fetchLog) {
         this.pc = pc;
         this.app = app;
-        this.config = config;
-        this.manifest = manifest;
+        this.index = new SceneIndex(manifest);
+        this.chunkUrl = chunkUrl;
+        this.fetchLog = fetchLog;
         this.horizon = 2 * manifest.window_s;
         this.root = new pc.Entity('tsog-chunks');
         app.root.addChild(this.root);
-        this.chunks = new Map(); // id -> {info, state: 'loading'|'ready'|'failed', asset, entity}
-        this.listed = []; // the last chunk list (ids in order)
-        this.listedFor = null; // [t, t + horizon] of the last list
-        this.listing = null; // the chunk-list request in flight
-        this.retryAt = 0; // no new list request before this (after a failure)
-        this.error = null; // the last chunk-list failure
+        this.chunks = new Map(); // id -> {info, state, entity, layout, textures, abort}
+        this.wanted = []; // ids in load priority: needed at t first, then ahead of t
+        this.shown = new Set(); // ids drawn at t (exactly chunks_for(t))
+        this.planned = null; // [t, playing] the plan was made for
+        this.shownTime = null; // the t the time uniforms hold
         this.bytes = 0;
-        this.fetchLog = []; // every URL fetched, in order (for tests and the overlay)
+        this.error = null;
     }
 
-    /** Called every frame with the playhead: refresh the list when t leaves it, load, drop. */
-    update(t) {
-        const span = this.listedFor;
-        const stale = !span || t < span[0] || t > span[0] + this.horizon / 2;
-        if (stale && !this.listing && performance.now() >= this.retryAt) {
-            this.listing = this.list(t)
-                .then(() => { this.error = null; })
-                .catch((err) => {
-                    this.error = String(err.message ?? err);
-                    this.retryAt = performance.now() + RETRY_MS;
-                })
-                .finally(() => { this.listing = null; });
+    /** Called every frame: plan for t when it changed, start loads, drop, show, set time. */
+    update(t, playing) {
+        if (!this.planned || this.planned[0] !== t || this.planned[1] !== playing) {
+            this.plan(t, playing);
         }
-        this.loadListed();
-        this.dropBehind(t);
-        for (const c of this.chunks.values()) {
-            if (c.entity) c.entity.enabled = c.info.start_s <= t && t <= c.info.end_s;
-        }
+        this.loadWanted();
+        this.show(t);
     }
 
-    /** Fetch the chunk list for [t, t + horizon]. */
-    async list(t) {
-        const url = `${this.config.chunks}?t=${t}&horizon=${this.horizon}`;
-        this.fetchLog.push(url);
-        const response = await fetch(url);
-        if (!response.ok) throw new Error(`chunk list: HTTP ${response.status}`);
-        const body = await response.json();
-        this.listed = body.chunks.map((c) => c.id);
-        this.listedFor = [t, t + this.horizon];
-        for (const info of body.chunks) {
-            if (!this.chunks.has(info.id)) this.chunks.set(info.id, { info, state: 'queued' });
+    /** What t needs, then (playing) what [t, t + horizon] needs; drop what is far from both. */
+    plan(t, playing) {
+        this.planned = [t, playing];
+        const needed = this.index.chunksFor(t);
+        const ahead = playing ? this.index.chunksForInterval(t, t + this.horizon) : [];
+        ahead.sort((a, b) => a.start_s - b.start_s);
+        this.wanted = [...new Set([...needed, ...ahead].map((c) => c.id))];
+        this.shown = new Set(needed.map((c) => c.id));
+        for (const id of this.wanted) {
+            if (!this.chunks.has(id)) this.chunks.set(id, { info: this.index.manifest.chunks[id], state: 'queued' });
         }
-    }
-
-    /** Start loading listed chunks in playback order, at most MAX_LOADING at a time. */
-    loadListed() {
-        let loading = [...this.chunks.values()].filter((c) => c.state === 'loading').length;
-        for (const id of this.listed) {
-            const c = this.chunks.get(id);
-            if (loading >= MAX_LOADING) return;
-            if (c && c.state === 'queued') {
-                this.load(c);
-                loading += 1;
+        const keep = new Set(this.wanted);
+        for (const [id, c] of this.chunks) {
+            const near = c.info.end_s >= t && c.info.start_s <= t + this.horizon;
+            if (!keep.has(id) && !near) {
+                this.unload(c);
+                this.chunks.delete(id);
             }
         }
     }
 
-    /** Load one chunk as a gsplat asset and attach it to an entity when ready. */
-    load(c) {
-        const pc = this.pc;
-        c.state = 'loading';
-        this.fetchLog.push(c.info.url);
-        const asset = new pc.Asset(`chunk-${c.info.id}`, 'gsplat', { url: c.info.url });
-        c.asset = asset;
-        asset.once('error', (err) => {
-            c.state = 'failed';
-            c.error = String(err);
-        });
-        asset.ready(() => {
-            if (c.state !== 'loading') return; // dropped while loading
-            const entity = new pc.Entity(`chunk-${c.info.id}`);
-            entity.addComponent('gsplat', { asset });
-            this.root.addChild(entity);
-            c.entity = entity;
-            c.state = 'ready';
-            this.bytes += c.info.length;
-        });
-        this.app.assets.add(asset);
-        this.app.assets.load(asset);
-    }
-
-    /** Unload chunks outside [t, t + horizon] that the current list does not hold (behind
-     * the playhead, or left ahead after a jump back such as a loop). */
-    dropBehind(t) {
-        const keep = new Set(this.listed);
-        for (const [id, c] of this.chunks) {
-            const near = c.info.end_s >= t && c.info.start_s <= t + this.horizon;
-            if (near || keep.has(id)) continue;
-            this.unload(c);
-            this.chunks.delete(id);
+    /** Start loading wanted chunks in priority order, at most MAX_LOADING at a time. */
+    loadWanted() {
+        let loading = [...this.chunks.values()].filter((c) => c.state === 'loading').length;
+        for (const id of this.wanted) {
+            if (loading >= MAX_LOADING) return;
+            const c = this.chunks.get(id);
+            if (c?.state === 'queued') {
+                loading += 1;
+                this.load(c).catch((err) => {
+                    if (c.state === 'dropped') return;
+                    c.state = 'failed';
+                    this.error = `chunk ${c.info.id}: ${err.message ?? err}`;
+                    console.error(this.error);
+                });
+            }
         }
     }
 
-    /** Free the entity and the asset of a chunk. */
+    /** Fetch, check and decode one chunk, then attach it to an entity with its time shader. */
+    async load(c) {
+        const pc = this.pc;
+        c.state = 'loading';
+        c.abort = new AbortController();
+        const url = this.chunkUrl(c.info);
+        this.fetchLog.push(url);
+        const response = await fetch(url, { signal: c.abort.signal });
+        if (!response.ok) throw new Error(`HTTP ${response.status}`);
+        const buffer = await response.arrayBuffer();
+        this.bytes += buffer.byteLength;
+        if (buffer.byteLength !== c.info.length) {
+            throw new Error(`${buffer.byteLength} bytes, the manifest says ${c.info.length}`);
+        }
+        const digest = await sha256(buffer);
+        if (digest !== null && digest !== c.info.sha256) throw new Error('SHA-256 differs from the manifest');
+        const files = readZip(buffer);
+        const meta = JSON.parse(new TextDecoder().decode(files.get('meta.json')));
+        c.layout = readLayout(meta);
+        if (c.layout) {
+            c.textures = await createTextures(pc, this.app.graphicsDevice, c.layout, files, `chunk-${c.info.id}`);
+        }
+        if (c.state === 'dropped') return this.release(c);
+        const name = url.split('?')[0].split('/').pop();
+        const asset = new pc.Asset(`chunk-${c.info.id}`, 'gsplat', { url, filename: name, contents: buffer });
+        c.asset = asset;
+        await new Promise((resolve, reject) => {
+            asset.once('load', resolve);
+            asset.once('error', (err) => reject(new Error(String(err))));
+            this.app.assets.add(asset);
+            this.app.assets.load(asset);
+        });
+        if (c.state === 'dropped') return this.release(c);
+        c.entity = this.attach(c, asset);
+        c.state = 'ready';
+        return undefined;
+    }
+
+    /** An entity drawing the chunk, with the TSOG modifier and its uniforms when it has a timeline. */
+    attach(c, asset) {
+        const entity = new this.pc.Entity(`chunk-${c.info.id}`);
+        entity.enabled = false;
+        entity.addComponent('gsplat', { asset });
+        if (c.layout) {
+            const gsplat = entity.gsplat;
+            gsplat.setWorkBufferModifier({ glsl: modifierGlsl(c.layout) });
+            gsplat.setParameter('tsogLo', c.textures.lo);
+            gsplat.setParameter('tsogHi', c.textures.hi);
+            for (const [name, value] of Object.entries(chunkUniforms(c.layout))) gsplat.setParameter(name, value);
+            c.time = null;
+        }
+        this.root.addChild(entity);
+        return entity;
+    }
+
+    /** Enable exactly the chunks of chunks_for(t) and give them t (only when it changed). */
+    show(t) {
+        for (const [id, c] of this.chunks) {
+            if (c.state !== 'ready') continue;
+            const on = this.shown.has(id);
+            if (c.entity.enabled !== on) c.entity.enabled = on;
+            if (on && c.layout && c.time !== t) {
+                for (const [name, value] of Object.entries(timeUniforms(c.layout, t))) {
+                    c.entity.gsplat.setParameter(name, value);
+                }
+                c.time = t;
+            }
+        }
+        this.shownTime = t;
+    }
+
+    /** Stop a chunk's load or free what it holds. */
     unload(c) {
+        const was = c.state;
         c.state = 'dropped';
-        if (c.entity) c.entity.destroy();
+        if (was === 'loading') c.abort?.abort();
+        else this.release(c);
+    }
+
+    /** Free the entity, the asset and the textures of a chunk. */
+    release(c) {
+        c.entity?.destroy();
         if (c.asset) {
             this.app.assets.remove(c.asset);
             c.asset.unload();
         }
+        c.textures?.lo.destroy();
+        c.textures?.hi.destroy();
+        c.entity = c.asset = c.textures = null;
     }
 
-    /** True when every listed chunk that covers t is ready. */
+    /** True when every chunk that t needs is ready (or failed: playback must not hang). */
     covered(t) {
-        if (!this.listedFor || t < this.listedFor[0] || t > this.listedFor[1]) return false;
-        return this.listed.every((id) => {
-            const c = this.chunks.get(id);
-            const needed = c && c.info.start_s <= t && t <= c.info.end_s;
-            return !needed || c.state === 'ready' || c.state === 'failed';
+        return this.index.chunksFor(t).every((info) => {
+            const c = this.chunks.get(info.id);
+            return c && (c.state === 'ready' || c.state === 'failed');
         });
     }
 
@@ -149,13 +204,15 @@ export class ChunkStream {
         return merged;
     }
 
-    /** Counts for the overlay. */
+    /** Counts for the overlay and the tests. */
     stats() {
         const all = [...this.chunks.values()];
         return {
             known: all.length,
             ready: all.filter((c) => c.state === 'ready').length,
+            loading: all.filter((c) => c.state === 'loading').length,
             failed: all.filter((c) => c.state === 'failed').length,
+            shown: [...this.shown],
             error: this.error,
             bytes: this.bytes,
         };
