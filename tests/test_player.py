@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qsl, quote
 
 import pytest
 
@@ -15,9 +18,11 @@ from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Privacy, make_app
 from tsog_stream.server.player import ENGINE_ENV, PLAYER_DIR, REPO_ROOT
+from tsog_stream.signing import sign_url
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"player-test-secret-0123456789abcdef"
+JS_MODULES = ("player.js", "stream.js", "manifest.js", "zip.js", "tsog.js", "orbit.js")
 OUTSIDE = b"OUTSIDE-THE-PLAYER-FOLDER"
 ENGINE = REPO_ROOT / "node_modules" / "playcanvas" / "build" / "playcanvas.mjs"
 
@@ -78,7 +83,7 @@ def test_scene_page(port: int, scene: str) -> None:
     assert config == {
         "scene": scene,
         "manifest": f"/v1/scenes/{scene}/manifest",
-        "chunks": f"/v1/scenes/{scene}/chunks",
+        "chunks": f"/v1/scenes/{scene}/chunks/",
     }
     assert fetch(port, config["manifest"]).status == 200
 
@@ -91,13 +96,62 @@ def test_unknown_scene_is_404_json(port: int, path: str) -> None:
     assert json.loads(r.body)["error"]["status"] == 404
 
 
+def page_config(body: bytes) -> dict[str, Any]:
+    """The JSON configuration a player page carries."""
+    found = re.search(rb'<script type="application/json" id="tsog-config">(.*?)</script>', body)
+    assert found is not None
+    return dict(json.loads(found.group(1)))
+
+
 def test_private_scene_page_needs_a_signature(port: int) -> None:
     assert fetch(port, "/play/paid/secret").status == 403
 
 
+def test_signed_page_gets_a_signature_for_its_scene_api(port: int) -> None:
+    expires = int(time.time()) + 600
+    page = fetch(port, sign_url("/play/paid/secret", SECRET, expires))
+    assert page.status == 200
+    config = page_config(page.body)
+    query = dict(parse_qsl(config["query"]))
+    assert query["expires"] == str(expires) and query["scope"] == "/v1/scenes/paid/secret/"
+    manifest = fetch(port, f"{config['manifest']}?{config['query']}")
+    assert manifest.status == 200 and json.loads(manifest.body)["format"] == "tsogs"
+    chunk = fetch(port, f"{config['chunks']}0.sog?{config['query']}")
+    assert chunk.status == 200 and chunk.body[:4] == b"PK\x03\x04"
+    assert fetch(port, "/files/paid/secret.tsogs?" + config["query"]).status == 403
+    assert "query" not in page_config(fetch(port, "/play/clip").body)
+
+
+@pytest.mark.parametrize(
+    "url", ["http://cdn.example/clip/manifest.json", "/files/unpacked/manifest.json"]
+)
+def test_index_plays_a_manifest_url(port: int, url: str) -> None:
+    r = fetch(port, "/play/?manifest=" + quote(url, safe=""))
+    assert r.status == 200 and r.headers["Content-Type"] == "text/html; charset=utf-8"
+    assert page_config(r.body) == {"scene": None, "manifest": url}
+
+
+@pytest.mark.parametrize(
+    "url", ["javascript:alert(1)", "file:///etc/passwd", "relative/manifest.json", "http://", ""]
+)
+def test_index_refuses_a_manifest_that_is_no_http_url(port: int, url: str) -> None:
+    r = fetch(port, "/play/?manifest=" + quote(url, safe=""))
+    assert r.status == 400
+    assert "manifest" in json.loads(r.body)["error"]["message"]
+
+
+def test_index_offers_a_form_for_a_manifest_url(port: int) -> None:
+    body = fetch(port, "/play/").body.decode()
+    assert '<form class="open" action="/play/" method="get">' in body
+    assert '<input type="url" name="manifest" required' in body
+
+
 @pytest.mark.parametrize(
     ("name", "kind"),
-    [("player.js", "text/javascript"), ("stream.js", "text/javascript"), ("style.css", "text/css")],
+    [
+        *((name, "text/javascript") for name in JS_MODULES),
+        ("style.css", "text/css"),
+    ],
 )
 def test_static_files_with_etag_and_304(port: int, name: str, kind: str) -> None:
     r = fetch(port, f"/player/{name}")

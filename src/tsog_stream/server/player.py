@@ -15,14 +15,15 @@ import json
 import os
 from pathlib import Path
 from typing import Any
-from urllib.parse import quote
+from urllib.parse import quote, unquote, urlencode, urlsplit
 
 from aiohttp import web
 
 from ..errors import InputError, TsogError
+from ..signing import EXPIRES, SCOPE, SIGNATURE, signature
 from . import app as server  # a cycle (app.py registers these routes): names used at call time
 from .catalog import CONTAINER_SUFFIX, NotFoundError, Representation
-from .private import PRIVACY
+from .private import PRIVACY, is_signed
 
 PLAYER_DIR = Path(__file__).with_name("player")
 ENGINE_ENV = "TSOG_PLAYCANVAS_DIR"
@@ -125,28 +126,70 @@ def _page(title: str, body: str) -> web.Response:
     doc = (
         '<!doctype html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
         f"<title>{html.escape(title)}</title>\n"
-        '<link rel="stylesheet" href="/player/style.css">\n</head>\n'
+        '<link rel="icon" href="data:,">\n<link rel="stylesheet" href="/player/style.css">\n'
+        "</head>\n"
         f"<body>\n{body}</body>\n</html>\n"
     )
     return web.Response(text=doc, content_type=HTML_TYPE, headers=PAGE_HEADERS)
 
 
 async def index(request: web.Request) -> web.StreamResponse:
-    """GET /play/: links to the player of every public scene."""
+    """GET /play/: links to the player of every public scene; ``?manifest=URL`` plays a stream
+    from any origin (an unpacked layout on a static server, CORS permitting)."""
+    url = request.query.get("manifest")
+    if url is not None:
+        return await _player_page("stream", {"scene": None, "manifest": _manifest_url(url)})
     items = "".join(
         f'<li><a href="/play/{quote(i)}">{html.escape(i)}</a></li>\n'
         for i in await _public_ids(request)
     )
-    body = f'<main class="index">\n<h1>Scenes</h1>\n<ul class="scenes">\n{items}</ul>\n</main>\n'
-    if not items:
-        body = '<main class="index">\n<h1>Scenes</h1>\n<p>No scenes here.</p>\n</main>\n'
+    listing = f'<ul class="scenes">\n{items}</ul>\n' if items else "<p>No scenes here.</p>\n"
+    form = (
+        '<form class="open" action="/play/" method="get">\n'
+        "<label>Or play a manifest URL (an unpacked stream on any static origin)\n"
+        '<input type="url" name="manifest" required '
+        'placeholder="https://cdn.example.com/clip/manifest.json"></label>\n'
+        '<button type="submit">play</button>\n</form>\n'
+    )
+    body = f'<main class="index">\n<h1>Scenes</h1>\n{listing}{form}</main>\n'
     return _page("tsog-stream scenes", body)
+
+
+def _manifest_url(url: str) -> str:
+    """A manifest URL the page may fetch: absolute http(s) or a path on this server."""
+    parts = urlsplit(url)
+    relative = not parts.scheme and not parts.netloc and url.startswith("/")
+    if not (relative or (parts.scheme in ("http", "https") and parts.netloc)) or len(url) > 2048:
+        raise InputError("expected an http(s) URL of a manifest.json", where="manifest")
+    return url
 
 
 def _config_json(config: dict[str, Any]) -> str:
     """JSON safe inside a <script> element (no '<', '>' or '&' left raw)."""
     text = json.dumps(config)
     return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
+
+
+async def _player_page(title: str, config: dict[str, Any]) -> web.Response:
+    """The player page with its configuration written in."""
+    template = await asyncio.to_thread((PLAYER_DIR / TEMPLATE).read_text, "utf-8")
+    text = template.replace("{{TITLE}}", html.escape(title)).replace(
+        "{{CONFIG}}", _config_json(config)
+    )
+    return web.Response(text=text, content_type=HTML_TYPE, headers=PAGE_HEADERS)
+
+
+def _scene_query(request: web.Request, api: str) -> str:
+    """For a page admitted by its signed URL: a signature over the scene's /v1 API with the
+    same expiry, so the page can fetch the manifest and chunks ('' for a public scene)."""
+    if not is_signed(request):
+        return ""
+    secret = request.app[PRIVACY].secret or b""  # set whenever a request was admitted signed
+    expires = int(request.query[EXPIRES])
+    scope = unquote(api) + "/"
+    return urlencode(
+        {EXPIRES: expires, SCOPE: scope, SIGNATURE: signature(secret, scope, expires)}, safe="/"
+    )
 
 
 async def play(request: web.Request) -> web.StreamResponse:
@@ -161,11 +204,10 @@ async def play(request: web.Request) -> web.StreamResponse:
     privacy.admit(request, [catalog.scene_relative(scene)])
     api = f"/v1/scenes/{quote(scene.id)}"
     config = {"scene": scene.id, "manifest": f"{api}/manifest", "chunks": f"{api}/chunks/"}
-    template = await asyncio.to_thread((PLAYER_DIR / TEMPLATE).read_text, "utf-8")
-    text = template.replace("{{TITLE}}", html.escape(scene.id)).replace(
-        "{{CONFIG}}", _config_json(config)
-    )
-    return web.Response(text=text, content_type=HTML_TYPE, headers=PAGE_HEADERS)
+    query = _scene_query(request, api)
+    if query:
+        config["query"] = query
+    return await _player_page(scene.id, config)
 
 
 async def to_index(request: web.Request) -> web.StreamResponse:

@@ -135,4 +135,4 @@ class AccessLog(AbstractAccessLogger):
         return self.logger.isEnabledFor(logging.INFO)
 
 
-__all__ = ["PRIVACY", "AccessLog", "Privacy", "authorize", "signed_suffix"]
+__all__ = ["PRIVACY", "AccessLog", "Privacy", "authorize", "is_signed", "signed_suffix"]

@@ -14,8 +14,18 @@ function readConfig() {
     const params = new URLSearchParams(window.location.search);
     const t = Number.parseFloat(params.get('t') ?? '');
     const manifest = new URL(config.manifest, window.location.href);
-    return { ...config, manifest, t: Number.isFinite(t) ? t : null, paused: params.has('paused') };
+    const number = (name) => {
+        const value = Number.parseFloat(params.get(name) ?? '');
+        return Number.isFinite(value) ? value : null;
+    };
+    const view = { yaw: number('yaw'), pitch: number('pitch'), distance: number('distance'), up: params.get('up') ?? 'y' };
+    if (!(view.up in UP_ROTATIONS)) throw new Error(`up must be one of ${Object.keys(UP_ROTATIONS).join(', ')}`);
+    return { ...config, manifest, view, t: number('t'), paused: params.has('paused') };
 }
+
+/** Euler angles (degrees) that turn a scene's up axis to the engine's +y. 3DGS captures in
+ * COLMAP convention are y-down: open them with ?up=-y. */
+const UP_ROTATIONS = { y: [0, 0, 0], '-y': [0, 0, 180], z: [-90, 0, 0], '-z': [90, 0, 0] };
 
 /** Where a chunk's bytes are: the /v1 chunk URL (immutable by its hash), or its file beside
  * the manifest on a static origin. */
@@ -35,8 +45,8 @@ function fail(message) {
     window.tsogPlayer = { ...(window.tsogPlayer ?? {}), error: message };
 }
 
-/** The application, a camera orbiting the scene's bounding box. */
-function createApp(manifest) {
+/** The application, a camera orbiting the scene's bounding box (turned so `up` is up). */
+function createApp(manifest, view) {
     const canvas = $('view');
     const app = new pc.Application(canvas, { graphicsDeviceOptions: { antialias: false } });
     app.setCanvasFillMode(pc.FILLMODE_FILL_WINDOW);
@@ -45,11 +55,17 @@ function createApp(manifest) {
     const camera = new pc.Entity('camera');
     camera.addComponent('camera', { clearColor: new pc.Color(0.07, 0.07, 0.07), fov: 60 });
     app.root.addChild(camera);
+    const scene = new pc.Entity('scene');
+    scene.setLocalEulerAngles(...UP_ROTATIONS[view.up]);
+    app.root.addChild(scene);
     const box = manifest.scene.bbox;
-    const center = box.min.map((v, i) => (v + box.max[i]) / 2);
+    const center = new pc.Vec3(...box.min.map((v, i) => (v + box.max[i]) / 2));
+    scene.getWorldTransform().transformPoint(center, center);
     const size = Math.hypot(...box.max.map((v, i) => v - box.min[i])) || 1;
-    const orbit = new OrbitCamera(camera, canvas, new pc.Vec3(...center), 1.2 * size);
-    return { app, camera, orbit };
+    const orbit = new OrbitCamera(camera, canvas, center, view.distance ?? 1.2 * size);
+    if (view.yaw !== null) orbit.yaw = view.yaw;
+    if (view.pitch !== null) orbit.pitch = view.pitch;
+    return { app, camera, orbit, scene };
 }
 
 /** Playback state: time, speed, loop, and what the controls show. */
@@ -129,14 +145,14 @@ async function main() {
     const config = readConfig();
     const fetchLog = [];
     window.tsogPlayer = { fetchLog };
-    const manifestUrl = config.manifest.href;
+    const manifestUrl = config.query ? `${config.manifest.href}?${config.query}` : config.manifest.href;
     fetchLog.push(manifestUrl);
     const response = await fetch(manifestUrl);
     if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${manifestUrl}`);
     const manifest = await response.json();
     if (manifest.format !== 'tsogs') throw new Error(`${manifestUrl} is not a TSOG stream manifest`);
-    const { app, camera, orbit } = createApp(manifest);
-    const stream = new ChunkStream(pc, app, manifest, chunkUrlFor(config), fetchLog);
+    const { app, camera, orbit, scene } = createApp(manifest, config.view);
+    const stream = new ChunkStream(pc, app, scene, manifest, chunkUrlFor(config), fetchLog);
     const playback = new Playback(manifest, config);
     bindControls(playback);
     let fps = 0;

@@ -20,11 +20,12 @@ export class ChunkStream {
     /**
      * @param {object} pc the PlayCanvas module
      * @param {object} app the running pc.Application
+     * @param {object} parent the entity chunks are drawn under (it turns the scene upright)
      * @param {object} manifest the parsed scene manifest
      * @param {(chunk: object) => string} chunkUrl where a chunk's bytes are
      * @param {string[]} fetchLog every URL fetched is appended here (for the overlay and tests)
      */
-    constructor(pc, app, manifest, chunkUrl, fetchLog) {
+    constructor(pc, app, parent, manifest, chunkUrl, fetchLog) {
         this.pc = pc;
         this.app = app;
         this.index = new SceneIndex(manifest);
@@ -32,7 +33,7 @@ export class ChunkStream {
         this.fetchLog = fetchLog;
         this.horizon = 2 * manifest.window_s;
         this.root = new pc.Entity('tsog-chunks');
-        app.root.addChild(this.root);
+        parent.addChild(this.root);
         this.chunks = new Map(); // id -> {info, state, entity, layout, textures, abort}
         this.wanted = []; // ids in load priority: needed at t first, then ahead of t
         this.shown = new Set(); // ids drawn at t (exactly chunks_for(t))

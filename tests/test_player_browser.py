@@ -1,0 +1,263 @@
+"""The web player in headless Chromium: GPU time evaluation, scrubbing, playing, origins.
+
+The page is served by a real ``tsog serve`` app on loopback (and, for the static-origin case,
+by nginx); the browser is Debian's chromium on SwiftShader. Frames are compared as screenshots
+of the 640x480 page with the controls hidden.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+import numpy as np
+import pytest
+
+from browser import PlayerPage, chromium, image_difference, near
+from helpers import ThreadedServer, nginx_origin
+from tsog_stream.cli.main import main
+from tsog_stream.container.sync import StreamReader
+from tsog_stream.model import Scene, TimelineType
+from tsog_stream.schemas.manifest import ChunkEntry
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import Privacy, make_app
+from tsog_stream.signing import sign_url
+from tsog_stream.synthetic import SceneSpec, generate_scene
+from tsog_stream.temporal import evaluate_all
+
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
+
+SECRET = b"browser-test-secret-0123456789abcdef"
+VIEW = "yaw=20&pitch=-20&distance=9"
+ALL_DYNAMIC = ("means", "scales", "quats", "sh0", "opacity")
+SCENES: dict[str, SceneSpec] = {
+    "centre": SceneSpec(
+        TimelineType.CENTER_SCALE,
+        background=2000,
+        objects=4,
+        per_object=400,
+        dynamic=ALL_DYNAMIC,
+        seed=3,
+    ),
+    "spans": SceneSpec(
+        TimelineType.START_DURATION,
+        background=2000,
+        objects=4,
+        per_object=400,
+        dynamic=ALL_DYNAMIC,
+        seed=4,
+    ),
+    "frames": SceneSpec(TimelineType.FRAME, background=600, objects=3, per_object=150, seed=5),
+}
+# The GPU-evaluated frame against the engine's render of the static SOG that `tsog frame`
+# exports: the two differ only by the export's own re-quantisation (new codebooks, 8-bit alpha).
+# Measured on these scenes: mean 0.01-0.09 levels, at most 0.013 % of pixels off by > 16; the
+# export 0.4 s later: mean 1.8-2.9 levels, 1.9-5.7 % of pixels off.
+MAX_MEAN_DIFFERENCE = 0.25  # colour levels (0-255), averaged over the frame
+MAX_FRACTION_OFF = 0.001  # of pixels more than OFF_LEVELS apart in some channel
+OFF_LEVELS = 16
+
+
+def off_fraction(a: np.ndarray, b: np.ndarray) -> float:
+    """Fraction of pixels more than OFF_LEVELS apart."""
+    return float((image_difference(a, b) > OFF_LEVELS).mean())
+
+
+def mean_difference(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean absolute difference over pixels and channels."""
+    return float(np.abs(a - b).mean())
+
+
+@pytest.fixture(scope="module")
+def scenes() -> dict[str, Scene]:
+    return {name: generate_scene(spec) for name, spec in SCENES.items()}
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory: pytest.TempPathFactory, scenes: dict[str, Scene]) -> Path:
+    """Each scene segmented (1 s windows), one also unpacked, one private copy."""
+    root = tmp_path_factory.mktemp("browser")
+    for name, scene in scenes.items():
+        segment_scene(scene, root / f"{name}.tsogs", SegmentOptions(window_s=1.0))
+    (root / "static").mkdir()
+    with StreamReader.open(root / "centre.tsogs") as reader:
+        reader.unpack(root / "static" / "centre")
+    (root / "paid").mkdir()
+    (root / "paid" / "show.tsogs").write_bytes((root / "centre.tsogs").read_bytes())
+    return root
+
+
+FRAME_TIMES = [("centre", 1.3), ("spans", 2.45), ("frames", 1.75)]
+OTHER_TIME = 0.4  # the negative control: the export this much later
+SCRUB = (0.5, 2.5)  # the second needs one more chunk (2.0-2.94 s), not the one before it
+ORIGIN_T = 2.2
+
+
+@dataclass(frozen=True)
+class Facts:
+    """What the Python library says, computed before the browser starts (playwright's sync
+    API keeps an event loop running, which the library's sync facades cannot run inside)."""
+
+    exports: dict[tuple[str, float], str]
+    needed: dict[float, set[int]]
+    files: dict[float, list[str]]
+    chunks: list[ChunkEntry]
+
+
+@pytest.fixture(scope="module")
+def facts(root: Path) -> Facts:
+    exports = {}
+    for scene, t in FRAME_TIMES:
+        for when in (t, round(t + OTHER_TIME, 2)):
+            name = f"{scene}-{when}.sog"
+            args = ["frame", str(root / f"{scene}.tsogs"), "--t", str(when), "-o", str(root / name)]
+            assert main([*args, "-q"]) == 0
+            exports[scene, when] = f"/files/{name}"
+    with StreamReader.open(root / "centre.tsogs") as reader:
+        times = (*SCRUB, ORIGIN_T)
+        needed = {t: {c.id for c in reader.index.chunks_for(t)} for t in times}
+        files = {t: sorted(c.file for c in reader.index.chunks_for(t)) for t in times}
+        chunks = list(reader.index.manifest.chunks)
+    return Facts(exports, needed, files, chunks)
+
+
+@pytest.fixture(scope="module")
+def base(root: Path) -> Iterator[str]:
+    server = ThreadedServer(make_app(root, privacy=Privacy(("paid",), SECRET)))
+    try:
+        yield f"http://127.0.0.1:{server.port}"
+    finally:
+        server.stop()
+
+
+@pytest.fixture(scope="module")
+def browser(facts: Facts) -> Iterator[Any]:
+    with chromium() as b:
+        yield b
+
+
+@pytest.fixture
+def open_page(browser: Any) -> Iterator[Any]:
+    pages: list[PlayerPage] = []
+
+    def open_(url: str) -> PlayerPage:
+        pages.append(PlayerPage(browser, url))
+        return pages[-1]
+
+    yield open_
+    for page in pages:
+        assert page.errors == [], page.errors
+        page.close()
+
+
+@pytest.mark.parametrize(("scene", "t"), FRAME_TIMES)
+def test_frame_at_t_matches_the_engine_render_of_tsog_frame(
+    facts: Facts, base: str, open_page: Any, scene: str, t: float
+) -> None:
+    page = open_page(f"{base}/play/{scene}?t={t}&paused&{VIEW}")
+    gpu = page.frame()
+    static = page.show_static(facts.exports[scene, t])
+    assert (static.sum(axis=2) > 60).mean() > 0.02, "the reference frame is nearly empty"
+    assert mean_difference(gpu, static) <= MAX_MEAN_DIFFERENCE
+    assert off_fraction(gpu, static) <= MAX_FRACTION_OFF
+    # The tolerance has teeth: the export at another time is far outside it.
+    other = page.show_static(facts.exports[scene, round(t + OTHER_TIME, 2)])
+    assert off_fraction(gpu, other) > 10 * MAX_FRACTION_OFF
+    assert mean_difference(gpu, other) > 4 * MAX_MEAN_DIFFERENCE
+
+
+def test_two_times_differ_where_objects_moved_and_match_where_static(
+    scenes: dict[str, Scene], base: str, open_page: Any
+) -> None:
+    t1, t2 = 1.3, 1.6
+    page = open_page(f"{base}/play/centre?t={t1}&paused&{VIEW}")
+    first = page.frame()
+    page.seek(t2)
+    second = page.frame()
+    scene = scenes["centre"]
+    (a, seen_a), (b, seen_b) = evaluate_all(scene, t1), evaluate_all(scene, t2)
+    same = seen_a == seen_b
+    for name in ("means", "scales", "quats", "sh0", "opacities"):
+        values_a, values_b = getattr(a, name), getattr(b, name)
+        same &= np.all(np.isclose(values_a, values_b).reshape(len(scene), -1), axis=1)
+    changed = (seen_a | seen_b) & ~same
+    assert changed.sum() > 100, "the scene must have moving objects at these times"
+    points = np.concatenate([a.means[changed & seen_a], b.means[changed & seen_b]])
+    moved = near(page.project(points.astype(np.float64)), first.shape[:2], radius=14)
+    diff = image_difference(first, second)
+    assert (diff[moved] > 32).sum() > 200, "objects moved, so the frames must differ there"
+    assert np.all(diff[~moved] == 0), "the static background must render identically"
+
+
+def test_scrubbing_fetches_only_the_chunks_for_t(facts: Facts, base: str, open_page: Any) -> None:
+    first, then = SCRUB
+    needed = facts.needed
+    assert needed[then] - needed[first] and len(needed[first] | needed[then]) < len(facts.chunks)
+    page = open_page(f"{base}/play/centre?t={first}&paused")
+
+    def chunk_ids(urls: list[str]) -> list[int]:
+        prefix = f"{base}/v1/scenes/centre/chunks/"
+        return [int(u[len(prefix) :].split(".")[0]) for u in urls if u.startswith(prefix)]
+
+    assert sorted(chunk_ids(page.requests)) == sorted(needed[first])
+    before = len(page.requests)
+    page.seek(then)
+    fetched = chunk_ids(page.requests[before:])
+    assert sorted(fetched) == sorted(needed[then] - needed[first])
+    assert sorted(page.js("window.tsogPlayer.stream.stats().shown")) == sorted(needed[then])
+
+
+def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open_page: Any) -> None:
+    page = open_page(f"{base}/play/centre?t=0&paused")
+    page.js(
+        "document.getElementById('speed').value = '2';"
+        "document.getElementById('speed').dispatchEvent(new Event('change'));"
+        "document.getElementById('play').click()"
+    )
+    ahead_seen, held_behind = False, []
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        state = page.js("""(() => { const p = window.tsogPlayer; return { t: p.playback.t,
+            playing: p.playback.playing, ready: [...p.stream.chunks.values()]
+            .filter((c) => c.state === 'ready').map((c) => c.info.id) }; })()""")
+        ready = [facts.chunks[i] for i in state["ready"]]
+        ahead_seen |= any(c.start_s > state["t"] + 0.05 for c in ready)
+        held_behind += [c.id for c in ready if c.end_s < state["t"] - 0.5 and state["t"] < 3.5]
+        if state["t"] >= 3.5:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("playback did not reach t = 3.5 s within 20 s")
+    assert ahead_seen, "chunks after the playhead must be fetched before they are needed"
+    assert held_behind == [], "chunks behind the playhead must be dropped"
+    assert page.page.inner_text("#o-state") in ("playing", "buffering")
+
+
+def test_a_static_origin_plays_from_a_manifest_url(
+    facts: Facts, root: Path, base: str, open_page: Any, tmp_path: Path
+) -> None:
+    t = ORIGIN_T
+    served = open_page(f"{base}/play/centre?t={t}&paused&{VIEW}").frame()
+    cors = "add_header Access-Control-Allow-Origin * always;"
+    with nginx_origin(root / "static", tmp_path / "nginx", server_extra=cors) as origin:
+        manifest = f"{origin}centre/manifest.json"
+        page = open_page(f"{base}/play/?manifest={quote(manifest, safe='')}&t={t}&paused&{VIEW}")
+        frame = page.frame()
+        log = (tmp_path / "nginx" / "logs" / "access.log").read_text().splitlines()
+    assert np.array_equal(frame, served)
+    got = sorted(line.split('"')[1].split()[1].lstrip("/").removeprefix("centre/") for line in log)
+    assert got == sorted(["manifest.json", *facts.files[t]])
+    assert all('" 200 ' in line for line in log)
+
+
+def test_a_private_scene_plays_from_its_signed_page_url(base: str, open_page: Any) -> None:
+    url = sign_url(f"{base}/play/paid/show", SECRET, int(time.time()) + 600)
+    page = open_page(f"{url}&t=1.3&paused")
+    assert page.frame().sum(axis=2).max() > 100
+    api = [u for u in page.requests if "/v1/" in u]
+    assert api and all("signature=" in u for u in api)
+    assert page.js("window.tsogPlayer.stream.stats().failed") == 0
