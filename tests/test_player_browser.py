@@ -95,6 +95,7 @@ FRAME_TIMES = [("centre", 1.3), ("spans", 2.45), ("frames", 1.75)]
 OTHER_TIME = 0.4  # the negative control: the export this much later
 SCRUB = (0.5, 2.5)  # the second needs one more chunk (2.0-2.94 s), not the one before it
 ORIGIN_T = 2.2
+GRID = [round(0.013 + 0.05 * i, 3) for i in range(80)]  # never on a chunk or window edge
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,7 @@ class Facts:
 
     exports: dict[tuple[str, float], str]
     needed: dict[float, set[int]]
+    grid: dict[float, set[int]]  # chunks_for(t) on a grid of times between chunk edges
     files: dict[float, list[str]]
     chunks: list[ChunkEntry]
 
@@ -120,9 +122,10 @@ def facts(root: Path) -> Facts:
     with StreamReader.open(root / "centre.tsogs") as reader:
         times = (*SCRUB, ORIGIN_T)
         needed = {t: {c.id for c in reader.index.chunks_for(t)} for t in times}
+        grid = {t: {c.id for c in reader.index.chunks_for(t)} for t in GRID}
         files = {t: sorted(c.file for c in reader.index.chunks_for(t)) for t in times}
         chunks = list(reader.index.manifest.chunks)
-    return Facts(exports, needed, files, chunks)
+    return Facts(exports, needed, grid, files, chunks)
 
 
 @pytest.fixture(scope="module")
@@ -204,11 +207,22 @@ def test_scrubbing_fetches_only_the_chunks_for_t(facts: Facts, base: str, open_p
         return [int(u[len(prefix) :].split(".")[0]) for u in urls if u.startswith(prefix)]
 
     assert sorted(chunk_ids(page.requests)) == sorted(needed[first])
+    check_buffered(page, facts)
     before = len(page.requests)
     page.seek(then)
     fetched = chunk_ids(page.requests[before:])
     assert sorted(fetched) == sorted(needed[then] - needed[first])
     assert sorted(page.js("window.tsogPlayer.stream.stats().shown")) == sorted(needed[then])
+    check_buffered(page, facts)
+
+
+def check_buffered(page: PlayerPage, facts: Facts) -> None:
+    """The scrub bar's buffered ranges hold exactly the times whose chunks are all loaded."""
+    ranges = page.js("window.tsogPlayer.stream.buffered()")
+    ready = set(page.js("window.tsogPlayer.stream.stats().loaded"))
+    for t, chunks in facts.grid.items():
+        inside = any(a <= t <= b for a, b in ranges)
+        assert inside == (chunks <= ready), f"t={t}: buffered {ranges}, loaded {ready}"
 
 
 def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open_page: Any) -> None:
@@ -221,9 +235,7 @@ def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open
     ahead_seen, held_behind = False, []
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
-        state = page.js("""(() => { const p = window.tsogPlayer; return { t: p.playback.t,
-            playing: p.playback.playing, ready: [...p.stream.chunks.values()]
-            .filter((c) => c.state === 'ready').map((c) => c.info.id) }; })()""")
+        state = page.js("({t: tsogPlayer.playback.t, ready: tsogPlayer.stream.stats().loaded})")
         ready = [facts.chunks[i] for i in state["ready"]]
         ahead_seen |= any(c.start_s > state["t"] + 0.05 for c in ready)
         held_behind += [c.id for c in ready if c.end_s < state["t"] - 0.5 and state["t"] < 3.5]

@@ -41,6 +41,7 @@ export class ChunkStream {
         this.shownTime = null; // the t the time uniforms hold
         this.bytes = 0;
         this.error = null;
+        this.bufferedFor = null; // {version, ranges}: buffered() recomputed when chunks change
     }
 
     /** Called every frame: plan for t when it changed, start loads, drop, show, set time. */
@@ -190,27 +191,37 @@ export class ChunkStream {
         });
     }
 
-    /** Time ranges [start, end] of the loaded chunks, merged. */
+    /** Time ranges [start, end] whose every needed chunk is loaded, merged: between two
+     * consecutive chunk or window edges the needed set is constant, so one probe each. */
     buffered() {
-        const spans = [...this.chunks.values()]
-            .filter((c) => c.state === 'ready')
-            .map((c) => [c.info.start_s, c.info.end_s])
-            .sort((a, b) => a[0] - b[0]);
-        const merged = [];
-        for (const [a, b] of spans) {
-            const last = merged[merged.length - 1];
-            if (last && a <= last[1]) last[1] = Math.max(last[1], b);
-            else merged.push([a, b]);
+        const version = [...this.chunks.values()].filter((c) => c.state === 'ready').map((c) => c.info.id).join();
+        if (this.bufferedFor?.version === version) return this.bufferedFor.ranges;
+        const m = this.index.manifest;
+        const edges = new Set([m.scene.start_s, m.scene.end_s]);
+        for (let w = 1; w < this.index.windows; w++) edges.add(m.scene.start_s + w * m.window_s);
+        for (const c of m.chunks) edges.add(c.start_s).add(c.end_s);
+        const sorted = [...edges].filter((e) => e >= m.scene.start_s && e <= m.scene.end_s).sort((a, b) => a - b);
+        const ranges = [];
+        for (let i = 1; i < sorted.length; i++) {
+            const [a, b] = [sorted[i - 1], sorted[i]];
+            const ready = this.index.chunksFor((a + b) / 2).every((c) => this.chunks.get(c.id)?.state === 'ready');
+            if (!ready) continue;
+            const last = ranges[ranges.length - 1];
+            if (last && last[1] === a) last[1] = b;
+            else ranges.push([a, b]);
         }
-        return merged;
+        this.bufferedFor = { version, ranges };
+        return ranges;
     }
 
     /** Counts for the overlay and the tests. */
     stats() {
         const all = [...this.chunks.values()];
+        const loaded = all.filter((c) => c.state === 'ready').map((c) => c.info.id);
         return {
             known: all.length,
-            ready: all.filter((c) => c.state === 'ready').length,
+            ready: loaded.length,
+            loaded,
             loading: all.filter((c) => c.state === 'loading').length,
             failed: all.filter((c) => c.state === 'failed').length,
             shown: [...this.shown],
