@@ -279,6 +279,10 @@ def _print_demo(report: dict[str, Any]) -> None:
         f"stream: {s['bytes']} bytes, {s['windows']} windows, {s['chunks']} chunks -> {s['output']}"
     )
     print(f"served at {s['url']} (loopback, stopped after the run)")
+    if s["output"]:
+        folder = Path(s["output"]).parent
+        print(f"watch it: scripts/setup && .venv/bin/tsog serve {folder}, then open")
+        print("  http://127.0.0.1:8080/play/demo (the web player)")
     print(f"  played {s['frames']} frames from t = {s['start_t']} s at 2x speed")
     print(f"  startup {s['startup_ms']} ms, {s['stalls']} stalls, {s['requests']} requests,")
     print(f"  {s['bytes_fetched']} bytes, cache hit rate {s['cache_hit_rate']:.0%}")

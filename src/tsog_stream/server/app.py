@@ -437,7 +437,7 @@ async def serve_forever(
     """Serve until cancelled (Ctrl-C), then shut down gracefully."""
     app = make_app(root, limits=limits, privacy=privacy)
     runner, bound = await start_server(app, host, port)
-    print(f"serving {root} on http://{host}:{bound}/", flush=True)
+    print(f"serving {root} on http://{host}:{bound}/ (web player: /play/)", flush=True)
     try:
         await asyncio.Event().wait()
     finally:

@@ -25,7 +25,10 @@ def add_serve_command(sub: Any) -> argparse.ArgumentParser:
     p: argparse.ArgumentParser = sub.add_parser(
         "serve",
         help="serve containers and files over HTTP with byte ranges (docs/http.md)",
-        epilog="example: TSOG_URL_SECRET_FILE=secret.key tsog serve media/ --private 'paid/*'",
+        epilog="examples:\n"
+        "  tsog serve media/        then open http://127.0.0.1:8080/play/ (the web player)\n"
+        "  TSOG_URL_SECRET_FILE=secret.key tsog serve media/ --private 'paid/*'",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("root", help="folder to serve, or one .tsogs file (only that file is served)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
