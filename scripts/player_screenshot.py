@@ -15,13 +15,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from browser import CHROMIUM, FLAGS  # noqa: E402
-from helpers import ThreadedServer  # noqa: E402
-from playwright.sync_api import sync_playwright  # noqa: E402
+from playwright.sync_api import sync_playwright
 
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene  # noqa: E402
-from tsog_stream.server import make_app  # noqa: E402
-from tsog_stream.synthetic import SceneSpec, generate_scene  # noqa: E402
+from browser import CHROMIUM, FLAGS
+from helpers import ThreadedServer
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import make_app
+from tsog_stream.synthetic import SceneSpec, generate_scene
 
 
 def main() -> int:

@@ -19,6 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from helpers import means_log_step
 from test_interop import assert_same_gaussians, run_tool
 from tsog_stream import (
     FormatError,
@@ -33,6 +34,7 @@ from tsog_stream import (
 )
 from tsog_stream.cli.main import main
 from tsog_stream.codec.bundle import read_bundle
+from tsog_stream.codec.positions import log_transform
 from tsog_stream.container import writer
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header
 from tsog_stream.container.index import MAX_INDEX_BYTES, encode_index
@@ -585,6 +587,22 @@ def test_cli_frame_reads_only_what_t_needs(
     assert f"{len(expected)} Gaussians visible" in streams.out
     assert read == PREFIX_SIZE + sum(c.length for c in needed)
     np.testing.assert_allclose(frame.means, expected.means, rtol=1e-6)
+
+
+def test_cli_frame_of_a_stream_writes_a_static_sog(hanabi: Path, tmp_path: Path) -> None:
+    out = tmp_path / "f.sog"
+    assert main(["frame", str(hanabi), "--t", "0.6", "-o", str(out), "-q"]) == 0
+    with StreamReader.open(hanabi) as reader:
+        expected = reader.frame_at(0.6)
+    files = read_bundle(out.read_bytes())
+    meta = json.loads(files["meta.json"])
+    assert "timeline" not in meta and meta["count"] == len(expected)
+    got = read_chunk(out)
+    assert got.timeline is None
+    # Texel order differs (Morton order of the frame): compare position sets, sorted.
+    step = means_log_step(meta["means"]["mins"], meta["means"]["maxs"]).max()
+    a, b = (np.sort(log_transform(g.means), axis=0) for g in (got.gaussians, expected))
+    assert np.abs(a - b).max() <= step
 
 
 def test_cli_extract_gives_the_byte_range_as_a_sog(

@@ -33,24 +33,17 @@ pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 SECRET = b"browser-test-secret-0123456789abcdef"
 VIEW = "yaw=20&pitch=-20&distance=9"
-ALL_DYNAMIC = ("means", "scales", "quats", "sh0", "opacity")
+
+
+def all_dynamic(kind: TimelineType, seed: int) -> SceneSpec:
+    """Four moving objects over a background, every attribute with temporal coefficients."""
+    dynamic = ("means", "scales", "quats", "sh0", "opacity")
+    return SceneSpec(kind, background=2000, objects=4, per_object=400, dynamic=dynamic, seed=seed)
+
+
 SCENES: dict[str, SceneSpec] = {
-    "centre": SceneSpec(
-        TimelineType.CENTER_SCALE,
-        background=2000,
-        objects=4,
-        per_object=400,
-        dynamic=ALL_DYNAMIC,
-        seed=3,
-    ),
-    "spans": SceneSpec(
-        TimelineType.START_DURATION,
-        background=2000,
-        objects=4,
-        per_object=400,
-        dynamic=ALL_DYNAMIC,
-        seed=4,
-    ),
+    "centre": all_dynamic(TimelineType.CENTER_SCALE, seed=3),
+    "spans": all_dynamic(TimelineType.START_DURATION, seed=4),
     "frames": SceneSpec(TimelineType.FRAME, background=600, objects=3, per_object=150, seed=5),
 }
 # The GPU-evaluated frame against the engine's render of the static SOG that `tsog frame`
@@ -214,6 +207,11 @@ def test_scrubbing_fetches_only_the_chunks_for_t(facts: Facts, base: str, open_p
     assert sorted(fetched) == sorted(needed[then] - needed[first])
     assert sorted(page.js("window.tsogPlayer.stream.stats().shown")) == sorted(needed[then])
     check_buffered(page, facts)
+    total = sum(facts.chunks[i].length for i in needed[first] | needed[then])
+    page.page.wait_for_function(
+        f"document.getElementById('o-bytes').textContent === {f'{total:,}'!r}", timeout=5000
+    )
+    assert page.page.text_content("#o-chunks") == str(len(needed[then]))
 
 
 def check_buffered(page: PlayerPage, facts: Facts) -> None:
@@ -246,7 +244,18 @@ def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open
         pytest.fail("playback did not reach t = 3.5 s within 20 s")
     assert ahead_seen, "chunks after the playhead must be fetched before they are needed"
     assert held_behind == [], "chunks behind the playhead must be dropped"
-    assert page.page.inner_text("#o-state") in ("playing", "buffering")
+    assert page.page.text_content("#o-state") in ("playing", "buffering")
+    # Loop (on by default): past the end, playback starts again from the beginning.
+    page.page.wait_for_function("tsogPlayer.playback.t < 1", timeout=10_000)
+    # Loop off: playback stops at the end.
+    page.js("document.getElementById('loop').click()")
+    page.page.wait_for_function(
+        "!tsogPlayer.playback.playing && tsogPlayer.playback.t === tsogPlayer.playback.end",
+        timeout=15_000,
+    )
+    page.page.wait_for_function(
+        "document.getElementById('o-state').textContent === 'paused'", timeout=5000
+    )
 
 
 def test_a_static_origin_plays_from_a_manifest_url(
