@@ -17,7 +17,7 @@ from urllib.parse import quote
 import numpy as np
 import pytest
 
-from browser import PlayerPage, chromium, image_difference, near
+from browser import VIEWPORT, PlayerPage, chromium, image_difference, near
 from helpers import ThreadedServer, nginx_origin
 from tsog_stream.cli.main import main
 from tsog_stream.container.sync import StreamReader
@@ -282,3 +282,16 @@ def test_a_private_scene_plays_from_its_signed_page_url(base: str, open_page: An
     api = [u for u in page.requests if "/v1/" in u]
     assert api and all("signature=" in u for u in api)
     assert page.js("window.tsogPlayer.stream.stats().failed") == 0
+
+
+def test_a_missing_manifest_is_a_clear_error_on_the_page(base: str, browser: Any) -> None:
+    page = browser.new_page(viewport=VIEWPORT)
+    try:
+        missing = quote(f"{base}/files/nothing/manifest.json", safe="")
+        page.goto(f"{base}/play/?manifest={missing}")
+        page.wait_for_function("window.tsogPlayer?.error", timeout=10_000)
+        assert page.is_visible("#error")
+        message = page.text_content("#error")
+        assert message is not None and "manifest: HTTP 404" in message and "/nothing/" in message
+    finally:
+        page.close()

@@ -8,11 +8,14 @@ import { OrbitCamera } from './orbit.js';
 
 const $ = (id) => document.getElementById(id);
 
+/** Euler angles (degrees) that turn a scene's up axis to the engine's +y. 3DGS captures in
+ * COLMAP convention are y-down: open them with ?up=-y. */
+const UP_ROTATIONS = { y: [0, 0, 0], '-y': [0, 0, 180], z: [-90, 0, 0], '-z': [90, 0, 0] };
+
 /** The page's configuration (written by the server) and its query: t, paused, manifest. */
 function readConfig() {
     const config = JSON.parse($('tsog-config').textContent);
     const params = new URLSearchParams(window.location.search);
-    const t = Number.parseFloat(params.get('t') ?? '');
     const manifest = new URL(config.manifest, window.location.href);
     const number = (name) => {
         const value = Number.parseFloat(params.get(name) ?? '');
@@ -22,10 +25,6 @@ function readConfig() {
     if (!(view.up in UP_ROTATIONS)) throw new Error(`up must be one of ${Object.keys(UP_ROTATIONS).join(', ')}`);
     return { ...config, manifest, view, t: number('t'), paused: params.has('paused') };
 }
-
-/** Euler angles (degrees) that turn a scene's up axis to the engine's +y. 3DGS captures in
- * COLMAP convention are y-down: open them with ?up=-y. */
-const UP_ROTATIONS = { y: [0, 0, 0], '-y': [0, 0, 180], z: [-90, 0, 0], '-z': [90, 0, 0] };
 
 /** Where a chunk's bytes are: the /v1 chunk URL (immutable by its hash), or its file beside
  * the manifest on a static origin. */
@@ -147,7 +146,9 @@ async function main() {
     window.tsogPlayer = { fetchLog };
     const manifestUrl = config.query ? `${config.manifest.href}?${config.query}` : config.manifest.href;
     fetchLog.push(manifestUrl);
-    const response = await fetch(manifestUrl);
+    const response = await fetch(manifestUrl).catch(() => {
+        throw new Error(`cannot fetch ${manifestUrl} (network error, or its origin does not allow CORS)`);
+    });
     if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${manifestUrl}`);
     const manifest = await response.json();
     if (manifest.format !== 'tsogs') throw new Error(`${manifestUrl} is not a TSOG stream manifest`);

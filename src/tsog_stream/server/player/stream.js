@@ -38,7 +38,6 @@ export class ChunkStream {
         this.wanted = []; // ids in load priority: needed at t first, then ahead of t
         this.shown = new Set(); // ids drawn at t (exactly chunks_for(t))
         this.planned = null; // [t, playing] the plan was made for
-        this.shownTime = null; // the t the time uniforms hold
         this.bytes = 0;
         this.error = null;
         this.bufferedFor = null; // {version, ranges}: buffered() recomputed when chunks change
@@ -160,7 +159,6 @@ export class ChunkStream {
                 c.time = t;
             }
         }
-        this.shownTime = t;
     }
 
     /** Stop a chunk's load or free what it holds. */
