@@ -26,9 +26,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from playwright.sync_api import sync_playwright
-
-from browser import CHROMIUM, FLAGS, VIEWPORT
+from browser import COVERED, VIEWPORT, chromium
 from common import write_section
 from helpers import ThreadedServer
 from tsog_stream.container.sync import StreamReader
@@ -38,7 +36,6 @@ from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
 DURATION = 30.0
-COVERED = "window.tsogPlayer?.stream?.covered(window.tsogPlayer.playback.t)"
 COUNT_FRAMES = (
     "window.__frames = 0; (function tick() { window.__frames++; requestAnimationFrame(tick); })()"
 )
@@ -192,8 +189,7 @@ def main() -> int:
         server = ThreadedServer(make_app(root))
         base = f"http://127.0.0.1:{server.port}"
         try:
-            with sync_playwright() as p:
-                browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+            with chromium() as browser:
                 firsts = first_frames(browser, base, size, expected)
                 cpu = {
                     "paused": cpu_per_frame(
@@ -203,7 +199,6 @@ def main() -> int:
                         browser, f"{base}/play/clip?t=15&paused", args.seconds, True
                     ),
                 }
-                browser.close()
         finally:
             server.stop()
     assert cpu["playing"]["playing"], "the clip must be playing while measured"

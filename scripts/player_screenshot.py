@@ -15,9 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from playwright.sync_api import sync_playwright
-
-from browser import CHROMIUM, FLAGS
+from browser import COVERED, chromium
 from helpers import ThreadedServer
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
@@ -36,18 +34,13 @@ def main() -> int:
         segment_scene(generate_scene(spec), root / "demo.tsogs", SegmentOptions(window_s=1.0))
         server = ThreadedServer(make_app(root))
         try:
-            with sync_playwright() as p:
-                browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+            with chromium() as browser:
                 page = browser.new_page(viewport={"width": 960, "height": 540})
                 url = f"http://127.0.0.1:{server.port}/play/demo?t={args.t}&paused&yaw=25&pitch=-18&distance=11"
                 page.goto(url)
-                page.wait_for_function(
-                    "window.tsogPlayer?.stream?.covered(window.tsogPlayer.playback.t)",
-                    timeout=30_000,
-                )
+                page.wait_for_function(COVERED, timeout=30_000)
                 time.sleep(2)  # the overlay refreshes five times a second; the sort settles
                 page.screenshot(path=str(args.out))
-                browser.close()
         finally:
             server.stop()
     print(f"{args.out}: written")

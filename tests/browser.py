@@ -33,6 +33,8 @@ FLAGS = [
 VIEWPORT = {"width": 640, "height": 480}
 HIDE_UI = ".overlay,.controls,.error{display:none !important}"
 LOAD_TIMEOUT_MS = 30_000
+COVERED = "window.tsogPlayer?.stream?.covered(window.tsogPlayer.playback.t)"
+"""Page expression: every chunk the playhead needs is loaded."""
 STABLE_TRIES = 40
 RGB = npt.NDArray[np.int16]
 
@@ -91,9 +93,7 @@ class PlayerPage:
     def wait_covered(self) -> None:
         """Until the player failed or every chunk the playhead needs is loaded."""
         self.page.wait_for_function(
-            "window.tsogPlayer?.error || (window.tsogPlayer?.stream"
-            " && window.tsogPlayer.stream.covered(window.tsogPlayer.playback.t))",
-            timeout=LOAD_TIMEOUT_MS,
+            f"window.tsogPlayer?.error || {COVERED}", timeout=LOAD_TIMEOUT_MS
         )
         error = self.js("window.tsogPlayer.error ?? null")
         assert error is None, error

@@ -77,9 +77,7 @@ def test_scene_page(port: int, scene: str) -> None:
     page = r.body.decode()
     assert '<script type="module" src="/player/player.js"></script>' in page
     assert '"playcanvas": "/player/engine/playcanvas.mjs"' in page
-    found = re.search(r'<script type="application/json" id="tsog-config">(.*?)</script>', page)
-    assert found is not None
-    config = json.loads(found.group(1))
+    config = page_config(r.body)
     assert config == {
         "scene": scene,
         "manifest": f"/v1/scenes/{scene}/manifest",

@@ -108,12 +108,19 @@ def sign_url(url: str, secret: bytes, expires: int, scope: str | None = None) ->
         )
     query = [(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True)]
     query = [(k, v) for k, v in query if k not in SIGNED_PARAMS]
-    query += [
+    return urlunsplit(
+        parts._replace(query=urlencode(query + signing_params(secret, scope, expires), safe="/"))
+    )
+
+
+def signing_params(secret: bytes, scope: str, expires: int) -> list[tuple[str, str]]:
+    """The query parameters that sign ``scope`` (a path, or a prefix ending with '/') until
+    ``expires`` (Unix seconds)."""
+    return [
         (EXPIRES, str(expires)),
         (SCOPE, scope),
         (SIGNATURE, signature(secret, scope, expires)),
     ]
-    return urlunsplit(parts._replace(query=urlencode(query, safe="/")))
 
 
 def check_signed(path: str, query: Mapping[str, str], secret: bytes, now: float) -> None:
@@ -168,4 +175,5 @@ __all__ = [
     "sign_url",
     "signature",
     "signed_params",
+    "signing_params",
 ]

@@ -251,9 +251,7 @@ def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     scene = _load(args, progress)
     progress(f"evaluating t = {args.t} s")
     frame = scene.at(args.t)
-    write_frame(args.output, frame, progress)
-    progress.done()
-    print(f"{args.output}: {len(frame)} Gaussians visible at t = {args.t} s")
+    write_frame(args.output, frame, args.t, progress)
     return 0
 
 

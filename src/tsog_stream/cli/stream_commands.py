@@ -280,12 +280,15 @@ def stream_info(path: Path) -> dict[str, Any]:
         }
 
 
-def write_frame(output: Path, frame: Gaussians, progress: Progress) -> None:
-    """A static frame as a float PLY (``.ply``) or, for any other name, a SOG v2 chunk."""
+def write_frame(output: Path, frame: Gaussians, t: float, progress: Progress) -> None:
+    """Write the frame at ``t`` as a float PLY (``.ply``) or, for any other name, a SOG v2
+    chunk, and say how many Gaussians it holds."""
     if output.suffix.lower() == ".ply":
         write_ply(output, frame)
     else:
         write_chunk_files(output, encode_chunk(Scene(frame), progress=progress), overwrite=True)
+    progress.done()
+    print(f"{output}: {len(frame)} Gaussians visible at t = {t} s")
 
 
 def stream_frame(path: Path, t: float, output: Path, verbose: bool, progress: Progress) -> int:
@@ -293,9 +296,7 @@ def stream_frame(path: Path, t: float, output: Path, verbose: bool, progress: Pr
     with StreamReader.open(path) as reader:
         frame = reader.frame_at(t)
         stats = reader.source.stats
-    write_frame(output, frame, progress)
-    progress.done()
-    print(f"{output}: {len(frame)} Gaussians visible at t = {t} s")
+    write_frame(output, frame, t, progress)
     if verbose:
         print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
     return 0

@@ -20,7 +20,7 @@ from urllib.parse import quote, unquote, urlencode, urlsplit
 from aiohttp import web
 
 from ..errors import InputError, TsogError
-from ..signing import EXPIRES, SCOPE, SIGNATURE, signature
+from ..signing import EXPIRES, signing_params
 from . import app as server  # a cycle (app.py registers these routes): names used at call time
 from .catalog import CONTAINER_SUFFIX, NotFoundError, Representation
 from .private import PRIVACY, is_signed
@@ -186,10 +186,7 @@ def _scene_query(request: web.Request, api: str) -> str:
         return ""
     secret = request.app[PRIVACY].secret or b""  # set whenever a request was admitted signed
     expires = int(request.query[EXPIRES])
-    scope = unquote(api) + "/"
-    return urlencode(
-        {EXPIRES: expires, SCOPE: scope, SIGNATURE: signature(secret, scope, expires)}, safe="/"
-    )
+    return urlencode(signing_params(secret, unquote(api) + "/", expires), safe="/")
 
 
 async def play(request: web.Request) -> web.StreamResponse:

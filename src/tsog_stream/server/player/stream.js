@@ -181,10 +181,12 @@ export class ChunkStream {
         c.entity = c.asset = c.textures = null;
     }
 
-    /** True when every chunk that t needs is ready (or failed: playback must not hang). */
+    /** True when every chunk that t needs is ready (or failed: playback must not hang). The
+     * plan made for t already holds those chunks. */
     covered(t) {
-        return this.index.chunksFor(t).every((info) => {
-            const c = this.chunks.get(info.id);
+        const needed = this.planned?.[0] === t ? this.shown : this.index.chunksFor(t).map((c) => c.id);
+        return [...needed].every((id) => {
+            const c = this.chunks.get(id);
             return c && (c.state === 'ready' || c.state === 'failed');
         });
     }
