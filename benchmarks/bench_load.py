@@ -33,8 +33,7 @@ import aiohttp
 
 from bench_http import free_port, start_nginx, wait_up
 from common import segmented_clip, write_section
-from tsog_stream.container.reader import open_stream
-from tsog_stream.container.sources import FileSource
+from tsog_stream.container.sources import FileSource, read_index
 
 REPO = Path(__file__).resolve().parents[1]
 TSOG = REPO / ".venv" / "bin" / "tsog"
@@ -76,7 +75,7 @@ def make_file(root: Path) -> Path:
 
 def plays(path: Path, count: int, seed: int = 1) -> list[list[tuple[int, int]]]:
     """For ``count`` random t: the (offset, length) of each chunk a player fetches for [t, t+1]."""
-    index = asyncio.run(open_stream(FileSource(path)))
+    index = asyncio.run(read_index(FileSource(path)))
     info = index.manifest.scene
     rng = random.Random(seed)
     out = []

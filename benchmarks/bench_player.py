@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from browser import COVERED, VIEWPORT, chromium
 from common import write_section
 from helpers import ThreadedServer
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
@@ -181,7 +181,7 @@ def main() -> int:
         size = (root / "clip.tsogs").stat().st_size
         rng = random.Random(1)
         times = [round(rng.uniform(0, DURATION), 2) for _ in range(args.runs)]
-        with StreamReader.open(root / "clip.tsogs") as reader:  # before playwright's event loop
+        with open_stream(root / "clip.tsogs") as reader:  # before playwright's event loop
             print(
                 f"clip: {len(reader.index.manifest.chunks)} chunks, {size} bytes", file=sys.stderr
             )

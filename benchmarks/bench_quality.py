@@ -26,9 +26,9 @@ import numpy as np
 
 from bench_temporal import generated_sequence
 from common import write_section
+from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.io.fourdgs import encode_4dgs, parse_4dgs
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import load_scene
@@ -222,7 +222,7 @@ def sequence_rows(
                 if scene is None:
                     continue
                 segment_scene(scene, out, SegmentOptions())
-            with StreamReader.open(out) as reader:
+            with open_stream(out) as reader:
                 row: dict[str, Any] = {
                     "group": "frame sequences",
                     "case": name,

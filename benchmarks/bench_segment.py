@@ -24,7 +24,7 @@ import numpy as np
 
 from common import run_measured, write_section
 from tsog_stream import TimelineType
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.client import open_stream
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import ReadOptions, load_scene
 from tsog_stream.model import Scene
@@ -39,7 +39,7 @@ SPLATV = REPO.parent / "shared" / "data" / "4d" / "splatv" / "macaburguera_spina
 
 def seek_stats(path: Path, samples: int, seed: int) -> dict[str, float]:
     """Mean/max bytes, requests and overfetch over random times of the scene."""
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         scene = reader.index.manifest.scene
         times = np.random.default_rng(seed).uniform(scene.start_s, scene.end_s, samples)
         costs = [reader.seek_cost(float(t)) for t in times]

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from common import write_section
+from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.io.ply import ply_bytes, write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.merge import merge_sequence
@@ -107,7 +107,7 @@ def run_mode(seq: FrameSequence, mode: str, out: Path, frames: list[int]) -> dic
         stored = stats.gaussians_out
     seconds = time.monotonic() - start
     worst, unpaired = dict.fromkeys(ERROR_KEYS, 0.0), 0
-    with StreamReader.open(out) as reader:
+    with open_stream(out) as reader:
         for k in frames:
             errors, missing = frame_errors(
                 seq.read(k, k + 1).scene.gaussians, reader.frame_at(k / seq.fps)

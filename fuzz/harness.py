@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 with atheris.instrument_imports(include=["tsog_stream"]):
+    import tsog_stream.client
     import tsog_stream.codec.chunk
-    import tsog_stream.container.reader
     import tsog_stream.io.ply
     import tsog_stream.io.splatv
     import tsog_stream.schemas.validate

@@ -24,12 +24,12 @@ from typing import Final
 import numpy as np
 import zstandard
 
+from tsog_stream.client import StreamClient
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header
 from tsog_stream.container.index import decode_index, encode_index
-from tsog_stream.container.reader import open_stream, read_scene_chunk
-from tsog_stream.container.sources import MemorySource
+from tsog_stream.container.sources import MemorySource, read_index
 from tsog_stream.errors import TsogError
 from tsog_stream.io.ply import parse_ply, ply_bytes
 from tsog_stream.io.splatv import MAGIC, RECORD, parse_splatv
@@ -102,9 +102,10 @@ def fuzz_container(data: bytes) -> object:
 
     async def run() -> None:
         source = MemorySource(data, "fuzz.tsogs")
-        index = await open_stream(source)
+        index = await read_index(source)
+        client = StreamClient(source, index)
         for chunk in index.manifest.chunks[:MAX_CHUNKS_READ]:
-            await read_scene_chunk(source, index, chunk)
+            await client.chunk_scene(chunk.id)
 
     asyncio.run(run())
     return None
@@ -262,7 +263,7 @@ def _sog_files() -> dict[str, bytes]:
 
 def _index_seed(container: bytes) -> bytes:
     """The index frame of ``container`` prefixed with its declared raw length."""
-    manifest = asyncio.run(open_stream(MemorySource(container))).manifest
+    manifest = asyncio.run(read_index(MemorySource(container))).manifest
     frame, _sha, raw_length = encode_index(manifest)
     return raw_length.to_bytes(8, "little") + frame
 
@@ -283,10 +284,10 @@ def valid_seeds(target: str) -> dict[str, bytes]:
     if target == "index":
         return {"index.zst": _index_seed(_container_seed())}
     if target == "manifest":
-        manifest = asyncio.run(open_stream(MemorySource(_container_seed()))).manifest
+        manifest = asyncio.run(read_index(MemorySource(_container_seed()))).manifest
         return {"index.manifest": dump_manifest(manifest)}
     if target == "index_json":
-        manifest = asyncio.run(open_stream(MemorySource(_container_seed()))).manifest
+        manifest = asyncio.run(read_index(MemorySource(_container_seed()))).manifest
         return {"small.index": dump_manifest(manifest)}
     if target == "chunk":
         names = sorted(_sog_files())

@@ -14,12 +14,18 @@ import numpy as np
 import pytest
 from aiohttp import web
 
-from tsog_stream.client import HttpOptions, HttpSource, SceneCache, StreamClient, open_url
-from tsog_stream.client.cli import add_client_commands, cmd_fetch, cmd_play
+from tsog_stream.cli.client_commands import add_client_commands, cmd_fetch, cmd_play
+from tsog_stream.cli.progress import Progress
+from tsog_stream.client import (
+    HttpOptions,
+    HttpSource,
+    SceneCache,
+    StreamClient,
+    open_stream,
+)
 from tsog_stream.client.stream import scene_nbytes
 from tsog_stream.container.header import PREFIX_SIZE
 from tsog_stream.container.ranges import ByteRange, coalesce
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import IntegrityError, SourceError
 from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -142,7 +148,7 @@ def same(a: Gaussians, b: Gaussians) -> bool:
 
 
 def local_frames(path: Path, times: tuple[float, ...]) -> list[Gaussians]:
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         return [reader.frame_at(t) for t in times]
 
 
@@ -227,7 +233,7 @@ def test_a_truncated_body_is_resumed(origin: Origin, container: Path) -> None:
 
 def test_server_errors_are_retried(origin: Origin, container: Path) -> None:
     origin.faults.add("error_once")
-    with open_url(origin.url(), http=FAST) as client:
+    with open_stream(origin.url(), http=FAST) as client:
         assert same(client.frame_at(1.2), local_frames(container, (1.2,))[0])
     assert origin.log[0] == origin.log[1]
 
@@ -256,9 +262,9 @@ def test_bad_answers_raise_the_right_error(
 def test_an_origin_ignoring_ranges(origin: Origin, container: Path) -> None:
     origin.faults.add("ignore_range")
     with pytest.raises(SourceError, match="ignores Range"):
-        open_url(origin.url(), http=HttpOptions(max_unranged_bytes=1000))
+        open_stream(origin.url(), http=HttpOptions(max_unranged_bytes=1000))
     assert len(origin.data) <= 1 << 20
-    with open_url(origin.url(), http=FAST) as client:
+    with open_stream(origin.url(), http=FAST) as client:
         assert same(client.frame_at(0.3), local_frames(container, (0.3,))[0])
         assert client.client.source.stats.requests == 1
 
@@ -267,7 +273,7 @@ def test_slow_answers_time_out(origin: Origin) -> None:
     origin.faults.add("slow")
     options = HttpOptions(retries=1, backoff_s=0.01, read_timeout_s=0.05)
     with pytest.raises(SourceError, match="2 attempts"):
-        open_url(origin.url(), http=options)
+        open_stream(origin.url(), http=options)
 
 
 @pytest.mark.parametrize("size", [0, 10])
@@ -305,7 +311,7 @@ def test_the_cache_counts_hits_and_misses(origin: Origin) -> None:
 def test_play_yields_the_local_frames_and_fetches_little_more(
     origin: Origin, container: Path
 ) -> None:
-    with open_url(origin.url(), http=FAST) as client:
+    with open_stream(origin.url(), http=FAST) as client:
         frames, stats = client.play(0.25, fps=10.0, duration=1.0)
         times = [f.t for f in frames]
         needed = wire_bytes(client.client, times, 0)
@@ -319,7 +325,7 @@ def test_play_yields_the_local_frames_and_fetches_little_more(
 def test_local_paths_and_file_urls(container: Path) -> None:
     want = local_frames(container, (1.2,))[0]
     for target in (str(container), container.as_uri()):
-        with open_url(target) as client:
+        with open_stream(target) as client:
             assert same(client.frame_at(1.2), want)
 
 
@@ -327,10 +333,10 @@ def test_cli_fetch_and_play(
     origin: Origin, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     parser = argparse.ArgumentParser()
-    add_client_commands(parser.add_subparsers(dest="command"), lambda p: None)
+    add_client_commands(parser.add_subparsers(dest="command"))
     lines: list[str] = []
     args = parser.parse_args(["fetch", origin.url(), "--t", "0.7", "-o", str(tmp_path / "f.ply")])
-    assert cmd_fetch(args, lines.append) == 0
+    assert cmd_fetch(args, Progress(quiet=True)) == 0
     assert (tmp_path / "f.ply").is_file()
     assert "requests" in capsys.readouterr().out
     args = parser.parse_args(["play", origin.url(), "--duration", "0.5", "--fps", "10"])
@@ -341,7 +347,7 @@ def test_cli_fetch_and_play(
 
 
 def test_the_cache_evicts_least_recently_used(container: Path) -> None:
-    with StreamReader.open(container) as reader:
+    with open_stream(container) as reader:
         scenes = [reader.chunk_scene(i) for i in range(3)]
     cache = SceneCache(scene_nbytes(scenes[0]) + scene_nbytes(scenes[1]))
     cache.put(0, scenes[0])

@@ -18,10 +18,9 @@ import numpy as np
 import pytest
 
 from helpers import ThreadedServer, nginx_origin
-from tsog_stream.client import HttpOptions, StreamClient, SyncClient, open_url
-from tsog_stream.client.cli import add_client_commands, cmd_play
+from tsog_stream.cli.client_commands import add_client_commands, cmd_play
+from tsog_stream.client import HttpOptions, Stream, StreamClient, open_stream
 from tsog_stream.container.ranges import coalesce
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import IntegrityError, SourceError
 from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -40,7 +39,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("site")
     scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0, dynamic=("means",))
     segment_scene(scene, root / "scene.tsogs", SegmentOptions(window_s=0.5, policy="duplicate"))
-    with StreamReader.open(root / "scene.tsogs") as reader:
+    with open_stream(root / "scene.tsogs") as reader:
         reader.unpack(root / "scene")
     return root
 
@@ -48,7 +47,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def expected(site: Path) -> list[Gaussians]:
     """The frames at TIMES read locally."""
-    with StreamReader.open(site / "scene.tsogs") as reader:
+    with open_stream(site / "scene.tsogs") as reader:
         return [reader.frame_at(t) for t in TIMES]
 
 
@@ -124,7 +123,7 @@ def test_packed_frames_equal_local_and_requests_are_counted(
 
 def test_unpacked_folder_over_http(base: str, expected: list[Gaussians]) -> None:
     for url in (base + "scene/", base + "scene/manifest.json"):
-        with open_url(url, http=FAST) as sync:
+        with open_stream(url, http=FAST) as sync:
             client = sync.client
             assert not client.source.coalesces
             assert client.source.stats.requests == 1  # manifest.json
@@ -137,7 +136,7 @@ def test_unpacked_folder_over_http(base: str, expected: list[Gaussians]) -> None
 
 def test_unpacked_local_folder(site: Path, expected: list[Gaussians]) -> None:
     for target in (site / "scene", site / "scene" / "manifest.json", f"file://{site}/scene/"):
-        with open_url(target) as sync:
+        with open_stream(target) as sync:
             assert sync.client.source.stats.requests == 1
             for t, want in zip(TIMES, expected, strict=True):
                 assert same(sync.frame_at(t), want), t
@@ -146,7 +145,7 @@ def test_unpacked_local_folder(site: Path, expected: list[Gaussians]) -> None:
 def test_unpacked_chunk_is_verified(site: Path, tmp_path: Path) -> None:
     folder = tmp_path / "scene"
     shutil.copytree(site / "scene", folder)
-    with open_url(folder) as sync:
+    with open_stream(folder) as sync:
         chunk = sync.client.index.chunks_for(TIMES[0])[0]
         path = folder / chunk.file
         data = bytearray(path.read_bytes())
@@ -162,7 +161,7 @@ def test_origin_ignoring_ranges_small_file_kept_in_memory(
 ) -> None:
     size = (site / "scene.tsogs").stat().st_size
     http = HttpOptions(retries=0, max_unranged_bytes=size)
-    with open_url(no_ranges + "scene.tsogs", http=http) as sync:
+    with open_stream(no_ranges + "scene.tsogs", http=http) as sync:
         stats = sync.client.source.stats
         assert stats.requests == 1 and stats.bytes == size
         for t, want in zip(TIMES, expected, strict=True):
@@ -175,7 +174,7 @@ def test_origin_ignoring_ranges_big_file_refused(no_ranges: str, site: Path) -> 
     size = (site / "scene.tsogs").stat().st_size
     http = HttpOptions(retries=0, max_unranged_bytes=size - 1)
     with pytest.raises(SourceError, match="origin ignores Range"):
-        open_url(no_ranges + "scene.tsogs", http=http)
+        open_stream(no_ranges + "scene.tsogs", http=http)
 
 
 def test_cli_play_keeps_no_frames(
@@ -184,9 +183,9 @@ def test_cli_play_keeps_no_frames(
     def collect(*args: object, **kwargs: object) -> None:
         raise AssertionError("tsog play must not collect the frames")
 
-    monkeypatch.setattr(SyncClient, "run_playback", collect)
+    monkeypatch.setattr(Stream, "run_playback", collect)
     parser = argparse.ArgumentParser()
-    add_client_commands(parser.add_subparsers(dest="command"), lambda p: None)
+    add_client_commands(parser.add_subparsers(dest="command"))
     lines: list[str] = []
     args = parser.parse_args(["play", str(site / "scene"), "--duration", "0.5", "--fps", "10"])
     assert cmd_play(args, lines.append) == 0

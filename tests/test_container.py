@@ -33,16 +33,15 @@ from tsog_stream import (
     UnsupportedError,
 )
 from tsog_stream.cli.main import main
+from tsog_stream.client import StreamClient, open_stream
+from tsog_stream.client.verify import Check
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.container import writer
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header
 from tsog_stream.container.index import MAX_INDEX_BYTES, encode_index
-from tsog_stream.container.reader import StreamIndex, open_stream, read_scene_chunk
-from tsog_stream.container.sources import FileSource, MemorySource
-from tsog_stream.container.sync import StreamReader
-from tsog_stream.container.unpacked import MANIFEST, pack
-from tsog_stream.container.verify import Check
+from tsog_stream.container.sources import FileSource, MemorySource, read_index
+from tsog_stream.container.stream_index import MANIFEST, StreamIndex
 from tsog_stream.io.chunks import read_chunk
 from tsog_stream.io.ply import read_ply
 from tsog_stream.io.sequence import read_ply_sequence
@@ -87,7 +86,7 @@ def small_bytes(small: Path) -> bytes:
 
 def open_bytes(data: bytes) -> StreamIndex:
     """Open a container held in memory."""
-    return asyncio.run(open_stream(MemorySource(data, "damaged.tsogs")))
+    return asyncio.run(read_index(MemorySource(data, "damaged.tsogs")))
 
 
 def open_and_read_all(data: bytes) -> None:
@@ -95,11 +94,18 @@ def open_and_read_all(data: bytes) -> None:
 
     async def run() -> None:
         source = MemorySource(data, "damaged.tsogs")
-        index = await open_stream(source)
+        index = await read_index(source)
+        client = StreamClient(source, index)
         for chunk in index.manifest.chunks:
-            await read_scene_chunk(source, index, chunk)
+            await client.chunk_scene(chunk.id)
 
     asyncio.run(run())
+
+
+def pack(folder: Path, out: Path) -> int:
+    """``tsog pack``: the unpacked folder as one container file."""
+    with open_stream(folder) as stream:
+        return stream.pack(out)
 
 
 def header_of(data: bytes) -> Header:
@@ -183,7 +189,7 @@ def test_the_small_container_is_valid(small: Path, small_bytes: bytes) -> None:
     assert index.header.index_offset == HEADER_SIZE
     assert index.manifest.chunks[0].offset == PREFIX_SIZE
     open_and_read_all(small_bytes)
-    with StreamReader.open(small) as reader:
+    with open_stream(small) as reader:
         report = reader.verify()
     assert report.problems == [] and report.exit_code == 0
 
@@ -286,9 +292,9 @@ def test_files_on_disk_fail_the_same_way(small_bytes: bytes, tmp_path: Path) -> 
     for data, error in _cases(small_bytes).values():
         path.write_bytes(data)
         with pytest.raises(error):
-            StreamReader.open(path).close()
+            open_stream(path).close()
     with pytest.raises(SourceError, match="cannot read"):
-        StreamReader.open(tmp_path / "missing.tsogs")
+        open_stream(tmp_path / "missing.tsogs")
 
 
 def test_a_flipped_chunk_byte_fails_that_chunk_only(small_bytes: bytes, tmp_path: Path) -> None:
@@ -296,7 +302,7 @@ def test_a_flipped_chunk_byte_fails_that_chunk_only(small_bytes: bytes, tmp_path
     victim = index.manifest.chunks[1]
     path = tmp_path / "flipped.tsogs"
     path.write_bytes(flip(small_bytes, victim.offset + victim.length // 2))
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         with pytest.raises(IntegrityError, match=f"chunk {victim.id}"):
             reader.chunk_bytes(victim.id)
         with pytest.raises(IntegrityError):
@@ -331,7 +337,7 @@ def test_verify_names_each_kind_of_problem(small_bytes: bytes, tmp_path: Path) -
     path = tmp_path / "v.tsogs"
     for data, kind, culprits in cases:
         path.write_bytes(data)
-        with StreamReader.open(path) as reader:
+        with open_stream(path) as reader:
             report = reader.verify()
         assert report.exit_code == kind, report.problems
         if culprits is not None:
@@ -377,7 +383,7 @@ def test_absurd_but_valid_index_values_do_not_break_chunk_choice(small_bytes: by
 
 
 def test_times_must_be_finite(small: Path) -> None:
-    with StreamReader.open(small) as reader:
+    with open_stream(small) as reader:
         for t in (float("nan"), float("inf"), -float("inf")):
             with pytest.raises(InputError, match="finite"):
                 reader.frame_at(t)
@@ -414,7 +420,7 @@ def test_random_damage_is_a_tsog_error_or_harmless(small_bytes: bytes, data: st.
 
 def test_a_small_container_opens_with_one_request(small_bytes: bytes) -> None:
     source = MemorySource(small_bytes)
-    index = asyncio.run(open_stream(source))
+    index = asyncio.run(read_index(source))
     assert source.stats.requests == 1 and source.stats.bytes == PREFIX_SIZE
     assert index.header.index_offset + index.header.index_length <= PREFIX_SIZE
 
@@ -434,7 +440,7 @@ def test_a_big_index_goes_to_the_end_and_opening_takes_two_requests(
     path, scene = big
     data = path.read_bytes()
     source = MemorySource(data)
-    index = asyncio.run(open_stream(source))
+    index = asyncio.run(read_index(source))
     header = index.header
     assert len(index.manifest.chunks) > 150
     assert HEADER_SIZE + header.index_length > PREFIX_SIZE
@@ -444,9 +450,9 @@ def test_a_big_index_goes_to_the_end_and_opening_takes_two_requests(
     assert source.stats.bytes == PREFIX_SIZE + header.index_length
     assert data[HEADER_SIZE:PREFIX_SIZE] == bytes(PREFIX_SIZE - HEADER_SIZE)
     file_source = FileSource(path)
-    asyncio.run(open_stream(file_source))
+    asyncio.run(read_index(file_source))
     assert file_source.stats.requests == 2
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         assert len(reader.frame_at(0.9)) == len(scene.at(0.9))
 
 
@@ -462,7 +468,7 @@ def test_the_writer_moves_the_index_when_the_prefix_is_full(
     header = header_of(data)
     assert header.index_offset > PREFIX_SIZE
     source = MemorySource(data)
-    asyncio.run(open_stream(source))
+    asyncio.run(read_index(source))
     assert source.stats.requests == 2
 
 
@@ -471,7 +477,7 @@ def test_the_writer_moves_the_index_when_the_prefix_is_full(
 
 def test_unpack_then_pack_is_byte_identical(small: Path, tmp_path: Path) -> None:
     folder = tmp_path / "unpacked"
-    with StreamReader.open(small) as reader:
+    with open_stream(small) as reader:
         assert reader.unpack(folder) == len(reader.index.manifest.chunks)
         manifest = reader.index.manifest
     assert sorted(p.name for p in (folder / "chunks").iterdir()) == [
@@ -484,7 +490,7 @@ def test_unpack_then_pack_is_byte_identical(small: Path, tmp_path: Path) -> None
     assert pack(folder, out) == small.stat().st_size
     assert out.read_bytes() == small.read_bytes()
     with (
-        StreamReader.open(small) as reader,
+        open_stream(small) as reader,
         pytest.raises(SourceError, match="already exists"),
     ):
         reader.unpack(folder)
@@ -493,7 +499,7 @@ def test_unpack_then_pack_is_byte_identical(small: Path, tmp_path: Path) -> None
 @pytest.fixture
 def unpacked(small: Path, tmp_path: Path) -> Path:
     folder = tmp_path / "unpacked"
-    with StreamReader.open(small) as reader:
+    with open_stream(small) as reader:
         reader.unpack(folder)
     return folder
 
@@ -562,7 +568,7 @@ def test_cli_verify_then_corrupt(
 ) -> None:
     assert main(["verify", str(hanabi), "-q"]) == 0
     assert "OK" in capsys.readouterr().out
-    with StreamReader.open(hanabi) as reader:
+    with open_stream(hanabi) as reader:
         chunk = reader.index.manifest.chunks[2]
     bad = tmp_path / "bad.tsogs"
     bad.write_bytes(flip(hanabi.read_bytes(), chunk.offset + 1000))
@@ -581,7 +587,7 @@ def test_cli_frame_reads_only_what_t_needs(
     read = int(streams.err.split("read ")[1].split(" bytes")[0])
     assert 0 < read < hanabi.stat().st_size // 2
     frame = read_ply(out).gaussians
-    with StreamReader.open(hanabi) as reader:
+    with open_stream(hanabi) as reader:
         expected = reader.frame_at(0.6)
         needed = reader.index.chunks_for(0.6)
     assert f"{len(expected)} Gaussians visible" in streams.out
@@ -592,7 +598,7 @@ def test_cli_frame_reads_only_what_t_needs(
 def test_cli_frame_of_a_stream_writes_a_static_sog(hanabi: Path, tmp_path: Path) -> None:
     out = tmp_path / "f.sog"
     assert main(["frame", str(hanabi), "--t", "0.6", "-o", str(out), "-q"]) == 0
-    with StreamReader.open(hanabi) as reader:
+    with open_stream(hanabi) as reader:
         expected = reader.frame_at(0.6)
     files = read_bundle(out.read_bytes())
     meta = json.loads(files["meta.json"])
@@ -610,7 +616,7 @@ def test_cli_extract_gives_the_byte_range_as_a_sog(
 ) -> None:
     out = tmp_path / "c.sog"
     assert main(["extract", str(hanabi), "1", "-o", str(out), "-q"]) == 0
-    with StreamReader.open(hanabi) as reader:
+    with open_stream(hanabi) as reader:
         chunk = reader.index.manifest.chunks[1]
         decoded = reader.chunk_scene(1)
     data = out.read_bytes()
@@ -643,7 +649,7 @@ def test_cli_segments_a_frame_folder(
     assert main([*args, "--workers", "1", "-q"]) == 0
     assert "3 windows" in capsys.readouterr().out
     source = read_ply_sequence(folder, fps=6.0).scene
-    with StreamReader.open(out) as reader:
+    with open_stream(out) as reader:
         assert reader.index.manifest.window_s == pytest.approx(2 / 6)
         for k in range(6):
             t = k / 6
@@ -692,7 +698,7 @@ def test_cli_errors_are_one_friendly_line(
 def test_reference_tool_reads_an_extracted_chunk_as_a_plain_sog(
     hanabi: Path, splat_transform: Path, tmp_path: Path
 ) -> None:
-    with StreamReader.open(hanabi) as reader:
+    with open_stream(hanabi) as reader:
         chunk = reader.index.manifest.chunks[0]
         ours = reader.chunk_scene(chunk.id)
     sog = tmp_path / "chunk.sog"

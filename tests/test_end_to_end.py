@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from tsog_stream import TimelineType
+from tsog_stream.client import open_stream
 from tsog_stream.client.stream import StreamClient
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server.app import make_app, start_server
 from tsog_stream.synthetic import SceneSpec, generate_scene
@@ -50,7 +50,7 @@ def test_play_over_http_equals_local_frames(tmp_path: Path) -> None:
 
     frames, fetched, needed_bytes, requests = asyncio.run(run())
     assert len(frames) > 20 and requests > 0
-    with StreamReader.open(path) as local:
+    with open_stream(path) as local:
         for t, got in frames:
             want = local.frame_at(t)
             assert _same(got.means, want.means) and _same(got.opacities, want.opacities), t

@@ -12,9 +12,10 @@ from PIL import Image
 
 from helpers import ThreadedServer
 from tsog_stream.cli.main import main
+from tsog_stream.client import open_stream
 from tsog_stream.codec.chunk import encode_chunk
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import InputError
+from tsog_stream.inputs import open_source
 from tsog_stream.io.chunks import write_chunk_files
 from tsog_stream.io.ply import read_ply, write_ply
 from tsog_stream.model import Gaussians, Scene, TimelineType
@@ -22,7 +23,6 @@ from tsog_stream.render.camera import scene_orbit
 from tsog_stream.render.evaluate import (
     CameraSetup,
     evaluate,
-    open_source,
     sample_times,
     scene_source,
 )
@@ -243,7 +243,7 @@ def test_eval_cli_on_a_container_and_its_unpacked_folder(
 ) -> None:
     _, path = clip
     folder = tmp_path / "unpacked"
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         reader.unpack(folder)
     report = _eval_json(capsys, str(path), str(folder), "--times", "3", "--views", "2")
     summary = report["summary"]

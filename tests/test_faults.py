@@ -25,13 +25,11 @@ import pytest
 from helpers import ThreadedServer
 from tsog_stream import TimelineType
 from tsog_stream.cli.main import main
-from tsog_stream.client import StreamClient
+from tsog_stream.client import StreamClient, open_stream
 from tsog_stream.client.http_source import HttpOptions
+from tsog_stream.client.verify import RESERVED_START
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE
-from tsog_stream.container.reader import open_stream, read_chunk_bytes
-from tsog_stream.container.sources import MemorySource
-from tsog_stream.container.sync import StreamReader
-from tsog_stream.container.verify import RESERVED_START
+from tsog_stream.container.sources import MemorySource, read_index
 from tsog_stream.errors import FormatError, IntegrityError, SourceError, TsogError
 from tsog_stream.model import Gaussians
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -64,7 +62,7 @@ def same(a: Gaussians, b: Gaussians) -> bool:
 
 
 def local_frames(path: Path, times: tuple[float, ...] = TIMES) -> list[Gaussians]:
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         return [reader.frame_at(t) for t in times]
 
 
@@ -97,7 +95,7 @@ def _chunk_offsets(data: bytes, offset: int) -> dict[str, list[int]]:
 def flip_offsets(path: Path) -> dict[str, list[int]]:
     """~160 offsets chosen deterministically to cover every region of the container."""
     data = path.read_bytes()
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         index = reader.index
     h = index.header
     index_end = h.index_offset + h.index_length
@@ -127,9 +125,10 @@ async def _reader_detects(data: bytes) -> bool:
     """Whether opening or reading any chunk raises IntegrityError / FormatError."""
     source = MemorySource(data)
     try:
-        index = await open_stream(source)
+        index = await read_index(source)
+        client = StreamClient(source, index)
         for c in index.manifest.chunks:
-            await read_chunk_bytes(source, index, c)
+            await client.chunk_bytes(c.id)
     except (IntegrityError, FormatError):
         return True
     return False
@@ -164,13 +163,13 @@ def test_the_reader_detects_any_flipped_byte(versions: tuple[Path, Path], tmp_pa
     # decompresses to the very JSON the header's SHA-256 covers, so the reader sees the same
     # index and shows the same frames (docs/spec.md §8.6).
     assert len(missed) <= 3 and {name for name, _ in missed} <= {"index"}
-    with StreamReader.open(versions[0]) as reader:
+    with open_stream(versions[0]) as reader:
         manifest = reader.index.manifest
     expected = local_frames(versions[0])
     for _, off in missed:
         target = tmp_path / "same.tsogs"
         target.write_bytes(flipped(data, off))
-        with StreamReader.open(target) as reader:
+        with open_stream(target) as reader:
             assert reader.index.manifest == manifest
         assert all(same(a, b) for a, b in zip(local_frames(target), expected, strict=True))
 
@@ -206,13 +205,13 @@ def test_flips_in_bytes_without_data_are_harmless(
     data = versions[0].read_bytes()
     expected = local_frames(versions[0])
     regions = flip_offsets(versions[0])
-    with StreamReader.open(versions[0]) as reader:
+    with open_stream(versions[0]) as reader:
         identity = reader.index.identity
     for name in HARMLESS:
         for off in regions[name]:
             target = tmp_path / "harmless.tsogs"
             target.write_bytes(flipped(data, off))
-            with StreamReader.open(target) as reader:
+            with open_stream(target) as reader:
                 assert reader.index.identity == identity
                 frames = [reader.frame_at(t) for t in TIMES]
             assert all(same(a, b) for a, b in zip(frames, expected, strict=True)), (name, off)
@@ -234,7 +233,7 @@ def served(tmp_path: Path) -> Iterator[tuple[Path, str]]:
 
 def _chunk_times(path: Path) -> dict[int, float]:
     """A time at which each chunk is needed."""
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         return {c.id: (c.start_s + c.end_s) / 2 for c in reader.index.manifest.chunks}
 
 
@@ -343,7 +342,7 @@ def test_a_replaced_unpacked_layout_is_caught_by_chunk_hashes(
     a, b = versions
     root, base = served
     for name, src in (("u", a), ("next", b)):
-        with StreamReader.open(src) as reader:
+        with open_stream(src) as reader:
             reader.unpack(root / name)
     frame_a = local_frames(a, (TIMES[0],))[0]
 

@@ -25,12 +25,11 @@ import pytest
 
 from helpers import free_port
 from tsog_stream.cli.main import main
-from tsog_stream.client import StreamClient
+from tsog_stream.client import StreamClient, open_stream
 from tsog_stream.client.http_source import HttpOptions, HttpSource
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.container import writer
 from tsog_stream.container.header import PREFIX_SIZE
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import SourceError
 from tsog_stream.io.chunks import write_chunk_files
 from tsog_stream.model import Gaussians
@@ -126,7 +125,7 @@ def small_window_session(log: list[dict[str, str]]) -> aiohttp.ClientSession:
 def test_a_killed_server_is_resumed_from_its_next_instance(big: Path) -> None:
     port = free_port()
     url = f"http://127.0.0.1:{port}/files/{big.name}"
-    with StreamReader.open(big) as reader:
+    with open_stream(big) as reader:
         times = [0.5, 1.0, 1.5]
         expected = [reader.frame_at(t) for t in times]
         first = reader.index.manifest.chunks[0]

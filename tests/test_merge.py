@@ -9,8 +9,8 @@ import numpy.typing as npt
 import pytest
 
 from tsog_stream.cli.main import main
+from tsog_stream.client import open_stream
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.errors import InputError
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
@@ -113,7 +113,7 @@ def test_every_frame_decodes_within_the_budget(
     segment_scene(scene, out, SegmentOptions(window_s=0.5, workers=1))
     steps = Steps.of(frames[0])
     tol = tolerances(columns(frames[0]), steps, Tolerance()).max(axis=0)
-    with StreamReader.open(out) as reader:
+    with open_stream(out) as reader:
         for k in (0, 4, FRAMES - 1):
             own = decode_chunk(encode_chunk(Scene(frames[k]))).gaussians  # a per-frame SOG
             alone = matched_errors(frames[k], own)
@@ -205,7 +205,7 @@ def test_cli_segment_temporal_reports_and_falls_back(
     text = capsys.readouterr().out
     assert "temporal fit:" in text and "with motion" in text
     assert "worst error after encoding (frames 0, 3, 6, 8, 11)" in text
-    with StreamReader.open(out) as reader:
+    with open_stream(out) as reader:
         assert reader.index.manifest.scene.timeline_type == 1
         assert len(reader.frame_at(0.0)) == len(parts["static"]) + len(parts["moving"])
     fresh = [static_gaussians(500, seed=200 + k) for k in range(3)]
@@ -213,7 +213,7 @@ def test_cli_segment_temporal_reports_and_falls_back(
     args = ["segment", str(tmp_path / "fresh"), "-o", str(tmp_path / "f.tsogs"), "-q"]
     assert main(args) == 0
     assert "stored one per frame (type 0)" in capsys.readouterr().out
-    with StreamReader.open(tmp_path / "f.tsogs") as reader:
+    with open_stream(tmp_path / "f.tsogs") as reader:
         assert reader.index.manifest.scene.timeline_type == 0
     bad = ["segment", str(tmp_path / "seq"), "-o", str(tmp_path / "x.tsogs"), "--tolerance", "-1"]
     assert main(bad) == 1
@@ -247,7 +247,7 @@ def test_fit_follows_fading_and_turning_gaussians(
     assert {"opacity", "quats"} <= set(scene.temporal) and "means" not in scene.temporal
     out = tmp_path / "turn.tsogs"
     segment_scene(scene, out, SegmentOptions(window_s=0.5, workers=1))
-    with StreamReader.open(out) as reader:
+    with open_stream(out) as reader:
         for k in (0, 5, FRAMES - 1):
             own = decode_chunk(encode_chunk(Scene(frames[k]))).gaussians
             alone = matched_errors(frames[k], own)

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from helpers import ThreadedServer
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
@@ -41,7 +41,7 @@ def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
         root / "clip.tsogs",
         SegmentOptions(window_s=0.5),
     )
-    with StreamReader.open(root / "clip.tsogs") as reader:
+    with open_stream(root / "clip.tsogs") as reader:
         reader.unpack(base / "outscene")
     (base / "outscene" / CHUNK0).write_bytes(SECRET)  # an outside scene serving the secret
     (base / "outchunks").mkdir()
@@ -130,7 +130,7 @@ def test_controls_are_served(port: int, base: Path) -> None:
     assert raw_get(port, b"/files/ok.txt") == (200, b"inside")
     assert raw_get(port, b"/files/sub/up/root/ok.txt") == (200, b"inside")  # stays inside
     status, body = raw_get(port, b"/v1/scenes/clip/chunks/0.sog")
-    with StreamReader.open(base / "root" / "clip.tsogs") as reader:
+    with open_stream(base / "root" / "clip.tsogs") as reader:
         assert (status, body) == (200, reader.chunk_bytes(0))
     assert raw_get(port, b"/v1/scenes/clip/manifest")[0] == 200
 

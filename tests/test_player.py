@@ -13,7 +13,7 @@ from urllib.parse import parse_qsl, quote
 import pytest
 
 from helpers import ThreadedServer, fetch
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Privacy, make_app
@@ -36,7 +36,7 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "paid").mkdir(parents=True)
     scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0)
     segment_scene(scene, root / "clip.tsogs", SegmentOptions(window_s=0.5))
-    with StreamReader.open(root / "clip.tsogs") as reader:
+    with open_stream(root / "clip.tsogs") as reader:
         reader.unpack(root / "unpacked")
     (root / "paid" / "secret.tsogs").write_bytes((root / "clip.tsogs").read_bytes())
     return root

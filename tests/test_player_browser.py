@@ -20,7 +20,7 @@ import pytest
 from browser import VIEWPORT, PlayerPage, chromium, image_difference, near
 from helpers import ThreadedServer, nginx_origin
 from tsog_stream.cli.main import main
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.client import open_stream
 from tsog_stream.model import Scene, TimelineType
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -77,7 +77,7 @@ def root(tmp_path_factory: pytest.TempPathFactory, scenes: dict[str, Scene]) -> 
     for name, scene in scenes.items():
         segment_scene(scene, root / f"{name}.tsogs", SegmentOptions(window_s=1.0))
     (root / "static").mkdir()
-    with StreamReader.open(root / "centre.tsogs") as reader:
+    with open_stream(root / "centre.tsogs") as reader:
         reader.unpack(root / "static" / "centre")
     (root / "paid").mkdir()
     (root / "paid" / "show.tsogs").write_bytes((root / "centre.tsogs").read_bytes())
@@ -112,7 +112,7 @@ def facts(root: Path) -> Facts:
             args = ["frame", str(root / f"{scene}.tsogs"), "--t", str(when), "-o", str(root / name)]
             assert main([*args, "-q"]) == 0
             exports[scene, when] = f"/files/{name}"
-    with StreamReader.open(root / "centre.tsogs") as reader:
+    with open_stream(root / "centre.tsogs") as reader:
         times = (*SCRUB, ORIGIN_T)
         needed = {t: {c.id for c in reader.index.chunks_for(t)} for t in times}
         grid = {t: {c.id for c in reader.index.chunks_for(t)} for t in GRID}

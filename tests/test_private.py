@@ -18,8 +18,7 @@ import pytest
 from helpers import ThreadedServer, nginx_origin
 from tsog_stream import signing
 from tsog_stream.cli.main import main
-from tsog_stream.client import HttpOptions, open_url
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.client import HttpOptions, open_stream
 from tsog_stream.errors import AccessError, InputError
 from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -126,7 +125,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     segment_scene(scene, root / "free.tsogs", options)
     (root / "paid").mkdir()
     segment_scene(scene, root / "paid" / "show.tsogs", options)
-    with StreamReader.open(root / "paid" / "show.tsogs") as reader:
+    with open_stream(root / "paid" / "show.tsogs") as reader:
         reader.unpack(root / "paid" / "folder")
     (root / "free").mkdir()
     os.symlink(root / "paid" / "show.tsogs", root / "free" / "alias.tsogs")
@@ -135,7 +134,7 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def expected(site: Path) -> Gaussians:
-    with StreamReader.open(site / "paid" / "show.tsogs") as reader:
+    with open_stream(site / "paid" / "show.tsogs") as reader:
         return reader.frame_at(T)
 
 
@@ -245,13 +244,13 @@ def test_client_reads_signed_urls_transparently(
         f"{base}/files/paid/folder/manifest.json", SECRET, future(), scope="/files/paid/folder/"
     )
     for url in (packed, folder):
-        with open_url(url, http=FAST) as sync:
+        with open_stream(url, http=FAST) as sync:
             got = sync.frame_at(T)
             assert np.array_equal(got.means, expected.means)
             assert np.array_equal(got.sh0, expected.sh0)
     stale = sign_url(f"{base}/files/paid/show.tsogs", SECRET, future(-5))
     with pytest.raises(AccessError, match="expired") as info:
-        open_url(stale, http=FAST)
+        open_stream(stale, http=FAST)
     assert params(stale)["signature"] not in str(info.value)
 
 
@@ -301,12 +300,12 @@ def test_nginx_enforces_the_same_scheme_through_auth_request(
             assert get(port, "/paid/show.tsogs")[0] == 403
             assert get(port, "/free.tsogs", {"Range": "bytes=0-9"})[0] == 206
             url = sign_url(base + "paid/show.tsogs", SECRET, future())
-            with open_url(url, http=FAST) as sync:
+            with open_stream(url, http=FAST) as sync:
                 assert np.array_equal(sync.frame_at(T).means, expected.means)
             climb = signed("/free/", scope="/free/").replace("/free/?", "/free/../paid/show.tsogs?")
             assert get(port, quote(climb, safe="/?=&"))[0] in (400, 403)
             with pytest.raises(AccessError):
-                open_url(sign_url(base + "paid/show.tsogs", SECRET, future(-1)), http=FAST)
+                open_stream(sign_url(base + "paid/show.tsogs", SECRET, future(-1)), http=FAST)
         log = (prefix / "logs" / "paid.log").read_text()
         assert "/paid/show.tsogs" in log and "signature" not in log
     finally:

@@ -19,9 +19,9 @@ import pytest
 
 from helpers import means_log_step
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
+from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.compare import rotation_angles_deg
-from tsog_stream.container.sync import StreamReader
 from tsog_stream.segment.plan import window_count
 from tsog_stream.segment.segmenter import SegmentOptions, SegmentReport, segment_scene
 from tsog_stream.summary import chunk_summary
@@ -91,7 +91,7 @@ class Steps:
     """Seconds per timeline unit."""
 
 
-def container_steps(reader: StreamReader) -> Steps:
+def container_steps(reader: Stream) -> Steps:
     """Steps read from every chunk's meta.json (the largest of each)."""
     metas = [
         json.loads(read_bundle(reader.chunk_bytes(c.id))["meta.json"])
@@ -234,7 +234,7 @@ def scenes(kind: TimelineType) -> Scene:
     return _SCENES[kind]
 
 
-def _in_range(reader: StreamReader, t: float) -> bool:
+def _in_range(reader: Stream, t: float) -> bool:
     scene = reader.index.manifest.scene
     return scene.start_s <= t <= scene.end_s
 
@@ -246,7 +246,7 @@ def test_frames_equal_the_unsegmented_scene(
 ) -> None:
     path, _ = built(kind, policy)
     src = scenes(kind)
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         steps = container_steps(reader)
         for t in probe_times(src, WINDOW_S):
             frame = reader.frame_at(t)
@@ -267,7 +267,7 @@ def test_every_frame_time_with_windows_in_frames(
     src = make_scene(kind, fps=fps, background=40, objects=2, per_object=15, seed=5)
     path = tmp_path / "f24.tsogs"
     segment_scene(src, path, SegmentOptions(window_s=5 / fps, policy=policy))
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         steps = container_steps(reader)
         for f in range(round(DURATION_S * fps) + 1):
             t = f / fps
@@ -292,7 +292,7 @@ def test_a_single_window_is_split_spatially_under_the_pixel_budget(
     path, report = built(kind, "hybrid", DURATION_S, budget)
     src = scenes(kind)
     assert report.windows == 1
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         manifest = reader.index.manifest
         assert [n.level for n in manifest.nodes] == [0]
         assert len(manifest.chunks) >= 2 and len(manifest.chunks) == report.chunks
@@ -335,7 +335,7 @@ def test_the_budget_also_holds_the_sh_palette_image(tmp_path: Path) -> None:
     segment_scene(
         generate_scene(spec), path, SegmentOptions(window_s=DURATION_S, max_pixels=budget)
     )
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         report = reader.verify()
         assert report.problems == [] and report.exit_code == 0
         for chunk in reader.index.manifest.chunks:
@@ -372,7 +372,7 @@ def test_bounding_boxes_hold_curved_paths(tmp_path: Path) -> None:
     src = Scene(gaussians, timeline, {"means": coeffs})
     path = tmp_path / "curve.tsogs"
     segment_scene(src, path, SegmentOptions(window_s=DURATION_S))
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         (chunk,) = reader.index.manifest.chunks
     lo, hi = np.asarray(chunk.bbox.min), np.asarray(chunk.bbox.max)
     for means in _chunk_positions(src, chunk.start_s, chunk.end_s, samples=401):
@@ -391,7 +391,7 @@ def test_policies_store_what_they_promise(
     assert reports["hierarchy"].stored == inside
     assert reports["duplicate"].dropped == reports["hybrid"].dropped == source - inside
     for policy, report in reports.items():
-        with StreamReader.open(built(kind, policy)[0]) as reader:
+        with open_stream(built(kind, policy)[0]) as reader:
             manifest = reader.index.manifest
             assert manifest.policy == policy
             assert manifest.scene.gaussians == source
@@ -406,7 +406,7 @@ def test_chunks_for_t_only_returns_nodes_holding_t(
     kind: TimelineType, policy: str, built: Callable[..., tuple[Path, SegmentReport]]
 ) -> None:
     path, _ = built(kind, policy)
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         index = reader.index
         nodes = {(n.level, n.index): n for n in index.manifest.nodes}
         for chunk in index.manifest.chunks:

@@ -17,14 +17,14 @@ import pytest
 
 from helpers import Resp, ThreadedServer, fetch, nginx_origin
 from tsog_stream.cli.progress import Progress
-from tsog_stream.container.sync import StreamReader
+from tsog_stream.cli.serve_commands import add_serve_command, cmd_serve
+from tsog_stream.client import open_stream
 from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app
-from tsog_stream.server import app as app_module
+from tsog_stream.server import respond
 from tsog_stream.server.app import GATE
-from tsog_stream.server.cli import add_serve_command, cmd_serve
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
@@ -44,7 +44,7 @@ def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (root / "escape_dir").symlink_to(base)
     scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0)
     segment_scene(scene, root / "clip.tsogs", SegmentOptions(window_s=0.5))
-    with StreamReader.open(root / "clip.tsogs") as reader:
+    with open_stream(root / "clip.tsogs") as reader:
         reader.unpack(root / "unpacked")
     return root
 
@@ -214,7 +214,7 @@ def test_subfolder_file(port: int) -> None:
 
 
 def test_container_etag_is_identity(port: int, tree: Path) -> None:
-    with StreamReader.open(tree / "clip.tsogs") as reader:
+    with open_stream(tree / "clip.tsogs") as reader:
         identity = reader.index.identity
     r = fetch(port, "/files/clip.tsogs", headers={"Range": "bytes=0-127"})
     assert r.status == 206 and r.headers["ETag"] == f'"{identity}"'
@@ -232,7 +232,7 @@ def get_json(port: int, path: str, status: int = 200) -> Any:
 
 def test_healthz_and_scene_list(port: int, tree: Path) -> None:
     assert get_json(port, "/healthz") == {"status": "ok"}
-    with StreamReader.open(tree / "clip.tsogs") as reader:
+    with open_stream(tree / "clip.tsogs") as reader:
         identity = reader.index.identity
     items = {s["id"]: s for s in get_json(port, "/v1/scenes")["scenes"]}
     assert set(items) == {"clip", "unpacked"}
@@ -251,7 +251,7 @@ def test_manifest_and_chunks(port: int, tree: Path, scene: str) -> None:
     again = fetch(port, f"/v1/scenes/{scene}/manifest", headers={"If-None-Match": f'"{identity}"'})
     assert again.status == 304
     listing = get_json(port, f"/v1/scenes/{scene}/chunks?t=0.25&horizon=1")
-    with StreamReader.open(tree / "clip.tsogs") as reader:
+    with open_stream(tree / "clip.tsogs") as reader:
         expected = reader.index.chunks_for_interval(0.25, 1.25)
         assert [c["id"] for c in listing["chunks"]] == [c.id for c in expected]
         assert expected
@@ -383,7 +383,7 @@ def test_sendfile_chunk_slices_and_switch(
     spied: tuple[ThreadedServer, SendfileSpy], tree: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     server, spy = spied
-    monkeypatch.setattr(app_module, "SENDFILE_MIN", 1)
+    monkeypatch.setattr(respond, "SENDFILE_MIN", 1)
     listing = get_json(server.port, "/v1/scenes/clip/chunks?t=0&horizon=100")
     container = (tree / "clip.tsogs").read_bytes()
     for c in listing["chunks"]:

@@ -18,8 +18,8 @@ import aiohttp
 import pytest
 
 from serve_process import tsog_serve
-from tsog_stream.container.reader import StreamIndex, open_stream
-from tsog_stream.container.sources import FileSource
+from tsog_stream.container.sources import FileSource, read_index
+from tsog_stream.container.stream_index import StreamIndex
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
@@ -75,7 +75,7 @@ async def play(base: str, index: StreamIndex, data: bytes, seed: int) -> tuple[i
 
 async def load(port: int, clip: Path) -> tuple[int, list[str]]:
     """CLIENTS players at once."""
-    index = await open_stream(FileSource(clip))
+    index = await read_index(FileSource(clip))
     data = clip.read_bytes()
     base = f"http://127.0.0.1:{port}"
     results = await asyncio.gather(*(play(base, index, data, i) for i in range(CLIENTS)))

@@ -70,6 +70,16 @@ def temporal_file(attr: str, order: int, half: str) -> str:
     return f"temporal_{attr}_{order}_{half}.webp"
 
 
+# --- The .tsogs container (docs/spec.md §8) --------------------------------------------------
+CONTAINER_MAGIC: Final = b"TSOGS\x00\r\n"
+"""First 8 bytes of a container: name, a NUL (not text), CR LF (catches newline translation)."""
+
+
+def is_container(head: bytes) -> bool:
+    """True when ``head`` starts with the container magic."""
+    return head[: len(CONTAINER_MAGIC)] == CONTAINER_MAGIC
+
+
 # --- Limits on untrusted input (docs/reliability.md) ---------------------------------------
 MAX_IMAGE_PIXELS: Final = WEBP_MAX_SIDE * WEBP_MAX_SIDE
 """Largest image any reader decodes; Pillow's decompression-bomb limit is set to this."""

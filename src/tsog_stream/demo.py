@@ -10,11 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from .client.stream import PlayStats, StreamClient
+from .client import PlayStats, StreamClient, open_stream
 from .codec.bundle import bundle_bytes
 from .codec.chunk import decode_chunk, encode_chunk, texel_order
 from .compare import attribute_errors
-from .container.sync import StreamReader
 from .errors import InputError
 from .io.files import atomic_write_bytes
 from .io.ply import ply_bytes
@@ -79,7 +78,7 @@ def _stream_report(
         report = segment_scene(scene, path, SegmentOptions(window_s=0.5))
         note("serving on 127.0.0.1 and playing over HTTP")
         url, frames, stats = asyncio.run(_play_over_http(root, path.name, start, seconds=1.0))
-        with StreamReader.open(path) as local:
+        with open_stream(path) as local:
             mismatches = sum(
                 1 for t, got in frames if not np.array_equal(got.means, local.frame_at(t).means)
             )

@@ -14,34 +14,32 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..client.cli import add_client_commands, cmd_fetch, cmd_play
 from ..codec.chunk import decode_chunk, encode_chunk
 from ..demo import run_demo
 from ..errors import TsogError
+from ..inputs import STREAM_KINDS, input_kind
 from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.files import refuse_existing
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
-from ..io.readers import FORMATS, ReadOptions, detect_format, load_scene
-from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
-from ..model import Scene
-from ..server.cli import add_serve_command, add_sign_command, cmd_serve, cmd_sign
 from ..summary import chunk_summary, scene_summary
 from . import interrupt
+from .client_commands import add_client_commands, cmd_fetch, cmd_play
+from .common import add_common, add_input, load_input, note
 from .progress import Progress
 from .render_commands import add_render_commands, cmd_eval, cmd_render
+from .serve_commands import add_serve_command, add_sign_command, cmd_serve, cmd_sign
 from .stream_commands import (
     add_stream_commands,
-    check_segment_args,
     cmd_extract,
     cmd_pack,
+    cmd_segment,
     cmd_unpack,
     cmd_verify,
     stream_frame,
     stream_info,
     write_frame,
 )
-from .stream_commands import cmd_segment as segment_command
 
 EPILOG = """examples:
   tsog demo                                   generate, encode, decode and report
@@ -57,41 +55,6 @@ EPILOG = """examples:
 Times are in seconds everywhere. Inputs are recognised by content; --format overrides."""
 
 
-def _add_common(p: argparse.ArgumentParser) -> None:
-    """Options every subcommand has."""
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output on stderr")
-
-
-def _add_input(p: argparse.ArgumentParser) -> None:
-    """The INPUT argument, --format and the per-format reading options."""
-    p.add_argument(
-        "input",
-        help="input file, folder or frame pattern: 3DGS PLY, compressed PLY, .sog or SOG folder, "
-        "folder/glob of numbered PLY or SOG frames, FreeTimeGS PLY/npz, .splatv, .4dgs",
-    )
-    p.add_argument(
-        "--format", choices=FORMATS, help="input format (default: detected from content)"
-    )
-    g = p.add_argument_group("reading options (each applies to the formats named)")
-    g.add_argument(
-        "--fps", type=float, help=f"frame rate of PLY/SOG frame sequences (default {DEFAULT_FPS:g})"
-    )
-    g.add_argument(
-        "--duration-s", type=float, help=".splatv: seconds spanned by the clip (default 1)"
-    )
-    g.add_argument(
-        "--scene-length-s",
-        type=float,
-        help="FreeTimeGS: seconds spanned by normalised time (default 1)",
-    )
-    g.add_argument(
-        "--duration-mode",
-        choices=("log", "linear"),
-        default="log",
-        help="FreeTimeGS PLY: durations stored as log sigma (default) or sigma",
-    )
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(
@@ -104,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("encode", help="encode a scene to a SOG/TSOG chunk (.sog zip or folder)")
-    _add_input(p)
+    add_input(p)
     p.add_argument(
         "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
     )
@@ -115,35 +78,35 @@ def build_parser() -> argparse.ArgumentParser:
         help="OUT.4dgs only: drop motion .4dgs cannot hold instead of refusing",
     )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
-    _add_common(p)
+    add_common(p)
 
     p = sub.add_parser("decode", help="decode a chunk to a float 3DGS PLY (base values)")
-    _add_input(p)
+    add_input(p)
     p.add_argument("output", type=Path, help="output .ply")
-    _add_common(p)
+    add_common(p)
 
     p = sub.add_parser(
         "info", help="describe a file: count, SH bands, timeline, image sizes, bytes"
     )
-    _add_input(p)
+    add_input(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
-    _add_common(p)
+    add_common(p)
 
     p = sub.add_parser("frame", help="export the scene at time t as a static PLY or SOG")
-    _add_input(p)
+    add_input(p)
     p.add_argument("--t", type=float, required=True, help="time in seconds")
     p.add_argument(
         "-o", "--output", type=Path, required=True, help="frame.ply or frame.sog (or a folder)"
     )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     p.add_argument("-v", "--verbose", action="store_true", help="report the bytes read")
-    _add_common(p)
+    add_common(p)
 
-    add_stream_commands(sub, _add_input, _add_common)
-    add_client_commands(sub, _add_common)
+    add_stream_commands(sub)
+    add_client_commands(sub)
     add_serve_command(sub)
     add_sign_command(sub)
-    add_render_commands(sub, _add_input, _add_common)
+    add_render_commands(sub)
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
@@ -151,32 +114,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="scene and palette seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    _add_common(p)
+    add_common(p)
     return parser
-
-
-def _load(args: argparse.Namespace, progress: Progress) -> Scene:
-    """Load the INPUT with progress and reader notes on stderr."""
-    progress(f"reading {args.input}")
-    options = ReadOptions(
-        fps=args.fps,
-        duration_s=args.duration_s,
-        scene_length_s=args.scene_length_s,
-        duration_mode=args.duration_mode,
-    )
-    loaded = load_scene(args.input, format=args.format, options=options, progress=progress)
-    for note in loaded.notes:
-        print(f"tsog: note: {note}", file=sys.stderr)
-    return loaded.scene
 
 
 def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
     refuse_existing(args.output, overwrite=args.force)
-    scene = _load(args, progress)
+    scene = load_input(args, progress)
     if args.output.suffix.lower() == ".4dgs":
-        for note in write_4dgs(args.output, scene, lossy=args.lossy):
-            print(f"tsog: note: {note}", file=sys.stderr)
+        for text in write_4dgs(args.output, scene, lossy=args.lossy):
+            note(text)
         progress.done()
         print(f"{args.output}: {len(scene)} Gaussians, {args.output.stat().st_size} bytes")
         return 0
@@ -189,7 +137,7 @@ def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_decode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog decode."""
-    scene = _load(args, progress)
+    scene = load_input(args, progress)
     write_ply(args.output, scene.gaussians)
     progress.done()
     print(f"{args.output}: {len(scene)} Gaussians")
@@ -219,11 +167,11 @@ def _print_seek_table(rows: list[dict[str, Any]]) -> None:
 
 def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
     """tsog info."""
-    kind = args.format or detect_format(args.input)
+    kind = input_kind(args.input, args.format)
     info: dict[str, Any] = {"file": str(args.input), "format": kind}
-    if kind == "tsogs":
+    if kind in STREAM_KINDS:
         progress("measuring seek costs")
-        info = stream_info(Path(args.input))
+        info = stream_info(args.input)
     elif kind == "sog":
         files = read_chunk_files(Path(args.input))
         info.update(chunk_summary(files, where=str(args.input)))
@@ -231,7 +179,7 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
         decoded = decode_chunk(files, where=str(args.input))
         info.update({k: v for k, v in scene_summary(decoded).items() if k == "timeline"})
     else:
-        info.update(scene_summary(_load(args, progress)))
+        info.update(scene_summary(load_input(args, progress)))
     progress.done()
     if args.json:
         print(json.dumps(info, indent=2))
@@ -246,9 +194,12 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
 def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     """tsog frame."""
     refuse_existing(args.output, overwrite=args.force)
-    if (args.format or detect_format(args.input)) == "tsogs":
-        return stream_frame(Path(args.input), args.t, args.output, args.verbose, progress)
-    scene = _load(args, progress)
+    if input_kind(args.input, args.format) in STREAM_KINDS:
+        stats = stream_frame(args.input, args.t, args.output, progress)
+        if args.verbose:
+            print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
+        return 0
+    scene = load_input(args, progress)
     progress(f"evaluating t = {args.t} s")
     frame = scene.at(args.t)
     write_frame(args.output, frame, args.t, progress)
@@ -299,31 +250,6 @@ def _print_demo(report: dict[str, Any]) -> None:
             f"{row['visibility_flips']:9d}",
         )
         print(" ".join(cells))
-
-
-def _input_bytes(path: str) -> int:
-    """Size of an input file, or of the files in an input folder (0 for a pattern)."""
-    p = Path(path)
-    if p.is_file():
-        return p.stat().st_size
-    if p.is_dir():
-        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
-    return 0
-
-
-def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
-    """tsog segment: frame sequences stream window by window, other inputs load whole."""
-    check_segment_args(args)
-    kind = args.format or detect_format(args.input)
-    if kind in ("ply-sequence", "sog-sequence"):
-        fps = args.fps if args.fps is not None else DEFAULT_FPS
-        seq = open_sequence(args.input, fps=fps, kind=kind.split("-")[0])
-        for note in seq.notes():
-            print(f"tsog: note: {note}", file=sys.stderr)
-        source: Scene | FrameSequence = seq
-    else:
-        source = _load(args, progress)
-    return segment_command(args, progress, source, _input_bytes(args.input))
 
 
 COMMANDS = {

@@ -11,19 +11,16 @@ import contextlib
 import json
 import math
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ..errors import InputError
 from ..io.files import refuse_existing
-from ..io.readers import ReadOptions
+from .common import Subparsers, add_common, add_input, read_options
 from .progress import Progress
 
 if TYPE_CHECKING:
     from ..render.evaluate import CameraSetup, EvalReport, RenderStyle, Source
-
-AddOptions = Callable[[argparse.ArgumentParser], None]
 
 RENDER_EPILOG = """examples:
   tsog render scene.ply -o view.png                      orbit view 0 at 640x480
@@ -66,7 +63,7 @@ def _add_views(p: argparse.ArgumentParser, views_help: str) -> None:
     )
 
 
-def add_render_commands(sub: Any, add_input: AddOptions, add_common: AddOptions) -> None:
+def add_render_commands(sub: Subparsers) -> None:
     """Register ``render`` and ``eval`` on the main parser."""
     p = sub.add_parser(
         "render",
@@ -151,12 +148,13 @@ def _notes(source: Source) -> None:
 
 def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
     """tsog render."""
+    from ..inputs import open_source  # noqa: PLC0415
     from ..render import save_png  # noqa: PLC0415 - loads the renderer
-    from ..render.evaluate import open_source, render_view  # noqa: PLC0415
+    from ..render.evaluate import render_view  # noqa: PLC0415
 
     refuse_existing(args.output, overwrite=args.force)
     setup, style = _setup(args, default_views=8)
-    options = ReadOptions(args.fps, args.duration_s, args.scene_length_s, args.duration_mode)
+    options = read_options(args)
     progress(f"reading {args.input}")
     with open_source(args.input, format=args.format, options=options, progress=progress) as src:
         _notes(src)
@@ -173,14 +171,13 @@ def _open_pair(
     args: argparse.Namespace, stack: contextlib.ExitStack, progress: Progress
 ) -> tuple[Source, Source]:
     """Open REFERENCE and CANDIDATE, each with the reading options that apply to it."""
-    from ..render.evaluate import OPTION_KINDS, fit_options, open_source  # noqa: PLC0415
+    from ..inputs import OPTION_KINDS, fit_options, input_kind, open_source  # noqa: PLC0415
 
-    options = ReadOptions(args.fps, args.duration_s, args.scene_length_s, args.duration_mode)
+    options = read_options(args)
     sources = []
     for target in (args.reference, args.candidate):
         progress(f"reading {target}")
-        kind = _kind(target)
-        fitted = fit_options(kind, options) if kind else options
+        fitted = fit_options(input_kind(target), options)
         sources.append(stack.enter_context(open_source(target, options=fitted, progress=progress)))
         _notes(sources[-1])
     for name, kinds in OPTION_KINDS.items():
@@ -188,15 +185,6 @@ def _open_pair(
             flag = "--" + name.replace("_", "-")
             raise InputError(f"applies to {', '.join(kinds)} inputs only", where=flag)
     return sources[0], sources[1]
-
-
-def _kind(target: str) -> str | None:
-    """The detected format of a local input; None for URLs (streams take no options)."""
-    from ..io.readers import detect_format  # noqa: PLC0415
-
-    if target.lower().startswith(("http://", "https://", "file://")):
-        return None
-    return detect_format(target)
 
 
 def cmd_eval(args: argparse.Namespace, progress: Progress) -> int:

@@ -1,25 +1,29 @@
-"""CLI commands on segmented streams: segment, verify, extract, pack, unpack, info, frame."""
+"""CLI commands on segmented streams: segment, verify, extract, pack, unpack, info, frame.
+
+Every command that reads a stream opens it with :func:`tsog_stream.client.open_stream`, so a
+path, a ``file://`` URL or an http(s) URL of a ``.tsogs`` file or an unpacked folder all work.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 import re
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
-from ..container.sync import StreamReader
-from ..container.unpacked import pack
+from ..container.sources import ReadStats
 from ..errors import InputError
 from ..io.chunks import write_chunk_files
 from ..io.files import atomic_write_bytes, refuse_existing, remove_stale_temp_files
 from ..io.ply import write_ply
-from ..io.sequence import FrameSequence
+from ..io.readers import detect_format
+from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
 from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
 from ..merge.check import frame_errors
 from ..merge.sequence import MAX_HELD
@@ -33,11 +37,16 @@ from ..segment.segmenter import (
     segment_scene,
     segment_sequence,
 )
+from .common import Subparsers, add_common, add_input, input_bytes, load_input, note
 from .progress import Progress
 
 DEFAULT_TEMPORAL = "fit"
 """--temporal default, chosen by measurement (docs/design/temporal-merge.md)."""
 
+STREAM_HELP = (
+    "a .tsogs container or unpacked folder: path, file:// URL or http(s):// URL "
+    "(a folder URL ends with / or /manifest.json)"
+)
 _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
 
@@ -72,7 +81,7 @@ def parse_window(text: str, fps: float | None) -> float:
     return value
 
 
-def add_stream_commands(sub: Any, add_input: Any, add_common: Any) -> None:
+def add_stream_commands(sub: Subparsers) -> None:
     """Register the stream subcommands on the main parser."""
     p = sub.add_parser("segment", help="segment a 4D scene into a streamable .tsogs container")
     add_input(p)
@@ -122,18 +131,18 @@ def add_stream_commands(sub: Any, add_input: Any, add_common: Any) -> None:
     add_common(p)
 
     p = sub.add_parser("verify", help="check a container: hashes, decoding, pixel budget, index")
-    p.add_argument("input", type=Path)
+    p.add_argument("input", help=STREAM_HELP)
     add_common(p)
 
     p = sub.add_parser("extract", help="copy one chunk of a container out as a standalone .sog")
-    p.add_argument("input", type=Path)
+    p.add_argument("input", help=STREAM_HELP)
     p.add_argument("chunk", type=int, help="chunk id (see tsog info)")
     p.add_argument("-o", "--output", type=Path, required=True)
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)
 
     p = sub.add_parser("unpack", help="container -> folder with manifest.json and chunks/*.sog")
-    p.add_argument("input", type=Path)
+    p.add_argument("input", help=STREAM_HELP)
     p.add_argument("-o", "--output", type=Path, required=True)
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)
@@ -141,16 +150,31 @@ def add_stream_commands(sub: Any, add_input: Any, add_common: Any) -> None:
     p = sub.add_parser(
         "pack", help="unpacked folder -> container (the exact bytes unpack started from)"
     )
-    p.add_argument("input", type=Path)
+    p.add_argument("input", help="the unpacked folder (path or URL; any stream works)")
     p.add_argument("-o", "--output", type=Path, required=True)
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)
 
 
-def cmd_segment(
-    args: argparse.Namespace, progress: Progress, source: Scene | FrameSequence, input_bytes: int
+def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog segment: frame sequences stream window by window, other inputs load whole."""
+    check_segment_args(args)
+    kind = args.format or detect_format(args.input)
+    if kind in ("ply-sequence", "sog-sequence"):
+        fps = args.fps if args.fps is not None else DEFAULT_FPS
+        seq = open_sequence(args.input, fps=fps, kind=kind.split("-")[0])
+        for text in seq.notes():
+            note(text)
+        source: Scene | FrameSequence = seq
+    else:
+        source = load_input(args, progress)
+    return _segment(args, progress, source, input_bytes(args.input))
+
+
+def _segment(
+    args: argparse.Namespace, progress: Progress, source: Scene | FrameSequence, input_size: int
 ) -> int:
-    """tsog segment; the caller has run check_segment_args and loaded or opened the input."""
+    """Segment an opened or loaded input as the options say, and report the result."""
     if isinstance(source, FrameSequence):
         fps: float | None = source.fps
     else:
@@ -163,7 +187,7 @@ def cmd_segment(
         seed=args.seed,
     )
     for stale in remove_stale_temp_files(args.output):
-        print(f"tsog: note: removed {stale}, left by an interrupted run", file=sys.stderr)
+        note(f"removed {stale}, left by an interrupted run")
     started = time.monotonic()
 
     def on_chunk(done: int, total: int) -> None:
@@ -184,7 +208,7 @@ def cmd_segment(
     else:
         report = segment_scene(source, args.output, options, on_chunk=on_chunk)
     progress.done()
-    saving = 100.0 * (1 - report.bytes / input_bytes) if input_bytes else 0.0
+    saving = 100.0 * (1 - report.bytes / input_size) if input_size else 0.0
     print(f"{report.path}: {report.bytes} bytes, {saving:.1f}% smaller than the input")
     print(f"  {report.windows} windows of {options.window_s:g} s, {report.chunks} chunks")
     print(f"  policy {options.policy}: {report.stored} of {report.gaussians} Gaussians stored")
@@ -236,7 +260,7 @@ def _report_frame_errors(seq: FrameSequence, path: Path, samples: int = 5) -> No
     """Decode a few frames of the written container and print their worst error per attribute."""
     frames = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(samples, seq.count))})
     worst: dict[str, float] = {}
-    with StreamReader.open(path) as reader:
+    with open_stream(path) as reader:
         for k in frames:
             source = seq.read(k, k + 1).scene.gaussians
             errors, unpaired = frame_errors(source, reader.frame_at(k / seq.fps))
@@ -248,19 +272,19 @@ def _report_frame_errors(seq: FrameSequence, path: Path, samples: int = 5) -> No
     print(f"  worst error after encoding (frames {', '.join(map(str, frames))}): {shown}")
 
 
-def seek_table(reader: StreamReader, samples: int = 8) -> list[dict[str, Any]]:
+def seek_table(reader: Stream, samples: int = 8) -> list[dict[str, Any]]:
     """Seek costs at evenly spaced times of the scene."""
     scene = reader.index.manifest.scene
     times = np.linspace(scene.start_s, scene.end_s, samples)
     return [reader.seek_cost(round(float(t), 4)).as_dict() for t in times]
 
 
-def stream_info(path: Path) -> dict[str, Any]:
+def stream_info(target: str) -> dict[str, Any]:
     """Header, index summary and a seek-cost table of a container."""
-    with StreamReader.open(path) as reader:
+    with open_stream(target) as reader:
         h, m = reader.index.header, reader.index.manifest
         return {
-            "file": str(path),
+            "file": target,
             "format": "tsogs",
             "bytes": h.file_length,
             "version": f"{h.version_major}.{h.version_minor}",
@@ -291,20 +315,21 @@ def write_frame(output: Path, frame: Gaussians, t: float, progress: Progress) ->
     print(f"{output}: {len(frame)} Gaussians visible at t = {t} s")
 
 
-def stream_frame(path: Path, t: float, output: Path, verbose: bool, progress: Progress) -> int:
-    """tsog frame on a container: only the chunks t needs are read."""
-    with StreamReader.open(path) as reader:
+def stream_frame(target: str, t: float, output: Path, progress: Progress) -> ReadStats:
+    """tsog frame (and fetch) on a stream: only the chunks t needs are read; returns what
+    reading them cost."""
+    progress(f"opening {target}")
+    with open_stream(target) as reader:
+        progress(f"fetching t = {t} s")
         frame = reader.frame_at(t)
-        stats = reader.source.stats
+        stats = reader.stats
     write_frame(output, frame, t, progress)
-    if verbose:
-        print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
-    return 0
+    return stats
 
 
 def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
     """tsog verify: exit 0 when clean, 3 hash, 4 decode, 5 budget, 6 index mismatch."""
-    with StreamReader.open(args.input) as reader:
+    with open_stream(args.input) as reader:
         progress("verifying chunks")
         report = reader.verify()
     progress.done()
@@ -319,7 +344,7 @@ def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
 def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
     """tsog extract."""
     refuse_existing(args.output, overwrite=args.force)
-    with StreamReader.open(args.input) as reader:
+    with open_stream(args.input) as reader:
         data = reader.chunk_bytes(args.chunk)
     atomic_write_bytes(args.output, data)
     print(f"{args.output}: chunk {args.chunk}, {len(data)} bytes")
@@ -328,7 +353,7 @@ def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_unpack(args: argparse.Namespace, progress: Progress) -> int:
     """tsog unpack."""
-    with StreamReader.open(args.input) as reader:
+    with open_stream(args.input) as reader:
         count = reader.unpack(args.output, overwrite=args.force)
     print(f"{args.output}: manifest.json and {count} chunks")
     return 0
@@ -337,7 +362,8 @@ def cmd_unpack(args: argparse.Namespace, progress: Progress) -> int:
 def cmd_pack(args: argparse.Namespace, progress: Progress) -> int:
     """tsog pack."""
     refuse_existing(args.output, overwrite=args.force)
-    size = pack(args.input, args.output)
+    with open_stream(args.input) as reader:
+        size = reader.pack(args.output)
     print(f"{args.output}: {size} bytes")
     return 0
 

@@ -1,6 +1,7 @@
-"""The streaming client: show a ``.tsogs`` container served over HTTP (or on disk) at any time.
+"""The one reader of a container: show a ``.tsogs`` file or an unpacked folder, on disk or
+over HTTP, at any time.
 
-``StreamClient`` is the async core; ``SyncClient`` (``open_url``) a thin synchronous facade;
+``StreamClient`` is the async core; ``Stream`` (``open_stream``) its thin synchronous facade;
 ``HttpSource`` the byte source over single-range HTTP requests; a ``ChunkFetcher`` reads chunks
 by ranges of one file (``RangeFetcher``) or as the unpacked layout's files (``FolderFetcher``).
 See docs/client.md.
@@ -8,21 +9,16 @@ See docs/client.md.
 
 from __future__ import annotations
 
+from .costs import SeekCost
 from .fetchers import ChunkFetcher, FolderFetcher, RangeFetcher, make_fetcher
 from .http_source import HttpFiles, HttpOptions, HttpSource
-from .stream import (
-    CacheStats,
-    Playback,
-    PlayedFrame,
-    PlayStats,
-    SceneCache,
-    StreamClient,
-    open_source,
-)
-from .sync import SyncClient, open_url
+from .stream import CacheStats, Playback, PlayedFrame, PlayStats, SceneCache, StreamClient
+from .sync import Stream, open_stream
+from .verify import Check, VerifyReport
 
 __all__ = [
     "CacheStats",
+    "Check",
     "ChunkFetcher",
     "FolderFetcher",
     "HttpFiles",
@@ -33,9 +29,10 @@ __all__ = [
     "PlayedFrame",
     "RangeFetcher",
     "SceneCache",
+    "SeekCost",
+    "Stream",
     "StreamClient",
-    "SyncClient",
+    "VerifyReport",
     "make_fetcher",
-    "open_source",
-    "open_url",
+    "open_stream",
 ]

@@ -9,21 +9,18 @@ layout (``manifest.json`` + ``chunks/NNNNNN.sog``), over HTTP or from a local fo
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import os
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import unquote, urljoin, urlparse, urlsplit, urlunsplit
 
-from ..container.header import PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
 from ..container.ranges import ByteRange
-from ..container.reader import StreamIndex, open_stream
-from ..container.sources import ByteSource, FileSource, ReadStats
-from ..container.unpacked import MANIFEST
+from ..container.sources import ByteSource, FileSource, ReadStats, read_index
+from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import SourceError
 from ..io.files import read_bytes
-from ..schemas.manifest import ChunkEntry, parse_manifest
+from ..schemas.manifest import ChunkEntry
 from ..signing import redact_url
 from .http_source import HttpFiles, HttpOptions, HttpSource
 
@@ -62,7 +59,7 @@ class RangeFetcher(ChunkFetcher):
 
     async def open(self) -> StreamIndex:
         """Read the header and index (one request when the index fits the prefix)."""
-        return await open_stream(self.source)
+        return await read_index(self.source)
 
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
         """One read spanning the group, split back into chunks."""
@@ -109,21 +106,8 @@ class FolderFetcher(ChunkFetcher):
     async def open(self) -> StreamIndex:
         """Read ``manifest.json`` (one request) and present it as an opened container."""
         raw = await self._get(MANIFEST, MAX_MANIFEST_BYTES)
-        manifest = parse_manifest(raw, where=self._where(MANIFEST))
-        end = max((c.offset + c.length for c in manifest.chunks), default=PREFIX_SIZE)
-        header = Header(
-            version_major=VERSION_MAJOR,
-            version_minor=VERSION_MINOR,
-            required_flags=0,
-            optional_flags=0,
-            index_codec=0,
-            index_offset=end,
-            index_length=len(raw),
-            index_raw_length=len(raw),
-            file_length=end + len(raw),
-            index_sha256=hashlib.sha256(raw).digest(),
-        )
-        return StreamIndex(header, manifest, self.name)
+        index = unpacked_index(raw, where=self._where(MANIFEST))
+        return StreamIndex(index.header, index.manifest, self.name)
 
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
         """Each chunk's file, one request each (a longer file is refused unread)."""

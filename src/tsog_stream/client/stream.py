@@ -1,9 +1,12 @@
-"""``StreamClient``: the async core that shows a remote (or local) container at any time.
+"""``StreamClient``: the one reader of a container, for any origin, at any time.
 
 It opens the container with one request, fetches only the chunks a time needs, keeps decoded
 chunks in an LRU cache bounded in bytes, prefetches ahead in time order with a bounded number
 of requests in flight, and merges chunks that lie close together in the file into one request
-(the body is split back into chunks and every chunk's SHA-256 is checked). See docs/client.md.
+(the body is split back into chunks and every chunk's SHA-256 is checked). It also gives single
+chunks, seek costs, a full verification, and both layouts (unpack, pack). Paths, ``file://``
+and http(s) URLs of a ``.tsogs`` file or of an unpacked folder are read alike; ``Stream``
+(:mod:`.sync`) is its synchronous facade. See docs/client.md.
 """
 
 from __future__ import annotations
@@ -15,29 +18,21 @@ from collections import OrderedDict
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
-from urllib.parse import unquote, urlparse
 
+from ..codec.chunk import decode_chunk_bytes
 from ..container.ranges import ByteRange, coalesce
-from ..container.reader import StreamIndex, decode_chunk_bytes, frame_from_chunks, verify_chunk
-from ..container.sources import ByteSource, FileSource
+from ..container.sources import ByteSource
+from ..container.stream_index import StreamIndex, verify_chunk
 from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..schemas.manifest import ChunkEntry
+from .costs import SeekCost, seek_cost
 from .fetchers import ChunkFetcher, RangeFetcher, make_fetcher
-from .http_source import HttpOptions, HttpSource
+from .http_source import HttpOptions
+from .unpacked import pack, unpack
+from .verify import VerifyReport, verify_stream
 
 MiB = 1 << 20
-
-
-def open_source(target: str | os.PathLike[str], options: HttpOptions | None = None) -> ByteSource:
-    """An ``HttpSource`` for http(s) URLs, a ``FileSource`` for ``file://`` URLs and paths."""
-    text = os.fspath(target)
-    scheme = urlparse(text).scheme.lower()
-    if scheme in ("http", "https"):
-        return HttpSource(text, options)
-    if scheme == "file":
-        return FileSource(unquote(urlparse(text).path))
-    return FileSource(text)
 
 
 def scene_nbytes(scene: Scene) -> int:
@@ -212,8 +207,9 @@ class StreamClient:
                 self.cache_stats.hits += 1
             else:
                 self.cache_stats.misses += 1
-        scenes = await self._scenes(chunks)
-        return frame_from_chunks(scenes, t, self.index.manifest.scene.sh_bands)
+        scenes = await self.chunk_scenes(chunks)
+        bands = self.index.manifest.scene.sh_bands
+        return Gaussians.concat([s.at(t) for s in scenes], sh_bands=bands)
 
     async def prefetch(self, t: float, horizon: float, *, wait: bool = True) -> int:
         """Fetch the chunks of [t, t + horizon] in time order; returns how many were scheduled.
@@ -228,7 +224,7 @@ class StreamClient:
             await asyncio.gather(*futures.values())
         return len(futures)
 
-    async def _scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
+    async def chunk_scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
         """The decoded chunks, from the cache or fetched (in-flight fetches are shared)."""
         found = {c.id: s for c in chunks if (s := self.cache.get(c.id)) is not None}
         futures = self._schedule([c for c in chunks if c.id not in found])
@@ -298,6 +294,35 @@ class StreamClient:
         finally:
             for cid in futures:
                 self._pending.pop(cid, None)
+
+    async def chunk_bytes(self, chunk_id: int) -> bytes:
+        """The verified bytes of one chunk (a standalone ``.sog``); not cached."""
+        chunk = self.index.chunk(chunk_id)
+        [body] = await self.source.fetch([chunk])
+        return verify_chunk(chunk, body, where=f"{self.source.name} chunk {chunk.id}")
+
+    async def chunk_scene(self, chunk_id: int) -> Scene:
+        """One chunk, decoded (through the cache)."""
+        [scene] = await self.chunk_scenes([self.index.chunk(chunk_id)])
+        return scene
+
+    async def seek_cost(self, t: float) -> SeekCost:
+        """What showing ``t`` costs against what is visible (see :mod:`.costs`)."""
+        chunks = self.index.chunks_for(t)
+        return seek_cost(self.index, t, chunks, await self.chunk_scenes(chunks))
+
+    async def verify(self) -> VerifyReport:
+        """Check every chunk (hash, decode, pixel budget, agreement with the index) and, for a
+        ``.tsogs`` file, that its unused bytes are zero."""
+        return await verify_stream(self.source, self.index)
+
+    async def unpack(self, folder: str | os.PathLike[str], *, overwrite: bool = False) -> int:
+        """Write the unpacked layout into ``folder``; returns the number of chunks."""
+        return await unpack(self.index, self.chunk_bytes, folder, overwrite=overwrite)
+
+    async def pack(self, path: str | os.PathLike[str]) -> int:
+        """Write the container as one ``.tsogs`` file at ``path``; returns its size."""
+        return await pack(self.index, self.chunk_bytes, path)
 
     def play(
         self,

@@ -1,7 +1,8 @@
-"""A thin synchronous facade over :class:`StreamClient` (for the CLI and scripts).
+"""``Stream``: the thin synchronous facade over :class:`StreamClient` (for scripts and the CLI).
 
 It owns one event loop (``asyncio.Runner``) and forwards every call to the async core; no
-logic of its own.
+logic of its own. It cannot be used inside a running event loop (Jupyter, async code): use
+:class:`StreamClient` there.
 """
 
 from __future__ import annotations
@@ -12,15 +13,19 @@ from collections.abc import Callable, Coroutine
 from types import TracebackType
 from typing import Any, TypeVar
 
-from ..model import Gaussians
+from ..container.sources import ReadStats
+from ..container.stream_index import StreamIndex
+from ..model import Gaussians, Scene
+from .costs import SeekCost
 from .http_source import HttpOptions
 from .stream import MiB, Playback, PlayedFrame, PlayStats, StreamClient
+from .verify import VerifyReport
 
 T = TypeVar("T")
 
 
-class SyncClient:
-    """A :class:`StreamClient` driven from synchronous code."""
+class Stream:
+    """An opened container (any origin) driven from synchronous code; see :class:`StreamClient`."""
 
     def __init__(self, target: str | os.PathLike[str], **options: Any) -> None:
         self._runner = asyncio.Runner()
@@ -33,13 +38,47 @@ class SyncClient:
     def _run(self, coro: Coroutine[Any, Any, T]) -> T:
         return self._runner.run(coro)
 
+    @property
+    def index(self) -> StreamIndex:
+        """The container's header and index: scene range, chunks, ``chunks_for(t)``."""
+        return self.client.index
+
+    @property
+    def stats(self) -> ReadStats:
+        """Requests made and bytes received so far."""
+        return self.client.source.stats
+
     def frame_at(self, t: float) -> Gaussians:
-        """The Gaussians visible at ``t`` seconds."""
+        """The Gaussians visible at ``t`` seconds, fetching only the chunks ``t`` needs."""
         return self._run(self.client.frame_at(t))
 
     def prefetch(self, t: float, horizon: float) -> int:
         """Fetch the chunks of [t, t + horizon]; returns how many were fetched."""
         return self._run(self.client.prefetch(t, horizon))
+
+    def chunk_bytes(self, chunk_id: int) -> bytes:
+        """The verified bytes of one chunk (a standalone ``.sog``)."""
+        return self._run(self.client.chunk_bytes(chunk_id))
+
+    def chunk_scene(self, chunk_id: int) -> Scene:
+        """One chunk, decoded."""
+        return self._run(self.client.chunk_scene(chunk_id))
+
+    def seek_cost(self, t: float) -> SeekCost:
+        """What showing ``t`` costs against what is visible."""
+        return self._run(self.client.seek_cost(t))
+
+    def verify(self) -> VerifyReport:
+        """Check every chunk (hash, decode, pixel budget, agreement with the index)."""
+        return self._run(self.client.verify())
+
+    def unpack(self, folder: str | os.PathLike[str], *, overwrite: bool = False) -> int:
+        """Write the unpacked layout into ``folder``; returns the number of chunks."""
+        return self._run(self.client.unpack(folder, overwrite=overwrite))
+
+    def pack(self, path: str | os.PathLike[str]) -> int:
+        """Write the container as one ``.tsogs`` file; returns its size in bytes."""
+        return self._run(self.client.pack(path))
 
     def play(self, start: float = 0.0, **options: Any) -> tuple[list[PlayedFrame], PlayStats]:
         """Every frame of a simulated playback (see :meth:`StreamClient.play`) and its stats."""
@@ -66,7 +105,7 @@ class SyncClient:
         finally:
             self._runner.close()
 
-    def __enter__(self) -> SyncClient:
+    def __enter__(self) -> Stream:
         return self
 
     def __exit__(
@@ -97,16 +136,18 @@ async def _drain(playback: Playback, on_frame: Callable[[PlayedFrame], None] | N
     return count
 
 
-def open_url(
+def open_stream(
     target: str | os.PathLike[str],
     *,
     cache_bytes: int = 256 * MiB,
     concurrency: int = 4,
     coalesce_gap: int | None = 64 * 1024,
     http: HttpOptions | None = None,
-) -> SyncClient:
-    """Open a container by http(s) URL, ``file://`` URL or path, synchronously."""
-    return SyncClient(
+) -> Stream:
+    """Open a container synchronously: a path or ``file://`` URL of a ``.tsogs`` file or of an
+    unpacked folder, or an http(s) URL of either (a folder URL ends with ``/`` or
+    ``/manifest.json``). Use it as a context manager, or call ``close()``."""
+    return Stream(
         target,
         cache_bytes=cache_bytes,
         concurrency=concurrency,

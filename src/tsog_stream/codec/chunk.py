@@ -18,6 +18,7 @@ from ..errors import SogError
 from ..model import Scene
 from ..morton import morton_order
 from ..schemas import ChunkMeta, check_image_sizes, dump_meta, listed_files, parse_meta
+from .bundle import read_bundle
 from .layout import image_size
 from .sog_decode import decode_sog
 from .sog_encode import encode_sog
@@ -112,3 +113,9 @@ def decode_chunk(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Scene
     timeline = decode_timeline(meta.timeline, images, count) if meta.timeline is not None else None
     temporal = decode_temporal(meta.temporal, images, count) if meta.temporal else {}
     return Scene(gaussians, timeline, temporal)
+
+
+def decode_chunk_bytes(data: bytes, *, where: str = "<chunk>") -> Scene:
+    """Decode one bundled chunk (a ``.sog``'s bytes); CPU work, run it in a thread from async
+    code."""
+    return decode_chunk(read_bundle(data, where=where), where=where)

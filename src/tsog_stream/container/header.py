@@ -10,10 +10,9 @@ import struct
 from dataclasses import dataclass
 from typing import ClassVar, Final
 
+from ..constants import CONTAINER_MAGIC as MAGIC
 from ..errors import FormatError, UnsupportedError
 
-MAGIC: Final = b"TSOGS\x00\r\n"
-"""8 bytes: name, a NUL (not text), CR LF (catches newline translation)."""
 VERSION_MAJOR: Final = 1
 VERSION_MINOR: Final = 0
 HEADER_SIZE: Final = 128
@@ -22,11 +21,6 @@ PREFIX_SIZE: Final = 16 * 1024
 KNOWN_REQUIRED_FLAGS: Final = 0
 INDEX_ZSTD: Final = 1
 """Index compression codes (only zstd is defined)."""
-
-
-def is_container(head: bytes) -> bool:
-    """True when ``head`` starts with the container magic."""
-    return head[: len(MAGIC)] == MAGIC
 
 
 @dataclass(frozen=True, slots=True)

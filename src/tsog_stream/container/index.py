@@ -48,4 +48,26 @@ def decode_index(data: bytes, raw_length: int, sha256: bytes, *, where: str) -> 
         )
     if hashlib.sha256(raw).digest() != sha256:
         raise IntegrityError("index SHA-256 does not match the header", where=where)
+    if zstd_frame_length(data, where=where) != len(data):
+        raise FormatError(
+            f"the index's zstd frame does not fill the {len(data)} bytes the header gives it",
+            where=where,
+        )
     return parse_manifest(raw, where=f"{where} (index)")
+
+
+def zstd_frame_length(data: bytes, *, where: str) -> int:
+    """Bytes taken by the zstd frame at the start of ``data``, by walking its block headers
+    (RFC 8878 §3.1.1): ``decompress`` ignores trailing bytes, the index must not have any."""
+    try:
+        pos = zstandard.frame_header_size(data)
+        checksum = zstandard.get_frame_parameters(data).has_checksum
+    except zstandard.ZstdError as exc:
+        raise FormatError(f"index is not a valid zstd frame: {exc}", where=where) from exc
+    while pos + 3 <= len(data):
+        block = int.from_bytes(data[pos : pos + 3], "little")
+        kind, size = (block >> 1) & 3, block >> 3
+        pos += 3 + (1 if kind == 1 else size)  # an RLE block stores one byte
+        if block & 1:
+            return pos + (4 if checksum else 0)
+    raise FormatError("the index's zstd frame has no last block", where=where)

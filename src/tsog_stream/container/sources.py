@@ -2,6 +2,8 @@
 
 An async protocol so that HTTP (the client) fits the same reader as memory and local files;
 local files read in a worker thread. Each source counts requests and bytes for reporting.
+:func:`read_index` opens a container over any of them with one request of at most 16 KiB
+(a second one when the index does not fit that prefix).
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ from pathlib import Path
 from typing import Protocol
 
 from ..errors import SourceError
+from .header import PREFIX_SIZE, Header
 from .ranges import ByteRange
+from .stream_index import StreamIndex, check_file_length, container_index, index_span
 
 
 @dataclass
@@ -100,3 +104,14 @@ class FileSource:
         out = _checked(data, span, self.name)
         self.stats.add(len(out))
         return out
+
+
+async def read_index(source: ByteSource) -> StreamIndex:
+    """Read and check the header and index of the container behind ``source``."""
+    size = await source.size()
+    first = await source.read(ByteRange(0, min(size, PREFIX_SIZE)))
+    header = Header.unpack(first, where=source.name)
+    check_file_length(header, size, where=source.name)
+    span = index_span(header)
+    data = first[span.start : span.end] if span.end <= len(first) else await source.read(span)
+    return container_index(header, data, where=source.name)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 from ..codec.bundle import is_zip
-from ..container.header import is_container
+from ..constants import is_container
 from ..errors import InputError, UnsupportedError
 from ..model import Scene
 from .chunks import is_unbundled, read_chunk

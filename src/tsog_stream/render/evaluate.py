@@ -1,9 +1,9 @@
 """Render a reference and a candidate at the same times and cameras; compare with PSNR/SSIM.
 
-A "source" is anything the readers know, opened as *a scene at time t*: a PLY, SOG/TSOG chunk,
-FreeTimeGS file, ``.splatv``, frame sequence (loaded whole), a ``.tsogs`` container or its
-unpacked folder (read chunk by chunk), or a stream URL. Times are sampled over the reference's
-time range; cameras orbit the reference at each time (or come from a 3DGS ``cameras.json``).
+A :class:`Source` is *a scene at time t*: an in-memory scene (:func:`scene_source`) or any
+input the project reads (:func:`tsog_stream.inputs.open_source`). Times are sampled over the
+reference's time range; cameras orbit the reference at each time (or come from a 3DGS
+``cameras.json``).
 """
 
 from __future__ import annotations
@@ -11,19 +11,15 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from ..client.sync import open_url
-from ..container.sync import StreamReader
 from ..errors import InputError
-from ..io.readers import ReadOptions, detect_format, load_scene
 from ..model import Gaussians, Scene
-from ..schemas.manifest import SceneInfo
 from ..temporal import time_range
 from . import render, to_uint8
 from .camera import Camera, load_cameras_json, scene_orbit
@@ -32,13 +28,6 @@ from .metrics import mse, psnr_from_mse, ssim
 Span = tuple[float, float]
 StepCallback = Callable[[int, int], None]
 """Called with (steps done, steps in all) while an evaluation runs."""
-URL_SCHEMES = ("http://", "https://", "file://")
-OPTION_KINDS = {
-    "fps": ("ply-sequence", "sog-sequence"),
-    "duration_s": ("splatv",),
-    "scene_length_s": ("freetimegs-ply", "freetimegs-npz"),
-}
-"""The input formats each reading option applies to (as in io.readers)."""
 
 
 @dataclass
@@ -70,49 +59,6 @@ class Source:
         self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
-
-
-def _stream_span(info: SceneInfo) -> Span | None:
-    """The time range a container declares (None when it holds a static scene)."""
-    return None if info.timeline_type is None else (info.start_s, info.end_s)
-
-
-def fit_options(kind: str, options: ReadOptions) -> ReadOptions:
-    """``options`` without the reading options that do not apply to inputs of ``kind``."""
-
-    def keep(name: str) -> Any:
-        return getattr(options, name) if kind in OPTION_KINDS[name] else None
-
-    return ReadOptions(
-        fps=keep("fps"),
-        duration_s=keep("duration_s"),
-        scene_length_s=keep("scene_length_s"),
-        duration_mode=options.duration_mode,
-    )
-
-
-def open_source(
-    target: str | os.PathLike[str],
-    *,
-    format: str | None = None,
-    options: ReadOptions | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> Source:
-    """Open any input as a :class:`Source`; containers and URLs are read chunk by chunk."""
-    text = os.fspath(target)
-    is_url = text.lower().startswith(URL_SCHEMES)
-    kind = "stream" if is_url else (format or detect_format(text))
-    if kind in ("stream", "tsogs-dir"):
-        client = open_url(text)
-        info = client.client.index.manifest.scene
-        return Source(text, kind, _stream_span(info), client.frame_at, client.close, fps=info.fps)
-    if kind == "tsogs":
-        reader = StreamReader.open(text)
-        info = reader.index.manifest.scene
-        return Source(text, kind, _stream_span(info), reader.frame_at, reader.close, fps=info.fps)
-    loaded = load_scene(text, format=kind, options=options, progress=progress)
-    source = scene_source(loaded.scene, text)
-    return replace(source, kind=loaded.format, notes=list(loaded.notes))
 
 
 def scene_source(scene: Scene, name: str = "scene") -> Source:

@@ -17,16 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from ..container.stream_index import WINDOW_EPSILON
 from ..errors import InputError
 
 F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 POLICIES = ("duplicate", "hierarchy", "hybrid")
 DEFAULT_MAX_COPIES = 2
-WINDOW_EPSILON = 1e-9
-"""Fraction of a window by which a time just before a window start counts as inside it, so
-t = k * window_s lands in window k despite float rounding. Readers choose windows with the
-same rule (container/reader.py), so a Gaussian starting at t is found at t."""
 
 
 @dataclass(frozen=True)

@@ -2,11 +2,8 @@
 
 Routes (see docs/http.md): ``GET|HEAD /files/{path}``, ``GET /v1/scenes``,
 ``GET /v1/scenes/{id}/manifest``, ``GET /v1/scenes/{id}/chunks?t=&horizon=``,
-``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /healthz`` and ``OPTIONS`` preflight anywhere.
-A single span of at least SENDFILE_MIN bytes (whole file or one range) goes out with
-zero-copy ``loop.sendfile`` on the connection's transport; multipart bodies, small spans, TLS
-and transports without sendfile are read with ``pread`` in a worker thread, 256 KiB at a time,
-and written with ``StreamResponse.write`` (see docs/http.md).
+``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /healthz``, ``OPTIONS`` preflight anywhere, and
+the player's pages (:mod:`.player`). Bodies go out through :mod:`.respond`.
 """
 
 from __future__ import annotations
@@ -14,21 +11,16 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-import os
-import secrets
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 from urllib.parse import quote
 
 from aiohttp import HttpVersion10, HttpVersion11, web
-from aiohttp.abc import AbstractStreamWriter
 
-from ..container.ranges import ByteRange
-from ..errors import AccessError, InputError, TsogError
-from .catalog import CONTAINER_SUFFIX, Catalog, NotFoundError, Representation, SceneEntry
-from .conditional import Outcome, evaluate, http_date, if_range_allows
+from ..errors import AccessError, InputError
+from .catalog import Catalog, NotFoundError, SceneEntry
+from .conditional import Outcome, evaluate, http_date
 from .logs import quiet_client_errors
 from .player import add_player_routes
 from .private import (
@@ -39,12 +31,9 @@ from .private import (
     mark_private_responses,
     signed_suffix,
 )
-from .ranges import Ignore, Serve, Unsatisfiable, content_range, parse_range, unsatisfied_range
+from .respond import IMMUTABLE, LIMITS, REVALIDATE, Limits, send_representation
+from .scenes import CATALOG, find_scene, public_scenes
 
-READ_BLOCK = 256 * 1024
-SENDFILE_MIN = 64 * 1024
-REVALIDATE = "public, max-age=0, must-revalidate"
-IMMUTABLE = "public, max-age=31536000, immutable"
 CORS = {
     "Access-Control-Allow-Origin": "*",
     "Access-Control-Expose-Headers": "Content-Range, ETag, Accept-Ranges, Content-Length",
@@ -59,24 +48,6 @@ HTTP_VERSIONS = (HttpVersion10, HttpVersion11)
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
-@dataclass(frozen=True, slots=True)
-class Limits:
-    """Hardening limits of one server."""
-
-    max_concurrent: int = 256
-    """Requests handled at once; more get 503 with Retry-After: 1."""
-    send_timeout_s: float = 60.0
-    """Deadline for sending one response body; the connection is dropped when it passes."""
-    keepalive_s: float = 15.0
-    """Idle keep-alive connections are closed after this."""
-    shutdown_timeout_s: float = 10.0
-    """Grace period for in-flight requests on shutdown."""
-    sendfile: bool = True
-    """Send large single-span bodies with zero-copy ``loop.sendfile`` when the transport can."""
-
-
-CATALOG = web.AppKey("catalog", Catalog)
-LIMITS = web.AppKey("limits", Limits)
 GATE = web.AppKey("gate", asyncio.Semaphore)
 
 
@@ -120,149 +91,6 @@ async def _add_cors(request: web.Request, response: web.StreamResponse) -> None:
     response.headers.update(CORS)
 
 
-def _validators(rep: Representation, cache_control: str) -> dict[str, str]:
-    """ETag, Last-Modified, Accept-Ranges and Cache-Control of a representation."""
-    return {
-        "ETag": rep.etag,
-        "Last-Modified": http_date(rep.mtime),
-        "Accept-Ranges": "bytes",
-        "Cache-Control": cache_control,
-    }
-
-
-async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange) -> None:
-    """Write ``span`` of the open file ``fd`` in READ_BLOCK pieces."""
-    pos = span.start
-    while pos < span.end:
-        data = await asyncio.to_thread(os.pread, fd, min(READ_BLOCK, span.end - pos), pos)
-        if not data:
-            raise ConnectionAbortedError("file shrank while being sent")
-        await resp.write(data)
-        pos += len(data)
-
-
-async def _sendfile(
-    request: web.Request, writer: AbstractStreamWriter, file: BinaryIO, span: ByteRange
-) -> bool:
-    """Send ``span`` of ``file`` with ``loop.sendfile``; False (nothing sent) if unavailable.
-
-    The headers were already handed to the transport by ``prepare``; sendfile waits for them
-    to be flushed. The bytes sent are added to the writer's ``output_size`` (the access log's
-    ``%b``) and taken off its remaining ``length``, as ``write`` would.
-    """
-    transport = request.transport
-    if transport is None:
-        raise ConnectionResetError("connection lost")
-    if transport.get_extra_info("sslcontext") is not None:
-        return False
-    loop = asyncio.get_running_loop()
-    try:
-        sent = await loop.sendfile(transport, file, span.start, span.length, fallback=False)
-    except (NotImplementedError, asyncio.SendfileNotAvailableError):
-        return False
-    except RuntimeError as exc:  # "Transport is closing": the client went away
-        raise ConnectionResetError("connection lost") from exc
-    writer.output_size += sent
-    if writer.length is not None:
-        writer.length = max(0, writer.length - sent)
-    if sent < span.length:
-        raise ConnectionAbortedError("file shrank while being sent")
-    return True
-
-
-def _parts(
-    rep: Representation, spans: tuple[ByteRange, ...], boundary: str
-) -> tuple[list[tuple[bytes, ByteRange]], bytes]:
-    """Multipart/byteranges framing: (part header, span) pairs and the closing delimiter."""
-    parts = [
-        (
-            f"\r\n--{boundary}\r\nContent-Type: {rep.content_type}\r\n"
-            f"Content-Range: {content_range(s, rep.length)}\r\n\r\n".encode(),
-            s,
-        )
-        for s in spans
-    ]
-    return parts, f"\r\n--{boundary}--\r\n".encode()
-
-
-async def _send_body(
-    request: web.Request, resp: web.StreamResponse, rep: Representation, plan: list[Any]
-) -> web.StreamResponse:
-    """Prepare ``resp`` and write ``plan`` (bytes and spans) unless HEAD, under the deadline.
-
-    A plan of one span of at least SENDFILE_MIN bytes is sent with sendfile when possible.
-    When the deadline passes the transport is aborted (buffered bytes discarded).
-    """
-    writer = await resp.prepare(request)
-    if request.method == "HEAD" or writer is None:
-        return resp
-    limits = request.app[LIMITS]
-    file = await asyncio.to_thread(open, rep.path, "rb")
-    try:
-        async with asyncio.timeout(limits.send_timeout_s):
-            spans = [
-                ByteRange.sized(rep.offset + x.start, x.length) if isinstance(x, ByteRange) else x
-                for x in plan
-            ]
-            first = spans[0]
-            zero_copy = (
-                limits.sendfile
-                and len(spans) == 1
-                and isinstance(first, ByteRange)
-                and first.length >= SENDFILE_MIN
-                and await _sendfile(request, writer, file, first)
-            )
-            for item in [] if zero_copy else spans:
-                if isinstance(item, ByteRange):
-                    await _copy(resp, file.fileno(), item)
-                else:
-                    await resp.write(item)
-            await resp.write_eof()
-    except TimeoutError as exc:
-        if request.transport is not None:
-            request.transport.abort()  # close() would keep waiting to flush to a stalled reader
-        raise ConnectionAbortedError("send deadline passed; connection dropped") from exc
-    finally:
-        file.close()
-    return resp
-
-
-async def send_representation(
-    request: web.Request, rep: Representation, cache_control: str = REVALIDATE
-) -> web.StreamResponse:
-    """Answer GET/HEAD for ``rep`` with preconditions, ranges, multipart and 416."""
-    headers = _validators(rep, cache_control)
-    outcome = evaluate(request.method, request.headers, rep.etag, rep.mtime)
-    if outcome is not Outcome.PROCEED:
-        return web.Response(status=outcome.value, headers=headers)
-    fields = request.headers.getall("Range", [])
-    verdict = parse_range(fields[0], rep.length) if len(fields) == 1 else Ignore("not one Range")
-    if not if_range_allows(request.headers.get("If-Range"), rep.etag, rep.mtime):
-        verdict = Ignore("If-Range does not match")
-    if isinstance(verdict, Unsatisfiable):
-        headers["Content-Range"] = unsatisfied_range(rep.length)
-        return web.Response(status=416, headers=headers)
-    plan: list[Any]
-    if isinstance(verdict, Serve) and len(verdict.ranges) == 1:
-        span = verdict.ranges[0]
-        headers["Content-Range"] = content_range(span, rep.length)
-        resp, plan = web.StreamResponse(status=206, headers=headers), [span]
-        resp.content_length = span.length
-    elif isinstance(verdict, Serve):
-        boundary = secrets.token_hex(16)
-        parts, tail = _parts(rep, verdict.ranges, boundary)
-        headers["Content-Type"] = f"multipart/byteranges; boundary={boundary}"
-        resp = web.StreamResponse(status=206, headers=headers)
-        plan = [x for head, span in parts for x in (head, span)] + [tail]
-        resp.content_length = sum(len(x) if isinstance(x, bytes) else x.length for x in plan)
-    else:
-        resp, plan = web.StreamResponse(status=200, headers=headers), [ByteRange(0, rep.length)]
-        resp.content_length = rep.length
-    if "Content-Type" not in headers:
-        resp.content_type = rep.content_type
-    return await _send_body(request, resp, rep, plan)
-
-
 async def files(request: web.Request) -> web.StreamResponse:
     """GET/HEAD /files/{path}: a raw file under the root (private ones need a signed URL)."""
     catalog, rel = request.app[CATALOG], request.match_info["path"]
@@ -273,16 +101,8 @@ async def files(request: web.Request) -> web.StreamResponse:
 
 
 async def _scene(request: web.Request) -> SceneEntry:
-    """The scene named in the URL (private ones need a signed URL); a malformed id is not found."""
-    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
-    scene_id = request.match_info["id"]
-    privacy.admit(request, [scene_id + CONTAINER_SUFFIX, scene_id])
-    try:
-        scene = await catalog.scene(scene_id)
-    except InputError as exc:
-        raise NotFoundError("no such scene", where=scene_id[:80]) from exc
-    privacy.admit(request, [catalog.scene_relative(scene)])
-    return scene
+    """The scene named in the URL (see :func:`.scenes.find_scene`)."""
+    return await find_scene(request, request.match_info["id"])
 
 
 def _scene_json(scene: SceneEntry) -> dict[str, Any]:
@@ -305,16 +125,7 @@ def _scene_json(scene: SceneEntry) -> dict[str, Any]:
 
 async def scenes(request: web.Request) -> web.StreamResponse:
     """GET /v1/scenes: every readable public scene under the root (private ones are not listed)."""
-    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
-    items = []
-    for scene_id in await asyncio.to_thread(catalog.scene_ids):  # a walk: off the loop
-        try:
-            scene = await catalog.scene(scene_id)
-        except TsogError:
-            continue
-        rels = [scene_id + CONTAINER_SUFFIX, scene_id, catalog.scene_relative(scene)]
-        if not any(privacy.is_private(r) for r in rels):
-            items.append(_scene_json(scene))
+    items = [_scene_json(scene) for scene in await public_scenes(request)]
     return web.json_response({"scenes": items}, headers={"Cache-Control": "no-cache"})
 
 

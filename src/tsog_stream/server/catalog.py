@@ -18,12 +18,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple, TypeVar
 
-from ..container.header import HEADER_SIZE, INDEX_ZSTD, VERSION_MAJOR, Header, is_container
-from ..container.reader import StreamIndex, open_stream
-from ..container.sources import FileSource
-from ..container.unpacked import MANIFEST
+from ..constants import is_container
+from ..container.header import HEADER_SIZE, Header
+from ..container.sources import FileSource, read_index
+from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import InputError, SourceError, TsogError
-from ..schemas.manifest import ChunkEntry, dump_manifest, parse_manifest
+from ..schemas.manifest import ChunkEntry, dump_manifest
 
 CONTAINER_SUFFIX = ".tsogs"
 CONTAINER_TYPE = "application/vnd.tsog-stream"
@@ -116,14 +116,6 @@ def _content_etag(path: Path) -> str:
     return f'"{digest.hexdigest()}"'
 
 
-def _unpacked_index(manifest_json: bytes, where: str) -> StreamIndex:
-    """A StreamIndex for an unpacked layout (header fields describe the would-be container)."""
-    manifest = parse_manifest(manifest_json, where=where)
-    digest = hashlib.sha256(manifest_json).digest()
-    header = Header(VERSION_MAJOR, 0, 0, 0, INDEX_ZSTD, 0, 0, len(manifest_json), 0, digest)
-    return StreamIndex(header, manifest, where)
-
-
 class Catalog:
     """Files and scenes under one root, with caches holding one entry per resolved file (its
     current version only, at most MAX_CACHED files).
@@ -196,11 +188,11 @@ class Catalog:
         """Open a container or read an unpacked manifest (NotFoundError when unreadable)."""
         try:
             if packed:
-                index = await open_stream(FileSource(path))
+                index = await read_index(FileSource(path))
                 manifest_json = dump_manifest(index.manifest)
             else:
                 manifest_json = await asyncio.to_thread(path.read_bytes)
-                index = _unpacked_index(manifest_json, str(path))
+                index = unpacked_index(manifest_json, where=str(path))
         except TsogError as exc:
             raise NotFoundError(f"not a readable scene: {exc.message}", where=scene_id) from exc
         except OSError as exc:  # vanished or unreadable since the stat

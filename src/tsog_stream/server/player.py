@@ -19,11 +19,12 @@ from urllib.parse import quote, unquote, urlencode, urlsplit
 
 from aiohttp import web
 
-from ..errors import InputError, TsogError
+from ..errors import InputError
 from ..signing import EXPIRES, signing_params
-from . import app as server  # a cycle (app.py registers these routes): names used at call time
-from .catalog import CONTAINER_SUFFIX, NotFoundError, Representation
+from .catalog import NotFoundError, Representation
 from .private import PRIVACY, is_signed
+from .respond import send_representation
+from .scenes import find_scene, public_scenes
 
 PLAYER_DIR = Path(__file__).with_name("player")
 ENGINE_ENV = "TSOG_PLAYCANVAS_DIR"
@@ -90,7 +91,7 @@ async def _representation(request: web.Request, path: Path) -> Representation:
 async def _send(request: web.Request, path: Path) -> web.StreamResponse:
     """Send a static file with validators, 304 and ranges (the server's own file sender)."""
     rep = await _representation(request, path)
-    return await server.send_representation(request, rep)
+    return await send_representation(request, rep)
 
 
 async def player_file(request: web.Request) -> web.StreamResponse:
@@ -104,21 +105,6 @@ async def engine(request: web.Request) -> web.StreamResponse:
     if path is None:
         raise NotFoundError(INSTALL_HINT, where=ENGINE_FILE)
     return await _send(request, path)
-
-
-async def _public_ids(request: web.Request) -> list[str]:
-    """Ids of the readable scenes that are not private."""
-    catalog, privacy = request.app[server.CATALOG], request.app[PRIVACY]
-    ids = []
-    for scene_id in await asyncio.to_thread(catalog.scene_ids):
-        try:
-            scene = await catalog.scene(scene_id)
-        except TsogError:
-            continue
-        rels = [scene_id + CONTAINER_SUFFIX, scene_id, catalog.scene_relative(scene)]
-        if not any(privacy.is_private(r) for r in rels):
-            ids.append(scene_id)
-    return ids
 
 
 def _page(title: str, body: str) -> web.Response:
@@ -140,8 +126,8 @@ async def index(request: web.Request) -> web.StreamResponse:
     if url is not None:
         return await _player_page("stream", {"scene": None, "manifest": _manifest_url(url)})
     items = "".join(
-        f'<li><a href="/play/{quote(i)}">{html.escape(i)}</a></li>\n'
-        for i in await _public_ids(request)
+        f'<li><a href="/play/{quote(s.id)}">{html.escape(s.id)}</a></li>\n'
+        for s in await public_scenes(request)
     )
     listing = f'<ul class="scenes">\n{items}</ul>\n' if items else "<p>No scenes here.</p>\n"
     form = (
@@ -191,14 +177,7 @@ def _scene_query(request: web.Request, api: str) -> str:
 
 async def play(request: web.Request) -> web.StreamResponse:
     """GET /play/{scene}: the player page of one scene (404 for an unknown scene)."""
-    catalog, privacy = request.app[server.CATALOG], request.app[PRIVACY]
-    scene_id = request.match_info["id"]
-    privacy.admit(request, [scene_id + CONTAINER_SUFFIX, scene_id])
-    try:
-        scene = await catalog.scene(scene_id)
-    except InputError as exc:
-        raise NotFoundError("no such scene", where=scene_id[:80]) from exc
-    privacy.admit(request, [catalog.scene_relative(scene)])
+    scene = await find_scene(request, request.match_info["id"])
     api = f"/v1/scenes/{quote(scene.id)}"
     config = {"scene": scene.id, "manifest": f"{api}/manifest", "chunks": f"{api}/chunks/"}
     query = _scene_query(request, api)

@@ -3,7 +3,7 @@
 // works against any origin that serves manifest.json and the chunk files (no /v1 API needed).
 
 const TIME_EPSILON = 1e-9; // tsog_stream.temporal.TIME_EPSILON, in frames (or seconds)
-const WINDOW_EPSILON = 1e-9; // tsog_stream.segment.plan.WINDOW_EPSILON, in windows
+const WINDOW_EPSILON = 1e-9; // tsog_stream.container.stream_index.WINDOW_EPSILON, in windows
 
 /** Chunk selection over one parsed manifest (the container index JSON). */
 export class SceneIndex {

@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
-import asyncio
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
+from ..container.ranges import coalesce
+from ..container.stream_index import StreamIndex
+from ..model import Scene
+from ..schemas.manifest import ChunkEntry
 from ..temporal import evaluate_all
-from .ranges import coalesce
-from .reader import StreamIndex, read_scene_chunk
-from .sources import ByteSource
 
 
 @dataclass(frozen=True)
@@ -36,10 +37,11 @@ class SeekCost:
         return {**asdict(self), "overfetch": round(self.overfetch, 3)}
 
 
-async def seek_cost(source: ByteSource, index: StreamIndex, t: float) -> SeekCost:
-    """Fetch what ``t`` needs and measure it (requests = coalesced adjacent ranges)."""
-    chunks = index.chunks_for(t)
-    scenes = await asyncio.gather(*(read_scene_chunk(source, index, c) for c in chunks))
+def seek_cost(
+    index: StreamIndex, t: float, chunks: Sequence[ChunkEntry], scenes: Sequence[Scene]
+) -> SeekCost:
+    """The cost of showing ``t`` from the chunks it needs, decoded (requests = coalesced
+    adjacent ranges)."""
     visible = 0
     visible_bytes = 0.0
     for chunk, scene in zip(chunks, scenes, strict=True):

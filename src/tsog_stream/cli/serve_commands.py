@@ -6,13 +6,12 @@ import argparse
 import logging
 import time
 from pathlib import Path
-from typing import Any
 
-from ..cli.progress import Progress
 from ..errors import InputError
+from ..server import Limits, Privacy, run_server
 from ..signing import load_secret, parse_ttl, sign_url
-from .app import Limits, run_server
-from .private import Privacy
+from .common import Subparsers
+from .progress import Progress
 
 SECRET_HELP = (
     "file holding the URL-signing secret (default: $TSOG_URL_SECRET_FILE, else the secret "
@@ -20,9 +19,9 @@ SECRET_HELP = (
 )
 
 
-def add_serve_command(sub: Any) -> argparse.ArgumentParser:
+def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
     """Register ``serve`` on an argparse subparsers object; returns its parser."""
-    p: argparse.ArgumentParser = sub.add_parser(
+    p = sub.add_parser(
         "serve",
         help="serve containers and files over HTTP with byte ranges (docs/http.md)",
         epilog="examples:\n"
@@ -50,9 +49,9 @@ def add_serve_command(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
-def add_sign_command(sub: Any) -> argparse.ArgumentParser:
+def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
     """Register ``sign`` on an argparse subparsers object; returns its parser."""
-    p: argparse.ArgumentParser = sub.add_parser(
+    p = sub.add_parser(
         "sign",
         help="print a signed, expiring URL for a private scene (docs/http.md)",
         epilog="example: tsog sign http://host:8080/files/paid/show.tsogs --ttl 12h\n"

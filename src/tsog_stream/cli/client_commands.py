@@ -1,32 +1,34 @@
 """CLI commands of the streaming client: ``tsog fetch`` and ``tsog play``.
 
 Thin: parse arguments, call :mod:`tsog_stream.client`, print results; no logic of its own.
+``tsog fetch`` is ``tsog frame`` on a stream with the bytes on the wire always reported.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
+from ..client import PlayStats, open_stream
 from ..io.files import refuse_existing
-from ..io.ply import write_ply
-from .stream import PlayStats
-from .sync import open_url
+from .common import Subparsers, add_common
+from .progress import Progress
+from .stream_commands import STREAM_HELP, stream_frame
 
 
-def add_client_commands(sub: Any, add_common: Callable[[argparse.ArgumentParser], None]) -> None:
+def add_client_commands(sub: Subparsers) -> None:
     """Register ``fetch`` and ``play`` on the main parser."""
-    p = sub.add_parser("fetch", help="fetch the frame at time T of a served container as a PLY")
-    p.add_argument("url", help="http(s):// URL, file:// URL or path of a .tsogs container")
+    p = sub.add_parser("fetch", help="fetch the frame at time T of a served container")
+    p.add_argument("url", help=STREAM_HELP)
     p.add_argument("--t", type=float, required=True, help="time in seconds")
-    p.add_argument("-o", "--output", type=Path, required=True, help="the PLY to write")
+    p.add_argument(
+        "-o", "--output", type=Path, required=True, help="frame.ply or frame.sog (or a folder)"
+    )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     add_common(p)
 
     p = sub.add_parser("play", help="simulate playing a served container; report stalls")
-    p.add_argument("url", help="http(s):// URL, file:// URL or path of a .tsogs container")
+    p.add_argument("url", help=STREAM_HELP)
     p.add_argument("--start", type=float, default=0.0, help="start time in seconds (default 0)")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
     p.add_argument(
@@ -40,24 +42,18 @@ def add_client_commands(sub: Any, add_common: Callable[[argparse.ArgumentParser]
     add_common(p)
 
 
-def cmd_fetch(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
+def cmd_fetch(args: argparse.Namespace, progress: Progress) -> int:
     """tsog fetch: one frame, reading only the chunks it needs."""
     refuse_existing(args.output, overwrite=args.force)
-    progress(f"opening {args.url}")
-    with open_url(args.url) as client:
-        progress(f"fetching t = {args.t} s")
-        frame = client.frame_at(args.t)
-        stats = client.client.source.stats
-    write_ply(args.output, frame)
-    print(f"{args.output}: {len(frame)} Gaussians visible at t = {args.t} s")
+    stats = stream_frame(args.url, args.t, args.output, progress)
     print(f"{stats.requests} requests, {stats.bytes} bytes")
     return 0
 
 
-def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
+def cmd_play(args: argparse.Namespace, progress: Progress) -> int:
     """tsog play: a simulated playback with startup latency, stalls and throughput."""
     progress(f"opening {args.url}")
-    with open_url(args.url) as client:
+    with open_stream(args.url) as client:
         playback = client.client.play(
             args.start,
             speed=args.speed,

@@ -12,13 +12,14 @@ import numpy as np
 
 from ..codec.bundle import read_bundle
 from ..codec.chunk import decode_chunk, decode_images, read_meta
+from ..container.header import HEADER_SIZE
+from ..container.ranges import ByteRange
+from ..container.sources import ByteSource
+from ..container.stream_index import StreamIndex
 from ..errors import TsogError
 from ..schemas.manifest import ChunkEntry
 from ..temporal import lifespans
-from .header import HEADER_SIZE
-from .ranges import ByteRange
-from .reader import StreamIndex
-from .sources import ByteSource
+from .fetchers import ChunkFetcher, RangeFetcher
 
 RESERVED_START = struct.calcsize("<8sHHIIIQQQQ32s")
 """Header bytes [88, 128) are reserved and written as zeros (docs/spec.md §8.1)."""
@@ -112,14 +113,16 @@ async def _check_unused(source: ByteSource, index: StreamIndex) -> list[str]:
     return found
 
 
-async def verify_stream(source: ByteSource, index: StreamIndex) -> VerifyReport:
-    """Check the container's unused bytes, then read every chunk once and check it."""
+async def verify_stream(source: ChunkFetcher, index: StreamIndex) -> VerifyReport:
+    """Check a container file's unused bytes (the unpacked layout has none), then read every
+    chunk once, unverified, and check it."""
     report = VerifyReport(chunks=len(index.manifest.chunks))
-    for msg in await _check_unused(source, index):
-        report.problems.append((Check.INDEX, CONTAINER, msg))
+    if isinstance(source, RangeFetcher):
+        for msg in await _check_unused(source.source, index):
+            report.problems.append((Check.INDEX, CONTAINER, msg))
     for chunk in index.manifest.chunks:
         where = f"{source.name} chunk {chunk.id}"
-        data = await source.read(index.chunk_range(chunk))
+        [data] = await source.fetch([chunk])
         found = await asyncio.to_thread(_check_chunk, chunk, data, index.manifest.max_pixels, where)
         report.problems.extend((kind, chunk.id, msg) for kind, msg in found)
     return report

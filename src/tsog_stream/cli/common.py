@@ -1,0 +1,90 @@
+"""What every ``tsog`` command shares: the common options, the INPUT argument with its reading
+options, and loading an input with its notes on stderr."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, TypeAlias
+
+from ..io.readers import FORMATS, ReadOptions, load_scene
+from ..io.sequence import DEFAULT_FPS
+from ..model import Scene
+from .progress import Progress
+
+if TYPE_CHECKING:
+    Subparsers: TypeAlias = argparse._SubParsersAction[argparse.ArgumentParser]
+else:
+    Subparsers: TypeAlias = argparse._SubParsersAction
+
+
+def add_common(p: argparse.ArgumentParser) -> None:
+    """Options every subcommand has."""
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output on stderr")
+
+
+def add_input(p: argparse.ArgumentParser) -> None:
+    """The INPUT argument, --format and the per-format reading options."""
+    p.add_argument(
+        "input",
+        help="input file, folder or frame pattern: 3DGS PLY, compressed PLY, .sog or SOG folder, "
+        "folder/glob of numbered PLY or SOG frames, FreeTimeGS PLY/npz, .splatv, .4dgs",
+    )
+    p.add_argument(
+        "--format", choices=FORMATS, help="input format (default: detected from content)"
+    )
+    g = p.add_argument_group("reading options (each applies to the formats named)")
+    g.add_argument(
+        "--fps", type=float, help=f"frame rate of PLY/SOG frame sequences (default {DEFAULT_FPS:g})"
+    )
+    g.add_argument(
+        "--duration-s", type=float, help=".splatv: seconds spanned by the clip (default 1)"
+    )
+    g.add_argument(
+        "--scene-length-s",
+        type=float,
+        help="FreeTimeGS: seconds spanned by normalised time (default 1)",
+    )
+    g.add_argument(
+        "--duration-mode",
+        choices=("log", "linear"),
+        default="log",
+        help="FreeTimeGS PLY: durations stored as log sigma (default) or sigma",
+    )
+
+
+def read_options(args: argparse.Namespace) -> ReadOptions:
+    """The reading options given on the command line."""
+    return ReadOptions(
+        fps=args.fps,
+        duration_s=args.duration_s,
+        scene_length_s=args.scene_length_s,
+        duration_mode=args.duration_mode,
+    )
+
+
+def note(message: str) -> None:
+    """A reader's or writer's note, on stderr."""
+    print(f"tsog: note: {message}", file=sys.stderr)
+
+
+def load_input(args: argparse.Namespace, progress: Progress) -> Scene:
+    """Load the INPUT with progress and reader notes on stderr."""
+    progress(f"reading {args.input}")
+    loaded = load_scene(
+        args.input, format=args.format, options=read_options(args), progress=progress
+    )
+    for text in loaded.notes:
+        note(text)
+    return loaded.scene
+
+
+def input_bytes(path: str) -> int:
+    """Size of an input file, or of the files in an input folder (0 for a pattern)."""
+    p = Path(path)
+    if p.is_file():
+        return p.stat().st_size
+    if p.is_dir():
+        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+    return 0

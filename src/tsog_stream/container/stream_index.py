@@ -1,0 +1,153 @@
+"""An opened container as a pure value: which chunks a time needs and where their bytes are.
+
+Sans-I/O: the functions here take the bytes a reader fetched (the 16 KiB prefix, the index if
+it did not fit, a chunk) and return checked values; :func:`.sources.read_index` does the
+reading over any byte source, :mod:`tsog_stream.client` everything after opening.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+from ..errors import InputError, IntegrityError
+from ..schemas.manifest import ChunkEntry, Manifest, check_layout, parse_manifest
+from ..temporal import TIME_EPSILON
+from .header import INDEX_ZSTD, PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
+from .index import decode_index
+from .ranges import ByteRange
+
+WINDOW_EPSILON = 1e-9
+"""Fraction of a window by which a time just before a window start counts as inside it, so
+t = k * window_s lands in window k despite float rounding. The segmenter assigns Gaussians to
+windows and readers choose windows with this same rule, so a Gaussian starting at t is found
+at t (the web player's manifest.js mirrors it)."""
+MANIFEST = "manifest.json"
+"""The index of the unpacked layout (``manifest.json`` + ``chunks/NNNNNN.sog``)."""
+
+
+@dataclass(frozen=True)
+class StreamIndex:
+    """An opened container: its header, validated index and identity (index SHA-256, hex)."""
+
+    header: Header
+    manifest: Manifest
+    name: str
+
+    @property
+    def identity(self) -> str:
+        """Content identity of the whole container (the SHA-256 of its index JSON)."""
+        return self.header.index_sha256.hex()
+
+    @property
+    def size(self) -> int:
+        """Length of the container file."""
+        return self.header.file_length
+
+    def chunk_range(self, chunk: ChunkEntry) -> ByteRange:
+        """Where a chunk's bytes are."""
+        return ByteRange.sized(chunk.offset, chunk.length)
+
+    def chunk(self, chunk_id: int) -> ChunkEntry:
+        """The index entry of chunk ``chunk_id`` (InputError naming the valid ids if none)."""
+        chunks = self.manifest.chunks
+        if not 0 <= chunk_id < len(chunks):
+            raise InputError(f"no chunk {chunk_id}; this container has chunks 0-{len(chunks) - 1}")
+        return chunks[chunk_id]
+
+    @cached_property
+    def windows(self) -> int:
+        """Number of windows (level-0 nodes) of the segmentation."""
+        return sum(1 for n in self.manifest.nodes if n.level == 0)
+
+    def _window(self, t: float, windows: int) -> int:
+        """The window holding ``t``, by the segmenter's rule (float rounding snapped forward,
+        so t = k * window_s is in window k), clipped to the scene's windows."""
+        x = (t - self.manifest.scene.start_s) / self.manifest.window_s + WINDOW_EPSILON
+        return min(math.floor(min(max(x, 0.0), float(windows))), windows - 1)
+
+    def chunks_for_interval(self, start: float, end: float) -> list[ChunkEntry]:
+        """Chunks holding Gaussians visible at some time in [start, end], in file order.
+
+        Windows are chosen by index (not by comparing with their stored float edges, which
+        round differently from frame times), so a time is in exactly one window and each
+        Gaussian is shown once; a chunk is kept when its own visible interval meets the query
+        within the evaluation's time tolerance. Nothing is chosen outside the scene's range.
+        """
+        if not (math.isfinite(start) and math.isfinite(end)):
+            raise InputError(f"times must be finite numbers of seconds, got [{start}, {end}]")
+        m = self.manifest
+        fps = m.scene.fps
+        slack = TIME_EPSILON * (1.0 / fps if fps else 1.0) + WINDOW_EPSILON * m.window_s
+        windows = self.windows
+        if windows == 0 or end < m.scene.start_s - slack or start > m.scene.end_s + slack:
+            return []
+        first, last = self._window(start, windows), self._window(end, windows)
+        chosen: set[int] = set()
+        for node in m.nodes:
+            level = min(node.level, 62)  # level 62 already spans more windows than exist
+            if node.index << level > last or (node.index + 1) << level <= first:
+                continue
+            for cid in node.chunks:
+                c = m.chunks[cid]
+                if c.start_s <= end + slack and c.end_s >= start - slack:
+                    chosen.add(cid)
+        return sorted((m.chunks[i] for i in chosen), key=lambda c: c.offset)
+
+    def chunks_for(self, t: float) -> list[ChunkEntry]:
+        """Chunks needed to show time ``t`` (empty before the first or after the last Gaussian)."""
+        return self.chunks_for_interval(t, t)
+
+
+def check_file_length(header: Header, size: int, *, where: str) -> None:
+    """The header's file length must be the file's: anything else is truncation or appending."""
+    if header.file_length != size:
+        raise IntegrityError(
+            f"header says the file has {header.file_length} bytes, it has {size} (truncated or "
+            "appended to)",
+            where=where,
+        )
+
+
+def index_span(header: Header) -> ByteRange:
+    """Where the compressed index is."""
+    return ByteRange.sized(header.index_offset, header.index_length)
+
+
+def container_index(header: Header, index_bytes: bytes, *, where: str) -> StreamIndex:
+    """Decode and check the index of a container whose header was read and length checked."""
+    manifest = decode_index(index_bytes, header.index_raw_length, header.index_sha256, where=where)
+    payload_end = header.index_offset if header.index_offset >= PREFIX_SIZE else header.file_length
+    check_layout(manifest, PREFIX_SIZE, payload_end, where=where)
+    return StreamIndex(header, manifest, where)
+
+
+def unpacked_index(manifest_json: bytes, *, where: str) -> StreamIndex:
+    """The index of an unpacked layout, with header fields describing the container that
+    ``tsog pack`` would build from it (chunks first, then the index)."""
+    manifest = parse_manifest(manifest_json, where=where)
+    end = max((c.offset + c.length for c in manifest.chunks), default=PREFIX_SIZE)
+    header = Header(
+        version_major=VERSION_MAJOR,
+        version_minor=VERSION_MINOR,
+        required_flags=0,
+        optional_flags=0,
+        index_codec=INDEX_ZSTD,
+        index_offset=end,
+        index_length=len(manifest_json),
+        index_raw_length=len(manifest_json),
+        file_length=end + len(manifest_json),
+        index_sha256=hashlib.sha256(manifest_json).digest(),
+    )
+    return StreamIndex(header, manifest, where)
+
+
+def verify_chunk(chunk: ChunkEntry, data: bytes, *, where: str) -> bytes:
+    """``data`` if its SHA-256 matches the index, else IntegrityError naming the chunk."""
+    if hashlib.sha256(data).hexdigest() != chunk.sha256:
+        raise IntegrityError(
+            f"chunk {chunk.id} does not match its SHA-256 in the index", where=where
+        )
+    return data
