@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
+from .._version import __version__
 from ..codec.chunk import decode_chunk, encode_chunk
 from ..demo import run_demo
 from ..errors import TsogError

@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .. import __version__
 from .. import constants as C
+from .._version import __version__
 from ..errors import SogError
 from ..model import Scene
 from ..morton import morton_order

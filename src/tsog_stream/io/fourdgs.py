@@ -31,7 +31,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from .. import __version__
+from .._version import __version__
 from ..constants import GENERATOR, SH_BANDS_BY_COEFFS, SH_C0, VISIBILITY_THRESHOLD
 from ..errors import FormatError, InputError, UnsupportedError
 from ..model import Gaussians, Scene, Timeline, TimelineType

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .. import __version__
+from .._version import __version__
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
