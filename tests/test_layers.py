@@ -97,7 +97,7 @@ PUBLIC = [
 
 def _top(module: str) -> str:
     """The top-level module or package of a dotted name under tsog_stream."""
-    return module.split(".")[0] or "__init__"
+    return module.split(".", maxsplit=1)[0] or "__init__"
 
 
 def _internal_imports(path: Path) -> list[tuple[int, str]]:
@@ -149,9 +149,12 @@ def test_the_format_layer_does_no_io(name: str) -> None:
             assert node.module.split(".")[0] not in IO_MODULES, name
         elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
             assert node.func.id != "open", f"{name}:{node.lineno} opens a file"
-        elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name):
-            if node.value.id == "os":
-                assert node.attr in OS_ALLOWED, f"{name}:{node.lineno} uses os.{node.attr}"
+        elif (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id == "os"
+        ):
+            assert node.attr in OS_ALLOWED, f"{name}:{node.lineno} uses os.{node.attr}"
 
 
 def test_importing_the_format_layer_loads_no_client_server_or_files() -> None:

@@ -22,8 +22,7 @@ from tsog_stream.client import open_stream
 from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.server import Limits, make_app
-from tsog_stream.server import respond
+from tsog_stream.server import Limits, make_app, respond
 from tsog_stream.server.app import GATE
 from tsog_stream.synthetic import small_scene
 
