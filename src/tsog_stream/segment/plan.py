@@ -13,16 +13,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import get_args
 
 import numpy as np
 import numpy.typing as npt
 
 from ..container.stream_index import WINDOW_EPSILON
 from ..errors import InputError
+from ..schemas.manifest import Policy
 
 F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
-POLICIES = ("duplicate", "hierarchy", "hybrid")
+POLICIES: tuple[Policy, ...] = get_args(Policy)
 DEFAULT_MAX_COPIES = 2
 
 
@@ -106,7 +108,7 @@ def make_plan(
     scene_start: float,
     scene_end: float,
     window_s: float,
-    policy: str,
+    policy: Policy,
     max_copies: int = DEFAULT_MAX_COPIES,
 ) -> Plan:
     """Assign Gaussians with lifespans [start, end) (seconds) to nodes under ``policy``."""

@@ -35,14 +35,14 @@ from ..errors import InputError
 from ..io.sequence import FrameSequence
 from ..model import Scene
 from ..morton import morton_order
-from ..schemas.manifest import Box, ChunkEntry, Manifest, Node
+from ..schemas.manifest import Box, ChunkEntry, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan
 
 DEFAULT_MAX_PIXELS = 4096 * 4096
 DEFAULT_WINDOW_S = 1.0
-DEFAULT_POLICY = "hybrid"
+DEFAULT_POLICY: Policy = "hybrid"
 MIN_PIXELS = 16
 BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
@@ -55,7 +55,7 @@ class SegmentOptions:
     """How to segment; defaults are the measured choices of docs/design/segmenter.md."""
 
     window_s: float = DEFAULT_WINDOW_S
-    policy: str = DEFAULT_POLICY
+    policy: Policy = DEFAULT_POLICY
     max_pixels: int = DEFAULT_MAX_PIXELS
     max_copies: int = DEFAULT_MAX_COPIES
     workers: int = 1
