@@ -27,10 +27,25 @@ T = TypeVar("T")
 class Stream:
     """An opened container (any origin) driven from synchronous code; see :class:`StreamClient`."""
 
-    def __init__(self, target: str | os.PathLike[str], **options: Any) -> None:
+    def __init__(
+        self,
+        target: str | os.PathLike[str],
+        *,
+        cache_bytes: int = 256 * MiB,
+        concurrency: int = 4,
+        coalesce_gap: int | None = 64 * 1024,
+        http: HttpOptions | None = None,
+    ) -> None:
         self._runner = asyncio.Runner()
+        opening = StreamClient.open(
+            target,
+            cache_bytes=cache_bytes,
+            concurrency=concurrency,
+            coalesce_gap=coalesce_gap,
+            http=http,
+        )
         try:
-            self.client: StreamClient = self._run(StreamClient.open(target, **options))
+            self.client: StreamClient = self._run(opening)
         except BaseException:
             self._runner.close()
             raise
@@ -80,9 +95,20 @@ class Stream:
         """Write the container as one ``.tsogs`` file; returns its size in bytes."""
         return self._run(self.client.pack(path))
 
-    def play(self, start: float = 0.0, **options: Any) -> tuple[list[PlayedFrame], PlayStats]:
+    def play(
+        self,
+        start: float = 0.0,
+        *,
+        speed: float = 1.0,
+        fps: float = 30.0,
+        duration: float | None = None,
+        horizon_s: float = 1.0,
+        realtime: bool = False,
+    ) -> tuple[list[PlayedFrame], PlayStats]:
         """Every frame of a simulated playback (see :meth:`StreamClient.play`) and its stats."""
-        playback = self.client.play(start, **options)
+        playback = self.client.play(
+            start, speed=speed, fps=fps, duration=duration, horizon_s=horizon_s, realtime=realtime
+        )
         return self.run_playback(playback), playback.stats
 
     def run_playback(
@@ -136,21 +162,7 @@ async def _drain(playback: Playback, on_frame: Callable[[PlayedFrame], None] | N
     return count
 
 
-def open_stream(
-    target: str | os.PathLike[str],
-    *,
-    cache_bytes: int = 256 * MiB,
-    concurrency: int = 4,
-    coalesce_gap: int | None = 64 * 1024,
-    http: HttpOptions | None = None,
-) -> Stream:
-    """Open a container synchronously: a path or ``file://`` URL of a ``.tsogs`` file or of an
-    unpacked folder, or an http(s) URL of either (a folder URL ends with ``/`` or
-    ``/manifest.json``). Use it as a context manager, or call ``close()``."""
-    return Stream(
-        target,
-        cache_bytes=cache_bytes,
-        concurrency=concurrency,
-        coalesce_gap=coalesce_gap,
-        http=http,
-    )
+open_stream = Stream
+"""Open a container synchronously: a path or ``file://`` URL of a ``.tsogs`` file or of an
+unpacked folder, or an http(s) URL of either (a folder URL ends with ``/`` or
+``/manifest.json``). Use it as a context manager, or call ``close()``."""
