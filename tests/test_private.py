@@ -117,8 +117,9 @@ def test_secret_from_file_and_environment(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``free.tsogs``, ``paid/show.tsogs``, its unpacked ``paid/folder/``, and a public
-    symlink ``free/alias.tsogs`` pointing at the private container."""
+    """``free.tsogs``, ``paid/show.tsogs``, its unpacked ``paid/folder/``, a scene below the
+    first one's id (``paid/show/bonus.tsogs``), and a public symlink ``free/alias.tsogs``
+    pointing at the private container."""
     root = tmp_path_factory.mktemp("private-site")
     scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0, dynamic=("means",))
     options = SegmentOptions(window_s=0.5, policy="duplicate")
@@ -127,6 +128,8 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     segment_scene(scene, root / "paid" / "show.tsogs", options)
     with open_stream(root / "paid" / "show.tsogs") as reader:
         reader.unpack(root / "paid" / "folder")
+    (root / "paid" / "show").mkdir()
+    segment_scene(scene, root / "paid" / "show" / "bonus.tsogs", options)
     (root / "free").mkdir()
     os.symlink(root / "paid" / "show.tsogs", root / "free" / "alias.tsogs")
     return root
@@ -216,6 +219,20 @@ def test_chunk_list_carries_the_signature_to_chunk_urls(server: ThreadedServer, 
         assert headers["Cache-Control"] == "private, max-age=31536000, immutable"
         unsigned = c["url"].split("&")[0]
         assert get(server.port, unsigned)[0] == 403
+
+
+def test_a_scene_scope_opens_that_scene_and_no_scene_below_its_id(server: ThreadedServer) -> None:
+    scope = "/v1/scenes/paid/show/"  # what the signed player page of paid/show hands out
+    assert get(server.port, signed(f"{scope}manifest", scope=scope))[0] == 200
+    bonus = "/v1/scenes/paid/show/bonus/"
+    for path in ("manifest", "chunks?t=0.1", "chunks/0.sog"):
+        target = signed(bonus + path.split("?")[0], scope=scope)
+        query = "&" + path.split("?")[1] if "?" in path else ""
+        status, _, body = get(server.port, target + query)
+        assert status == 403 and b"covers the scene paid/show only" in body
+    folder = "/v1/scenes/paid/"  # a folder of scenes, not a scene: every scene below it
+    assert get(server.port, signed(f"{bonus}manifest", scope=folder))[0] == 200
+    assert get(server.port, signed(f"{scope}manifest", scope=folder))[0] == 200
 
 
 def test_access_log_never_holds_the_signature(
