@@ -8,12 +8,15 @@ get 400 or 404 (never 200 with outside bytes, never 500) and no body may hold th
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import socket
 import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from urllib.parse import quote
 
 import pytest
 
@@ -228,6 +231,45 @@ def test_overlong_names(port: int) -> None:
         b"/v1/scenes/" + b"d/" * 3_000 + b"x/chunks?t=0",
     ]
     check_refused(port, targets)
+
+
+ODD_NAMES = [b"bad\xff.tsogs", b"new\nline.tsogs", b"tab\there.tsogs", b"esc\x1b[31m.tsogs"]
+ODD_FOLDERS = [b"dir\xfe", b"dir\nline", b"del\x7f"]
+
+
+@pytest.fixture(scope="module")
+def odd_port(base: Path) -> Iterator[int]:
+    """A server on a root holding ``good.tsogs`` and copies under odd names: undecodable
+    bytes and control characters, as files and as folders holding a container."""
+    root = base / "odd"
+    root.mkdir()
+    shutil.copy(base / "root" / "clip.tsogs", root / "good.tsogs")
+    top = os.fsencode(root)
+    for name in ODD_NAMES:
+        shutil.copy(base / "root" / "clip.tsogs", top + b"/" + name)
+    for name in ODD_FOLDERS:
+        os.mkdir(top + b"/" + name)
+        shutil.copy(base / "root" / "clip.tsogs", top + b"/" + name + b"/inner.tsogs")
+    server = ThreadedServer(make_app(root))
+    try:
+        yield server.port
+    finally:
+        server.stop()
+
+
+def test_odd_file_names_are_skipped_never_fatal(odd_port: int) -> None:
+    status, body = raw_get(odd_port, b"/v1/scenes")
+    assert status == 200
+    assert [s["id"] for s in json.loads(body)["scenes"]] == ["good"]
+    status, body = raw_get(odd_port, b"/play/")
+    assert status == 200 and b"/play/good" in body and body.count(b"<li>") == 1
+    escaped = [quote(n, safe=b"").encode() for n in ODD_NAMES]
+    check_refused(odd_port, [b"/files/" + n for n in escaped])
+    check_refused(odd_port, [b"/v1/scenes/" + n[: -len(b".tsogs")] + b"/manifest" for n in escaped])
+    check_refused(
+        odd_port, [b"/play/" + quote(n, safe=b"").encode() + b"/inner" for n in ODD_FOLDERS]
+    )
+    assert raw_get(odd_port, b"/files/good.tsogs")[0] == 200
 
 
 def test_non_ascii_and_broken_escapes(port: int) -> None:

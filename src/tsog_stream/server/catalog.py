@@ -63,12 +63,20 @@ class SceneEntry:
     size: int
 
 
+def servable(name: str) -> bool:
+    """Whether a file or folder name may be listed and served: valid UTF-8 (no surrogates from
+    undecodable bytes) and no control characters (a newline would break every URL of it)."""
+    return not any(c < " " or c == "\x7f" or "\ud800" <= c <= "\udfff" for c in name)
+
+
 def safe_path(root: Path, rel: str) -> Path:
     """The resolved path of ``rel`` under ``root``; refuses anything that could escape it."""
     if "\x00" in rel or "\\" in rel:
         raise InputError("NUL bytes and backslashes are not allowed in paths", where=rel[:80])
     if rel.startswith("/") or any(p in ("", ".", "..") for p in rel.split("/")):
         raise InputError("paths must be relative, without empty, '.' or '..' segments")
+    if not servable(rel):
+        raise NotFoundError("no such file", where=repr(rel[:80]))
     base = root.resolve()
     try:
         resolved = (base / rel).resolve(strict=True)
@@ -210,18 +218,19 @@ class Catalog:
         return self.relative(scene.path if scene.packed else scene.path.parent)
 
     def scene_ids(self) -> list[str]:
-        """Ids of every container and unpacked layout under the root (symlinks not followed)."""
+        """Ids of every container and unpacked layout under the root (symlinks not followed;
+        names that are not :func:`servable` skipped, with the folders below them)."""
         if self.only is not None:
             suffixed = self.only.endswith(CONTAINER_SUFFIX)
             return [self.only.removesuffix(CONTAINER_SUFFIX)] if suffixed else []
         ids: set[str] = set()
         for folder, dirs, files in os.walk(self.root):
-            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            dirs[:] = sorted(d for d in dirs if not d.startswith(".") and servable(d))
             rel = Path(folder).relative_to(self.root)
             if MANIFEST in files and rel != Path("."):
                 ids.add(rel.as_posix())
             for name in files:
-                if name.endswith(CONTAINER_SUFFIX) and not name.startswith("."):
+                if name.endswith(CONTAINER_SUFFIX) and not name.startswith(".") and servable(name):
                     ids.add((rel / name).as_posix().removesuffix(CONTAINER_SUFFIX))
         return sorted(ids)
 
