@@ -190,9 +190,17 @@ class Resp:
         self.body = r.read()
 
 
-def fetch(port: int, path: str, method: str = "GET", headers: dict[str, Any] | None = None) -> Resp:
-    """One request to 127.0.0.1 on a fresh connection, target and headers sent as given."""
-    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+def fetch(
+    port: int,
+    path: str,
+    method: str = "GET",
+    headers: dict[str, Any] | None = None,
+    source: str | None = None,
+) -> Resp:
+    """One request to 127.0.0.1 on a fresh connection, target and headers sent as given (from
+    the loopback address ``source`` when given: another client, as the server sees it)."""
+    origin = (source, 0) if source is not None else None
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30, source_address=origin)
     try:
         conn.putrequest(method, path, skip_accept_encoding=True)
         for k, v in (headers or {}).items():

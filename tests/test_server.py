@@ -8,6 +8,7 @@ import email.parser
 import hashlib
 import json
 import logging
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from urllib.parse import urlsplit
 import pytest
 
 from helpers import Resp, ThreadedServer, fetch, nginx_origin
+from tsog_stream.cli.main import main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.cli.serve_commands import add_serve_command, cmd_serve
 from tsog_stream.client import open_stream
@@ -23,7 +25,7 @@ from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app, respond
-from tsog_stream.server.app import GATE
+from tsog_stream.server.app import GATE, LOAD
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
@@ -289,9 +291,33 @@ def test_concurrency_cap(tree: Path) -> None:
     try:
         gate = server.runner.app[GATE]
         asyncio.run_coroutine_threadsafe(gate.acquire(), server.loop).result(5)
-        r = fetch(server.port, "/healthz")
+        r = fetch(server.port, "/files/sub/note.txt")
         assert r.status == 503 and r.headers["Retry-After"] == "1"
+        assert fetch(server.port, "/healthz").status == 200  # answered whatever the load
         server.loop.call_soon_threadsafe(gate.release)
+        assert fetch(server.port, "/files/sub/note.txt").status == 200
+    finally:
+        server.stop()
+
+
+def test_one_client_cannot_take_every_slot(tree: Path) -> None:
+    server = ThreadedServer(make_app(tree, limits=Limits(max_concurrent=8, max_per_client=2)))
+    load = server.runner.app[LOAD]
+
+    def hold(client: str, count: int) -> None:
+        """``count`` requests of ``client`` in flight, as the server counts them."""
+        for _ in range(count):
+            server.loop.call_soon_threadsafe(load.enter, client)
+        time.sleep(0.1)
+
+    try:
+        hold("127.0.0.1", 2)  # its share, but the server is far from half busy: more may come
+        assert fetch(server.port, "/files/sub/note.txt").status == 200
+        hold("127.0.0.3", 2)  # now half busy: over its share, 127.0.0.1 waits
+        r = fetch(server.port, "/files/sub/note.txt")
+        assert r.status == 503 and r.headers["Retry-After"] == "1"
+        assert b"from this client" in r.body
+        assert fetch(server.port, "/files/sub/note.txt", source="127.0.0.2").status == 200
         assert fetch(server.port, "/healthz").status == 200
     finally:
         server.stop()
@@ -419,3 +445,20 @@ def test_single_file_root(tree: Path) -> None:
         assert fetch(other.port, "/files/clip.tsogs").status == 404
     finally:
         other.stop()
+
+
+def test_other_methods_are_405_and_a_busy_port_is_one_line(
+    tree: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    server = ThreadedServer(make_app(tree))
+    try:
+        for method in ("POST", "PUT", "DELETE", "PATCH", "CONNECT", "TRACE"):
+            target = "127.0.0.1:443" if method == "CONNECT" else "/files/sub/note.txt"
+            r = fetch(server.port, target, method=method)
+            assert r.status == 405 and r.headers["Allow"] == "GET, HEAD, OPTIONS", method
+        argv = ["serve", str(tree), "--port", str(server.port), "-q"]
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert f"port {server.port} is in use; try --port 0" in err and "Traceback" not in err
+    finally:
+        server.stop()

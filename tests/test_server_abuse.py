@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers import ThreadedServer
+from helpers import ThreadedServer, fetch
 from serve_process import Served, tsog_serve
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -510,6 +510,38 @@ def test_many_clients_that_never_read(served: Served) -> None:
 
 
 @pytest.mark.slow
+def test_clients_that_never_read_cannot_stall_the_server(root: Path) -> None:
+    """Issue 15's attack: far more non-reading clients than request slots, all asking for a
+    big file. The server keeps answering /healthz and other clients at once, and drops the
+    stalled ones at the stall timeout, long before the whole-body deadline."""
+    options = ("--max-concurrent", "16", "--max-per-client", "4", "--stall-timeout", "1")
+    with tsog_serve(root, *options, "--send-timeout", "60", "--keepalive", "30") as srv:
+        socks = [connect(srv.port, rcvbuf=4096) for _ in range(40)]
+        try:
+            began = time.monotonic()
+            for sock in socks:
+                sock.sendall(b"GET /files/big.bin HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            time.sleep(0.3)  # every request is in: the attacker's share taken, the rest refused
+            for _ in range(5):
+                assert fetch(srv.port, "/healthz").status == 200
+                other = fetch(srv.port, "/files/data.bin", source="127.0.0.2")
+                assert (other.status, other.body) == (200, DATA)
+            assert time.monotonic() - began < 3
+            statuses = [sock.recv(12)[9:12] for sock in socks]  # a few bytes: still stalled
+            assert statuses.count(b"200") <= 8 and set(statuses) <= {b"200", b"503"}
+            time.sleep(2.0)  # reading nothing more, past the 1 s stall timeout
+            served = [
+                sock for sock, status in zip(socks, statuses, strict=True) if status == b"200"
+            ]
+            assert served and all(closed_by_peer(sock, 2.0) for sock in served)
+            assert time.monotonic() - began < 15
+        finally:
+            for sock in socks:
+                sock.close()
+        assert "Traceback" not in srv.stderr()
+
+
+@pytest.mark.slow
 def test_many_abandoned_connections(served: Served) -> None:
     """Connections opened and dropped in every way leave no fd and no memory behind."""
     held: list[socket.socket] = []
@@ -584,6 +616,37 @@ def test_cold_etag_is_computed_once(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     assert len(calls) == 1
 
 
+def test_cold_scene_is_opened_once_off_the_event_loop(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """40 first requests for a scene at once cost one opening, parsed in a worker thread:
+    meanwhile the event loop answers /healthz at once."""
+    calls: list[str] = []
+    real = catalog_module._read_scene
+
+    def slow_read(path: Path, packed: bool) -> tuple[object, bytes]:
+        calls.append(threading.current_thread().name)
+        time.sleep(1.0)  # a big index: every request arrives while it is parsed
+        return real(path, packed)
+
+    monkeypatch.setattr(catalog_module, "_read_scene", slow_read)
+    scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0)
+    segment_scene(scene, tmp_path / "clip.tsogs", SegmentOptions(window_s=0.5))
+    srv = ThreadedServer(make_app(tmp_path))
+    try:
+        with ThreadPoolExecutor(40) as pool:
+            pending = [pool.submit(get, srv.port, "/v1/scenes/clip/manifest") for _ in range(40)]
+            time.sleep(0.3)
+            began = time.monotonic()
+            assert get(srv.port, "/healthz")[0] == 200
+            assert time.monotonic() - began < 0.5  # not behind the opening
+            answers = [p.result()[0] for p in pending]
+    finally:
+        srv.stop()
+    assert answers == [200] * 40
+    assert len(calls) == 1 and calls[0] != srv.thread.name  # a worker, not the loop
+
+
 @pytest.mark.slow
 def test_connection_flood_past_the_file_limit(root: Path) -> None:
     """More connections than the server may open files: it keeps running, serves again once
@@ -600,3 +663,34 @@ def test_connection_flood_past_the_file_limit(root: Path) -> None:
         assert get(srv.port, "/files/data.bin") == (200, DATA)
         log = srv.stderr()
         assert "Traceback" not in log and len(log.splitlines()) < 30
+
+
+@pytest.mark.slow
+def test_out_of_file_descriptors_is_503_never_404_or_an_empty_200(root: Path) -> None:
+    """Stalled clients hold a socket and an open file each until the process has no file
+    descriptor left: a request that cannot open its file is answered 503 with Retry-After
+    before any header goes out (never a 200 without a body, never a 404 for a file that
+    exists), and the log says so in a line a second at most."""
+    slow = ("--stall-timeout", "30", "--send-timeout", "60", "--keepalive", "30")
+    with tsog_serve(root, *slow, nofile=40) as srv:
+        socks = [connect(srv.port, rcvbuf=4096) for _ in range(40)]
+        heads = []
+        try:
+            for sock in socks:
+                sock.sendall(b"GET /files/big.bin HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            for sock in socks:
+                sock.settimeout(1.0)
+                try:
+                    heads.append(sock.recv(400))
+                except TimeoutError:
+                    heads.append(b"")  # not accepted yet: the kernel queues it
+        finally:
+            for sock in socks:
+                sock.close()
+        statuses = [head[9:12] for head in heads]
+        assert b"503" in statuses and set(statuses) <= {b"200", b"503", b""}
+        assert all(b"Retry-After: 1" in h for h in heads if h[9:12] == b"503")
+        assert all(b"Content-Length: 67108864" in h for h in heads if h[9:12] == b"200")
+        assert get(srv.port, "/files/data.bin") == (200, DATA)  # serves again once freed
+        log = srv.stderr()
+        assert "Traceback" not in log and log.count("answering 503") <= 5

@@ -34,6 +34,13 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free)")
     p.add_argument("--max-concurrent", type=int, default=256, help="requests at once; more get 503")
     p.add_argument(
+        "--max-per-client",
+        type=int,
+        default=32,
+        help="requests at once from one client address once the server is half busy (default "
+        "32; raise it behind a proxy, where every request comes from one address)",
+    )
+    p.add_argument(
         "--private",
         action="append",
         default=[],
@@ -44,6 +51,12 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
     p.add_argument("--secret-file", type=Path, help=SECRET_HELP)
     p.add_argument("--keepalive", type=float, default=15.0, help="idle and request-head timeout, s")
     p.add_argument("--send-timeout", type=float, default=60.0, help="deadline to send one body, s")
+    p.add_argument(
+        "--stall-timeout",
+        type=float,
+        default=10.0,
+        help="drop a client that takes no bytes for this long, s (default 10)",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no access log on stderr")
     p.set_defaults(func=cmd_serve)
     return p
@@ -79,9 +92,18 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
         raise InputError("no such folder or file", where=args.root)
     if not 0 <= args.port <= 65535:
         raise InputError(f"expected a port 0-65535, got {args.port}", where="--port")
-    if args.max_concurrent < 1:
-        raise InputError("must be at least 1", where="--max-concurrent")
-    for flag, value in (("--keepalive", args.keepalive), ("--send-timeout", args.send_timeout)):
+    for flag, count in (
+        ("--max-concurrent", args.max_concurrent),
+        ("--max-per-client", args.max_per_client),
+    ):
+        if count < 1:
+            raise InputError("must be at least 1", where=flag)
+    seconds = (
+        ("--keepalive", args.keepalive),
+        ("--send-timeout", args.send_timeout),
+        ("--stall-timeout", args.stall_timeout),
+    )
+    for flag, value in seconds:
         if not 0 < value <= 86400:
             raise InputError(f"expected seconds in (0, 86400], got {value}", where=flag)
     privacy = Privacy(tuple(args.private), load_secret(args.secret_file))
@@ -89,7 +111,11 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
         logging.basicConfig(level=logging.INFO, format="%(message)s")
     progress.done()
     limits = Limits(
-        args.max_concurrent, send_timeout_s=args.send_timeout, keepalive_s=args.keepalive
+        args.max_concurrent,
+        max_per_client=args.max_per_client,
+        send_timeout_s=args.send_timeout,
+        stall_timeout_s=args.stall_timeout,
+        keepalive_s=args.keepalive,
     )
     run_server(root, host=args.host, port=args.port, limits=limits, privacy=privacy)
     return 0

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import math
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
@@ -19,9 +21,9 @@ from urllib.parse import quote
 from aiohttp import HttpVersion10, HttpVersion11, web
 
 from ..errors import AccessError, InputError
-from .catalog import Catalog, NotFoundError, SceneEntry
+from .catalog import BusyError, Catalog, NotFoundError, SceneEntry
 from .conditional import Outcome, evaluate, http_date
-from .logs import quiet_client_errors
+from .logs import log_out_of_fds, quiet_client_errors
 from .player import add_player_routes
 from .private import (
     PRIVACY,
@@ -51,6 +53,36 @@ Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 GATE = web.AppKey("gate", asyncio.Semaphore)
 
 
+@dataclass
+class Load:
+    """Requests being handled: in all and by client address."""
+
+    total: int = 0
+    by_client: dict[str, int] = field(default_factory=dict)
+
+    def hogged_by(self, client: str, limits: Limits) -> bool:
+        """Whether ``client`` holds its share while the server is at least half busy: alone it
+        may use every slot (a proxy in front, a load test), under contention it may not."""
+        mine = self.by_client.get(client, 0)
+        return mine >= limits.max_per_client and 2 * self.total >= limits.max_concurrent
+
+    def enter(self, client: str) -> None:
+        """Count one more request of ``client``."""
+        self.total += 1
+        self.by_client[client] = self.by_client.get(client, 0) + 1
+
+    def leave(self, client: str) -> None:
+        """Count one request of ``client`` done."""
+        self.total -= 1
+        self.by_client[client] -= 1
+        if not self.by_client[client]:
+            del self.by_client[client]
+
+
+LOAD = web.AppKey("load", Load)
+HEALTHZ = "/healthz"
+
+
 def _error(status: int, message: str, **extra: Any) -> web.Response:
     """A JSON error body ``{"error": {"status", "message", ...}}``."""
     body = {"error": {"status": status, "message": message, **extra}}
@@ -59,31 +91,59 @@ def _error(status: int, message: str, **extra: Any) -> web.Response:
 
 @web.middleware
 async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
-    """OPTIONS preflight, the concurrency cap, then errors (ours and aiohttp's) as JSON."""
+    """OPTIONS preflight, the concurrency caps (in all, and per client address), then errors
+    (ours and aiohttp's) as JSON. ``/healthz`` passes every cap: it is answered whatever the
+    load, so a monitor sees a busy server as alive."""
     if request.version not in HTTP_VERSIONS:
         resp = _error(505, "only HTTP/1.0 and HTTP/1.1 are served")
         resp.force_close()
         return resp
     if request.method == "OPTIONS":
         return web.Response(status=204, headers=PREFLIGHT)
-    gate = request.app[GATE]
-    if gate.locked():
-        resp = _error(503, "too many concurrent requests")
-        resp.headers["Retry-After"] = "1"
+    if request.method not in ("GET", "HEAD"):
+        resp = _error(405, f"{request.method[:20]} is not served: only GET, HEAD and OPTIONS")
+        resp.headers["Allow"] = "GET, HEAD, OPTIONS"
         return resp
-    async with gate:
-        try:
-            return await handler(request)
-        except AccessError as exc:
-            return _error(403, str(exc))
-        except NotFoundError as exc:
-            return _error(404, str(exc))
-        except InputError as exc:
-            return _error(400, str(exc))
-        except web.HTTPException as exc:
-            if exc.status < 400:
-                raise
-            return _error(exc.status, exc.reason)
+    if request.path == HEALTHZ:
+        return await handler(request)
+    gate, load = request.app[GATE], request.app[LOAD]
+    client = request.remote or ""
+    if load.hogged_by(client, request.app[LIMITS]):
+        return _busy("too many concurrent requests from this client")
+    if gate.locked():
+        return _busy("too many concurrent requests")
+    load.enter(client)
+    try:
+        async with gate:
+            return await _answer(request, handler)
+    finally:
+        load.leave(client)
+
+
+async def _answer(request: web.Request, handler: Handler) -> web.StreamResponse:
+    """The handler's response, or our errors (and aiohttp's) as JSON."""
+    try:
+        return await handler(request)
+    except AccessError as exc:
+        return _error(403, str(exc))
+    except NotFoundError as exc:
+        return _error(404, str(exc))
+    except BusyError as exc:
+        log_out_of_fds(str(exc))
+        return _busy(str(exc))
+    except InputError as exc:
+        return _error(400, str(exc))
+    except web.HTTPException as exc:
+        if exc.status < 400:
+            raise
+        return _error(exc.status, exc.reason)
+
+
+def _busy(message: str) -> web.Response:
+    """503 with ``Retry-After: 1``: try again in a second."""
+    resp = _error(503, message)
+    resp.headers["Retry-After"] = "1"
+    return resp
 
 
 async def _add_cors(request: web.Request, response: web.StreamResponse) -> None:
@@ -209,11 +269,12 @@ def make_app(
     app[CATALOG] = Catalog(root)
     app[LIMITS] = limits or Limits()
     app[GATE] = asyncio.Semaphore(app[LIMITS].max_concurrent)
+    app[LOAD] = Load()
     app[PRIVACY] = privacy or Privacy()
     app.on_response_prepare.append(_add_cors)
     app.on_response_prepare.append(mark_private_responses)
     r = app.router
-    r.add_get("/healthz", healthz)
+    r.add_get(HEALTHZ, healthz)
     r.add_get("/files/{path:.+}", files)
     r.add_get("/v1/scenes", scenes)
     r.add_get("/v1/authorize", authorize)
@@ -238,7 +299,13 @@ async def start_server(
     )
     await runner.setup()
     site = web.TCPSite(runner, host, port)
-    await site.start()
+    try:
+        await site.start()
+    except OSError as exc:
+        await runner.cleanup()
+        if exc.errno == errno.EADDRINUSE:
+            raise InputError(f"port {port} is in use; try --port 0", where=host) from exc
+        raise InputError(f"cannot listen: {exc.strerror}", where=f"{host}:{port}") from exc
     return runner, int(runner.addresses[0][1])
 
 

@@ -12,11 +12,13 @@ that file.
 from __future__ import annotations
 
 import asyncio
+import errno
 import hashlib
 import os
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import NamedTuple, TypeVar
+from typing import Any, NamedTuple, TypeVar, cast
 
 from ..constants import is_container
 from ..container.header import HEADER_SIZE, Header
@@ -31,11 +33,29 @@ SOG_TYPE = "application/x-sog"
 _HASH_BLOCK = 1 << 20
 MAX_CACHED = 4096
 """Files remembered per cache (ETags, opened scenes): only the current version of each."""
+MAX_MANIFEST_BYTES = 64 << 20
+"""Largest unpacked ``manifest.json`` the server opens (a container's index has its own cap)."""
+OUT_OF_FDS = (errno.EMFILE, errno.ENFILE)
 _V = TypeVar("_V")
+_T = TypeVar("_T")
 
 
 class NotFoundError(SourceError):
     """Nothing servable at this path or id (missing, outside the root, not a regular file)."""
+
+
+class BusyError(SourceError):
+    """The server is out of file descriptors for a moment: 503 with Retry-After, never a 404
+    (which a client would take as permanent)."""
+
+
+def unreadable(exc: BaseException, message: str, where: str) -> SourceError:
+    """The error to answer for a failed read: BusyError when the process is out of file
+    descriptors (the OSError itself or the cause of a SourceError), else NotFoundError."""
+    cause = exc if isinstance(exc, OSError) else exc.__cause__
+    if isinstance(cause, OSError) and cause.errno in OUT_OF_FDS:
+        return BusyError("out of file descriptors; try again", where=where)
+    return NotFoundError(message, where=where)
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,7 +158,7 @@ class Catalog:
         self.root = resolved.parent if self.only is not None else resolved
         self._etags: dict[Path, tuple[FileVersion, str]] = {}
         self._scenes: dict[Path, tuple[FileVersion, SceneEntry]] = {}
-        self._hashing: dict[tuple[Path, FileVersion], asyncio.Future[str]] = {}
+        self._pending: dict[tuple[str, Path, FileVersion], asyncio.Future[Any]] = {}
 
     def _check_only(self, rel: str) -> None:
         """In single-file mode, anything but that file is not found."""
@@ -157,19 +177,28 @@ class Catalog:
         kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else _guess_type(path)
         return Representation(path, 0, version.size, cached[1], version.mtime_ns / 1e9, kind)
 
-    async def _hash_once(self, path: Path, version: FileVersion) -> str:
-        """The content ETag, computed once however many requests ask for it at the same time
-        (a cold cache must not cost one full read of a big file per request)."""
-        key = (path, version)
-        task = self._hashing.get(key)
+    async def _once(
+        self, kind: str, path: Path, version: FileVersion, work: Callable[[], Awaitable[_T]]
+    ) -> _T:
+        """``work()`` run once per (kind, file version) however many requests ask at the same
+        time: a cold cache must not cost one full read or parse per request."""
+        key = (kind, path, version)
+        task = self._pending.get(key)
         if task is None:
-            task = asyncio.ensure_future(asyncio.to_thread(_content_etag, path))
-            self._hashing[key] = task
-            task.add_done_callback(lambda t: _retrieved(self._hashing.pop(key, t)))
+            started: asyncio.Future[Any] = asyncio.ensure_future(work())
+            self._pending[key] = task = started
+            started.add_done_callback(lambda t: _retrieved(self._pending.pop(key, t)))
+        # shielded: a client leaving does not cancel the others' wait; the kind keys the type
+        return cast(_T, await asyncio.shield(task))
+
+    async def _hash_once(self, path: Path, version: FileVersion) -> str:
+        """The content ETag, computed once per file version (see :meth:`_once`)."""
         try:
-            return await asyncio.shield(task)  # a client leaving does not cancel the others'
+            return await self._once(
+                "etag", path, version, lambda: asyncio.to_thread(_content_etag, path)
+            )
         except OSError as exc:  # vanished or unreadable since the stat
-            raise NotFoundError("no such file", where=path.name) from exc
+            raise unreadable(exc, "no such file", path.name) from exc
 
     async def scene(self, scene_id: str) -> SceneEntry:
         """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
@@ -184,7 +213,12 @@ class Catalog:
         version = _signature(path)
         cached = self._scenes.get(path)
         if cached is None or cached[0] != version:
-            scene = await self._open(scene_id, path, packed, version.size, version.mtime_ns)
+            scene = await self._once(
+                "scene",
+                path,
+                version,
+                lambda: self._open(scene_id, path, packed, version.size, version.mtime_ns),
+            )
             cached = (version, scene)
             _remember(self._scenes, path, cached)
         # one entry per file: ids that alias it through symlinks share it, not one entry each
@@ -193,18 +227,14 @@ class Catalog:
     async def _open(
         self, scene_id: str, path: Path, packed: bool, size: int, mtime_ns: int
     ) -> SceneEntry:
-        """Open a container or read an unpacked manifest (NotFoundError when unreadable)."""
+        """Open a container or read an unpacked manifest, in a worker thread so that parsing a
+        large index never stalls the event loop (NotFoundError when unreadable)."""
         try:
-            if packed:
-                index = await read_index(FileSource(path))
-                manifest_json = dump_manifest(index.manifest)
-            else:
-                manifest_json = await asyncio.to_thread(path.read_bytes)
-                index = unpacked_index(manifest_json, where=str(path))
+            index, manifest_json = await asyncio.to_thread(_read_scene, path, packed)
         except TsogError as exc:
-            raise NotFoundError(f"not a readable scene: {exc.message}", where=scene_id) from exc
+            raise unreadable(exc, f"not a readable scene: {exc.message}", scene_id) from exc
         except OSError as exc:  # vanished or unreadable since the stat
-            raise NotFoundError("not a readable scene", where=scene_id) from exc
+            raise unreadable(exc, "not a readable scene", scene_id) from exc
         if not packed:
             size = len(manifest_json) + index.manifest.payload_bytes
         return SceneEntry(scene_id, path, packed, index, manifest_json, mtime_ns / 1e9, size)
@@ -250,7 +280,20 @@ class Catalog:
         return Representation(path, 0, version.size, etag, version.mtime_ns / 1e9, SOG_TYPE)
 
 
-def _retrieved(task: asyncio.Future[str]) -> None:
+def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes]:
+    """The index and manifest JSON of a container or an unpacked layout (blocking: run it in a
+    thread). An unpacked manifest over MAX_MANIFEST_BYTES is refused before it is read."""
+    if packed:
+        index = asyncio.run(read_index(FileSource(path)))
+        return index, dump_manifest(index.manifest)
+    with open(path, "rb") as f:
+        manifest_json = f.read(MAX_MANIFEST_BYTES + 1)
+    if len(manifest_json) > MAX_MANIFEST_BYTES:
+        raise SourceError(f"manifest over {MAX_MANIFEST_BYTES} bytes", where=str(path))
+    return unpacked_index(manifest_json, where=str(path)), manifest_json
+
+
+def _retrieved(task: asyncio.Future[Any]) -> None:
     """Mark a task's exception as seen (its waiters may all have gone)."""
     if not task.cancelled():
         task.exception()

@@ -54,6 +54,15 @@ class _AcceptFlood(logging.Filter):
 
 
 _ACCEPT_FLOOD = _AcceptFlood()
+_BUSY = {"last": -math.inf}
+
+
+def log_out_of_fds(message: str) -> None:
+    """A request answered 503 for want of file descriptors: one WARNING line a second at most."""
+    now = time.monotonic()
+    if now - _BUSY["last"] >= 1.0:
+        _BUSY["last"] = now
+        logging.getLogger("tsog_stream.server").warning("answering 503: %s", message)
 
 
 def quiet_client_errors() -> None:

@@ -12,19 +12,22 @@ from __future__ import annotations
 import asyncio
 import os
 import secrets
+from collections.abc import Awaitable
 from dataclasses import dataclass
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeVar
 
 from aiohttp import web
 from aiohttp.abc import AbstractStreamWriter
 
 from ..container.ranges import ByteRange
-from .catalog import Representation
+from .catalog import Representation, unreadable
 from .conditional import Outcome, evaluate, http_date, if_range_allows
 from .ranges import Ignore, Serve, Unsatisfiable, content_range, parse_range, unsatisfied_range
 
 READ_BLOCK = 256 * 1024
 SENDFILE_MIN = 64 * 1024
+SENDFILE_SLICE = 4 << 20
+"""Bytes handed to one ``loop.sendfile`` call: each slice must go out within the stall timeout."""
 REVALIDATE = "public, max-age=0, must-revalidate"
 IMMUTABLE = "public, max-age=31536000, immutable"
 
@@ -34,9 +37,15 @@ class Limits:
     """Hardening limits of one server."""
 
     max_concurrent: int = 256
-    """Requests handled at once; more get 503 with Retry-After: 1."""
+    """Requests handled at once; more get 503 with Retry-After: 1 (``/healthz`` is exempt)."""
+    max_per_client: int = 32
+    """Requests handled at once for one client address once the server is half busy; more
+    get 503, so one client cannot take every slot of ``max_concurrent`` from the others."""
     send_timeout_s: float = 60.0
     """Deadline for sending one response body; the connection is dropped when it passes."""
+    stall_timeout_s: float = 10.0
+    """Longest a body may make no progress (a client that stopped reading); the connection is
+    dropped then, long before ``send_timeout_s``."""
     keepalive_s: float = 15.0
     """Idle keep-alive connections are closed after this."""
     shutdown_timeout_s: float = 10.0
@@ -46,6 +55,7 @@ class Limits:
 
 
 LIMITS = web.AppKey("limits", Limits)
+_T = TypeVar("_T")
 
 
 def _validators(rep: Representation, cache_control: str) -> dict[str, str]:
@@ -58,21 +68,39 @@ def _validators(rep: Representation, cache_control: str) -> dict[str, str]:
     }
 
 
-async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange) -> None:
-    """Write ``span`` of the open file ``fd`` in READ_BLOCK pieces."""
+class StallError(TimeoutError):
+    """The client took no bytes for the stall timeout."""
+
+
+async def _progress(step: Awaitable[_T], stall_s: float) -> _T:
+    """``step`` (one write or sendfile slice), which must finish within ``stall_s``."""
+    try:
+        async with asyncio.timeout(stall_s):
+            return await step
+    except TimeoutError as exc:
+        raise StallError from exc
+
+
+async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange, stall_s: float) -> None:
+    """Write ``span`` of the open file ``fd`` in READ_BLOCK pieces, each within ``stall_s``."""
     pos = span.start
     while pos < span.end:
         data = await asyncio.to_thread(os.pread, fd, min(READ_BLOCK, span.end - pos), pos)
         if not data:
             raise ConnectionAbortedError("file shrank while being sent")
-        await resp.write(data)
+        await _progress(resp.write(data), stall_s)
         pos += len(data)
 
 
 async def _sendfile(
-    request: web.Request, writer: AbstractStreamWriter, file: BinaryIO, span: ByteRange
+    request: web.Request,
+    writer: AbstractStreamWriter,
+    file: BinaryIO,
+    span: ByteRange,
+    stall_s: float,
 ) -> bool:
-    """Send ``span`` of ``file`` with ``loop.sendfile``; False (nothing sent) if unavailable.
+    """Send ``span`` of ``file`` with ``loop.sendfile`` in SENDFILE_SLICE slices, each within
+    ``stall_s``; False (nothing sent) if sendfile is unavailable.
 
     The headers were already handed to the transport by ``prepare``; sendfile waits for them
     to be flushed. The bytes sent are added to the writer's ``output_size`` (the access log's
@@ -84,17 +112,23 @@ async def _sendfile(
     if transport.get_extra_info("sslcontext") is not None:
         return False
     loop = asyncio.get_running_loop()
-    try:
-        sent = await loop.sendfile(transport, file, span.start, span.length, fallback=False)
-    except (NotImplementedError, asyncio.SendfileNotAvailableError):
-        return False
-    except RuntimeError as exc:  # "Transport is closing": the client went away
-        raise ConnectionResetError("connection lost") from exc
-    writer.output_size += sent
-    if writer.length is not None:
-        writer.length = max(0, writer.length - sent)
-    if sent < span.length:
-        raise ConnectionAbortedError("file shrank while being sent")
+    for start in range(span.start, span.end, SENDFILE_SLICE):
+        count = min(SENDFILE_SLICE, span.end - start)
+        try:
+            sent = await _progress(
+                loop.sendfile(transport, file, start, count, fallback=False), stall_s
+            )
+        except (NotImplementedError, asyncio.SendfileNotAvailableError):
+            if start == span.start:
+                return False
+            raise
+        except RuntimeError as exc:  # "Transport is closing": the client went away
+            raise ConnectionResetError("connection lost") from exc
+        writer.output_size += sent
+        if writer.length is not None:
+            writer.length = max(0, writer.length - sent)
+        if sent < count:
+            raise ConnectionAbortedError("file shrank while being sent")
     return True
 
 
@@ -116,16 +150,41 @@ def _parts(
 async def _send_body(
     request: web.Request, resp: web.StreamResponse, rep: Representation, plan: list[Any]
 ) -> web.StreamResponse:
-    """Prepare ``resp`` and write ``plan`` (bytes and spans) unless HEAD, under the deadline.
+    """Open the file, prepare ``resp`` and write ``plan`` (bytes and spans) unless HEAD, under
+    the deadline and the stall timeout.
 
-    A plan of one span of at least SENDFILE_MIN bytes is sent with sendfile when possible.
-    When the deadline passes the transport is aborted (buffered bytes discarded).
+    The file is opened before any byte goes out, so a failure is still a whole answer (503
+    when out of file descriptors, 404 when gone), never a 200 without a body. A plan of one span
+    of at least SENDFILE_MIN bytes is sent with sendfile when possible. When the deadline
+    passes, or the client takes nothing for the stall timeout, the transport is aborted
+    (buffered bytes discarded).
     """
+    if request.method == "HEAD":
+        await resp.prepare(request)
+        return resp
+    try:
+        file = await asyncio.to_thread(open, rep.path, "rb")
+    except OSError as exc:
+        raise unreadable(exc, "no such file", rep.path.name) from exc
+    try:
+        return await _write_body(request, resp, file, rep, plan)
+    finally:
+        file.close()
+
+
+async def _write_body(
+    request: web.Request,
+    resp: web.StreamResponse,
+    file: BinaryIO,
+    rep: Representation,
+    plan: list[Any],
+) -> web.StreamResponse:
+    """The sending part of :func:`_send_body`, on an open file."""
     writer = await resp.prepare(request)
-    if request.method == "HEAD" or writer is None:
+    if writer is None:
         return resp
     limits = request.app[LIMITS]
-    file = await asyncio.to_thread(open, rep.path, "rb")
+    stall = limits.stall_timeout_s
     try:
         async with asyncio.timeout(limits.send_timeout_s):
             spans = [
@@ -138,20 +197,21 @@ async def _send_body(
                 and len(spans) == 1
                 and isinstance(first, ByteRange)
                 and first.length >= SENDFILE_MIN
-                and await _sendfile(request, writer, file, first)
+                and await _sendfile(request, writer, file, first, stall)
             )
             for item in [] if zero_copy else spans:
                 if isinstance(item, ByteRange):
-                    await _copy(resp, file.fileno(), item)
+                    await _copy(resp, file.fileno(), item, stall)
                 else:
-                    await resp.write(item)
-            await resp.write_eof()
+                    await _progress(resp.write(item), stall)
+            await _progress(resp.write_eof(), stall)
     except TimeoutError as exc:
         if request.transport is not None:
             request.transport.abort()  # close() would keep waiting to flush to a stalled reader
-        raise ConnectionAbortedError("send deadline passed; connection dropped") from exc
-    finally:
-        file.close()
+        why = (
+            "the client stopped reading" if isinstance(exc, StallError) else "send deadline passed"
+        )
+        raise ConnectionAbortedError(f"{why}; connection dropped") from exc
     return resp
 
 
