@@ -18,6 +18,8 @@ pydantic's ``ValidationError``) are translated where they are raised::
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class TsogError(Exception):
     """Base of every error tsog-stream raises on purpose.
@@ -30,6 +32,19 @@ class TsogError(Exception):
         self.message = message
         self.where = where
         super().__init__(f"{where}: {message}" if where else message)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickle by state, not by constructor arguments (subclasses add their own, such as
+        MetaError's ``field``): an error raised in a worker process reaches the parent whole."""
+        return (_rebuild, (type(self), self.args, self.__dict__))
+
+
+def _rebuild(cls: type[TsogError], args: tuple[Any, ...], state: dict[str, Any]) -> TsogError:
+    """A TsogError of class ``cls`` with the given args and attributes (see __reduce__)."""
+    error = cls.__new__(cls)
+    error.args = args
+    error.__dict__.update(state)
+    return error
 
 
 class InputError(TsogError):
