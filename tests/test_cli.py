@@ -20,7 +20,8 @@ from tsog_stream.cli.progress import Progress
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.io.chunks import read_chunk
-from tsog_stream.io.ply import read_ply
+from tsog_stream.io.ply import read_ply, write_ply
+from tsog_stream.model import Gaussians
 from tsog_stream.synthetic import small_scene
 
 DONUT = "3dgs/v3dg_donut_fused.ply"
@@ -170,3 +171,44 @@ def test_a_swallowed_ctrl_c_is_raised_again_at_the_next_progress_report() -> Non
     finally:
         sys.unraisablehook = previous_hook
     assert len(seen) == 1
+
+
+@pytest.fixture(scope="module")
+def dynamic_stream(dynamic_chunk: Path) -> Path:
+    """The dynamic chunk's scene segmented into a container."""
+    path = dynamic_chunk.with_name("dynamic.tsogs")
+    assert main(["segment", str(dynamic_chunk), "-o", str(path), "--window", "0.5", "-q"]) == 0
+    return path
+
+
+@pytest.mark.parametrize("t", ["-1", "99", "1e308", "-1e308", "nan", "inf"])
+def test_a_time_outside_the_scene_is_one_line_naming_the_range(
+    t: str,
+    dynamic_chunk: Path,
+    dynamic_stream: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    runs = [("frame", str(dynamic_chunk))]
+    runs += [
+        (c, s) for c in ("frame", "fetch") for s in (str(dynamic_stream), dynamic_stream.as_uri())
+    ]
+    for command, source in runs:
+        argv = [command, source, f"--t={t}", "-o", str(tmp_path / "f.ply"), "-q"]
+        assert main(argv) == 1, argv  # a traceback would raise here instead
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1
+        want = "finite number" if "n" in t else "outside the scene's time range [0,"
+        assert want in err and "--t" in err
+        assert not (tmp_path / "f.ply").exists()
+
+
+def test_an_empty_scene_is_written_as_a_ply_and_refused_as_a_chunk(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    empty = tmp_path / "empty.ply"
+    write_ply(empty, Gaussians.empty())
+    assert len(read_ply(empty).gaussians) == 0
+    assert main(["encode", str(empty), str(tmp_path / "e.sog"), "-q"]) == 1
+    assert "no Gaussians" in capsys.readouterr().err
+    assert not (tmp_path / "e.sog").exists()

@@ -4,10 +4,12 @@ options, and loading an input with its notes on stderr."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
 
+from ..errors import InputError
 from ..io.readers import FORMATS, ReadOptions, load_scene
 from ..io.sequence import DEFAULT_FPS
 from ..model import Scene
@@ -78,6 +80,18 @@ def load_input(args: argparse.Namespace, progress: Progress) -> Scene:
     for text in loaded.notes:
         note(text)
     return loaded.scene
+
+
+def check_time(t: float, span: tuple[float, float] | None) -> None:
+    """Refuse a --t that is not a finite time inside the scene's range (a static scene, with
+    no range, is the same at every finite time)."""
+    if not math.isfinite(t):
+        raise InputError(f"expected a finite number of seconds, got {t}", where="--t")
+    if span is not None and not span[0] <= t <= span[1]:
+        raise InputError(
+            f"{t:g} s is outside the scene's time range [{span[0]:g}, {span[1]:g}] s",
+            where="--t",
+        )
 
 
 def input_bytes(path: str) -> int:

@@ -23,9 +23,10 @@ from ..io.files import refuse_existing
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
 from ..summary import chunk_summary, scene_summary
+from ..temporal import time_range
 from . import interrupt
 from .client_commands import add_client_commands, cmd_fetch, cmd_play
-from .common import add_common, add_input, load_input, note
+from .common import add_common, add_input, check_time, load_input, note
 from .progress import Progress
 from .render_commands import add_render_commands, cmd_eval, cmd_render
 from .serve_commands import add_serve_command, add_sign_command, cmd_serve, cmd_sign
@@ -200,6 +201,7 @@ def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
             print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
         return 0
     scene = load_input(args, progress)
+    check_time(args.t, time_range(scene.timeline) if scene.timeline is not None else None)
     progress(f"evaluating t = {args.t} s")
     frame = scene.at(args.t)
     write_frame(args.output, frame, args.t, progress)

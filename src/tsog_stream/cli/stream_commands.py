@@ -37,7 +37,15 @@ from ..segment.segmenter import (
     segment_scene,
     segment_sequence,
 )
-from .common import Subparsers, add_common, add_input, input_bytes, load_input, note
+from .common import (
+    Subparsers,
+    add_common,
+    add_input,
+    check_time,
+    input_bytes,
+    load_input,
+    note,
+)
 from .progress import Progress
 
 DEFAULT_TEMPORAL = "fit"
@@ -320,6 +328,8 @@ def stream_frame(target: str, t: float, output: Path, progress: Progress) -> Rea
     reading them cost."""
     progress(f"opening {target}")
     with open_stream(target) as reader:
+        info = reader.index.manifest.scene
+        check_time(t, None if info.timeline_type is None else (info.start_s, info.end_s))
         progress(f"fetching t = {t} s")
         frame = reader.frame_at(t)
         stats = reader.stats

@@ -14,7 +14,7 @@ import numpy.typing as npt
 
 from .. import constants as C
 from .._version import __version__
-from ..errors import SogError
+from ..errors import InputError, SogError
 from ..model import Scene
 from ..morton import morton_order
 from ..schemas import ChunkMeta, check_image_sizes, dump_meta, listed_files, parse_meta
@@ -44,8 +44,11 @@ def encode_chunk(
     """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
 
     ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
-    Same scene and seed give byte-identical files.
+    Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
+    lossless WebP has at least one pixel, so SOG cannot hold it.
     """
+    if len(scene) == 0:
+        raise InputError("the scene has no Gaussians: there is nothing to encode")
     note = progress or (lambda _msg: None)
     note("ordering")
     ordered = scene.subset(texel_order(scene) if order is None else order)

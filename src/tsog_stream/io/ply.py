@@ -203,7 +203,7 @@ def write_ply(
 ) -> None:
     """Write :func:`ply_bytes` output to ``path`` atomically (nothing half-written on failure)."""
     header, matrix = _encode(gaussians, extra)
-    atomic_write_bytes(path, (header, matrix.data.cast("B")))
+    atomic_write_bytes(path, (header, matrix.reshape(-1).view(np.uint8).data))  # N may be 0
 
 
 def _encode(
