@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -212,3 +213,54 @@ def test_an_empty_scene_is_written_as_a_ply_and_refused_as_a_chunk(
     assert main(["encode", str(empty), str(tmp_path / "e.sog"), "-q"]) == 1
     assert "no Gaussians" in capsys.readouterr().err
     assert not (tmp_path / "e.sog").exists()
+
+
+@pytest.mark.parametrize(
+    "option",
+    [
+        "--start=nan",
+        "--start=inf",
+        "--speed=nan",
+        "--speed=0",
+        "--fps=nan",
+        "--fps=-1",
+        "--duration=nan",
+        "--duration=-1",
+        "--speed=1e-300",
+        "--fps=1e9",
+    ],
+)
+def test_play_refuses_options_that_cannot_end(
+    option: str, dynamic_stream: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["play", str(dynamic_stream), option, "-q"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "tsog: error:" in err
+
+
+def test_files_that_are_not_regular_are_refused_at_once(tmp_path: Path) -> None:
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)
+    for target in (fifo, Path("/dev/zero")):
+        proc = subprocess.run(
+            [sys.executable, "-m", "tsog_stream.cli.main", "info", str(target), "-q"],
+            capture_output=True,
+            text=True,
+            timeout=30,  # reading the FIFO would block forever, /dev/zero never end
+            check=False,
+        )
+        assert proc.returncode == 1 and "not a regular file" in proc.stderr
+        assert "Traceback" not in proc.stderr
+
+
+def test_a_reader_that_leaves_early_is_no_traceback(dynamic_stream: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tsog_stream.cli.main", "info", str(dynamic_stream), "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    with proc, proc.stderr:
+        proc.stdout.close()  # as `| head -0` would
+        err = proc.stderr.read().decode()
+        assert proc.wait(60) == 1 and "Traceback" not in err and "BrokenPipe" not in err

@@ -5,11 +5,16 @@ from __future__ import annotations
 
 import pickle
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import pytest
+from aiohttp import web
 
+from helpers import ThreadedServer
 from tsog_stream import errors
+from tsog_stream.cli.main import main
 from tsog_stream.server import catalog  # noqa: F401  # defines NotFoundError and BusyError
+from tsog_stream.server.respond import LIMITS, Limits
 
 
 def every_error_class() -> list[type[errors.TsogError]]:
@@ -57,3 +62,30 @@ def test_an_error_raised_in_a_worker_process_reaches_the_parent_whole() -> None:
             with pytest.raises(cls) as caught:
                 pool.submit(fail, cls).result(timeout=60)
             assert str(caught.value) == str(example(cls))
+
+
+def test_messages_are_safe_to_print() -> None:
+    hostile = "\x1b[2J\x1b[31mpwned\r\ntsog: error: forged line\x07"
+    error = errors.SourceError(hostile, where="name\nwith\tcontrols")
+    assert str(error).isprintable() and "\\x1b[2J" in str(error)
+    assert error.message.isprintable() and error.where == "name\\nwith\\tcontrols"
+
+
+def test_a_hostile_servers_403_text_reaches_the_terminal_escaped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    async def forbidden(request: web.Request) -> web.Response:
+        body = {"error": {"status": 403, "message": "\x1b[2Jno\r\ntsog: error: forged"}}
+        return web.json_response(body, status=403)
+
+    app = web.Application()
+    app[LIMITS] = Limits()
+    app.router.add_get("/{path:.*}", forbidden)
+    server = ThreadedServer(app)
+    try:
+        url = f"http://127.0.0.1:{server.port}/clip.tsogs"
+        assert main(["fetch", url, "--t", "0", "-o", str(tmp_path / "f.ply"), "-q"]) == 1
+    finally:
+        server.stop()
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and len(err.strip().splitlines()) == 1 and "HTTP 403" in err

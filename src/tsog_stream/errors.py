@@ -29,14 +29,23 @@ class TsogError(Exception):
     """
 
     def __init__(self, message: str, *, where: str | None = None) -> None:
-        self.message = message
-        self.where = where
-        super().__init__(f"{where}: {message}" if where else message)
+        self.message = printable(message)
+        self.where = None if where is None else printable(where)
+        super().__init__(f"{self.where}: {self.message}" if where else self.message)
 
     def __reduce__(self) -> tuple[Any, ...]:
         """Pickle by state, not by constructor arguments (subclasses add their own, such as
         MetaError's ``field``): an error raised in a worker process reaches the parent whole."""
         return (_rebuild, (type(self), self.args, self.__dict__))
+
+
+def printable(text: str) -> str:
+    """``text`` safe to print on a terminal or a log line: control and other non-printable
+    characters (escape sequences, line breaks that would inject lines) as ``\\xNN`` escapes.
+    Messages quote hostile text (a server's error body, a file name), so every one is cleaned."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
 
 
 def _rebuild(cls: type[TsogError], args: tuple[Any, ...], state: dict[str, Any]) -> TsogError:

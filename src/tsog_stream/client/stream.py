@@ -12,6 +12,7 @@ and http(s) URLs of a ``.tsogs`` file or of an unpacked folder are read alike; `
 from __future__ import annotations
 
 import asyncio
+import math
 import os
 import time
 from collections import OrderedDict
@@ -33,6 +34,25 @@ from .unpacked import pack, unpack
 from .verify import VerifyReport, verify_stream
 
 MiB = 1 << 20
+MAX_PLAY_FRAMES = 1_000_000
+"""Frames one simulated playback may have (9 hours at 30 fps): a bound, so that no choice of
+speed and fps makes one that never ends."""
+
+
+def _check_playback(
+    start: float, speed: float, fps: float, duration: float | None, horizon_s: float
+) -> None:
+    """Refuse playback options that are not finite, or not positive where they must be."""
+    checks = {
+        "--start": math.isfinite(start),
+        "--speed": math.isfinite(speed) and speed > 0,
+        "--fps": math.isfinite(fps) and fps > 0,
+        "--duration": duration is None or (math.isfinite(duration) and duration >= 0),
+        "horizon_s": math.isfinite(horizon_s) and horizon_s >= 0,
+    }
+    for name, ok in checks.items():
+        if not ok:
+            raise InputError("expected a finite number, positive for speed and fps", where=name)
 
 
 def scene_nbytes(scene: Scene) -> int:
@@ -340,12 +360,16 @@ class StreamClient:
         ``realtime`` nothing sleeps: a stall is a frame whose data took longer than its budget
         (1 / fps) to arrive; the first frame's wait is the startup latency.
         """
-        if fps <= 0 or speed <= 0:
-            raise InputError(f"fps and speed must be positive, got fps={fps}, speed={speed}")
+        _check_playback(start, speed, fps, duration, horizon_s)
         scene = self.index.manifest.scene
         end = start + duration * speed if duration is not None else scene.end_s
-        count = max(int((end - start) * fps / speed + 1e-9), 0) + 1
-        plan = _PlayPlan(start, end, count, speed / fps, 1.0 / fps, horizon_s, realtime)
+        frames = max((end - start) * fps / speed + 1e-9, 0.0) + 1
+        if frames > MAX_PLAY_FRAMES:
+            raise InputError(
+                f"{frames:.3g} frames to play (at most {MAX_PLAY_FRAMES}): raise --speed, or "
+                "lower --fps or --duration"
+            )
+        plan = _PlayPlan(start, end, int(frames), speed / fps, 1.0 / fps, horizon_s, realtime)
         stats = PlayStats()
         return Playback(self._play(plan, stats), stats)
 

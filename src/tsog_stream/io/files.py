@@ -12,6 +12,7 @@ import os
 import re
 import secrets
 import shutil
+import stat
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -129,11 +130,33 @@ def atomic_write_folder(
         raise
 
 
-def read_bytes(path: str | os.PathLike[str]) -> bytes:
-    """The bytes of a file, or a SourceError that names it."""
+def _open_regular(path: str | os.PathLike[str]) -> int:
+    """A descriptor of the regular file ``path``. Opened without blocking and refused unless
+    regular: a FIFO would wait forever for a writer, a device could never end."""
     try:
-        return Path(path).read_bytes()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_BINARY", 0))
     except IsADirectoryError as exc:
         raise SourceError("is a folder, expected a file", where=str(path)) from exc
     except OSError as exc:
         raise SourceError(f"cannot read: {exc.strerror}", where=str(path)) from exc
+    mode = os.fstat(fd).st_mode
+    if stat.S_ISREG(mode):
+        return fd
+    os.close(fd)
+    if stat.S_ISDIR(mode):
+        raise SourceError("is a folder, expected a file", where=str(path))
+    raise SourceError("not a regular file (a FIFO, device or socket): refused", where=str(path))
+
+
+def read_bytes(path: str | os.PathLike[str]) -> bytes:
+    """The bytes of a regular file, or a SourceError that names it."""
+    return read_head(path, -1)
+
+
+def read_head(path: str | os.PathLike[str], limit: int) -> bytes:
+    """At most ``limit`` first bytes of a regular file (all of it for -1), or a SourceError."""
+    with os.fdopen(_open_regular(path), "rb") as f:
+        try:
+            return f.read(limit)
+        except OSError as exc:
+            raise SourceError(f"cannot read: {exc.strerror}", where=str(path)) from exc

@@ -26,16 +26,15 @@ import os
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from ..constants import GENERATOR
-from ..errors import InputError, PlyError, SourceError
+from ..errors import InputError, PlyError
 from ..model import F32, Gaussians
-from .files import atomic_write_bytes
+from .files import atomic_write_bytes, read_bytes
 from .ply_header import MAGICS, PlyHeader, Records, parse_header, read_elements
 
 POSITION: Final = ("x", "y", "z")
@@ -94,11 +93,7 @@ def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents
 
 def read_ply(path: PathLike) -> PlyContents:
     """Read and decode a PLY file; I/O failures raise :class:`SourceError`."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise SourceError(f"cannot read the file: {exc.strerror or exc}", where=str(path)) from exc
-    return parse_ply(data, name=str(path))
+    return parse_ply(read_bytes(path), name=str(path))
 
 
 def _sh_coefficients(names: Sequence[str], where: str) -> int:

@@ -18,7 +18,7 @@ from ..errors import InputError, UnsupportedError
 from ..model import Scene
 from .chunks import is_unbundled, read_chunk
 from .compressed_ply import is_compressed_ply
-from .files import read_bytes
+from .files import read_bytes, read_head
 from .fourdgs import parse_4dgs, sniff_4dgs
 from .freetimegs import (
     is_freetimegs_ply,
@@ -80,8 +80,7 @@ def _is_glob(path: str | os.PathLike[str]) -> bool:
 
 def _detect_file(p: Path) -> str:
     """Format of a single file, from its first bytes (and its zip members)."""
-    with open(p, "rb") as f:
-        head = f.read(HEAD_BYTES)
+    head = read_head(p, HEAD_BYTES)
     if is_container(head):
         return "tsogs"
     if sniff_splatv(head):

@@ -42,7 +42,7 @@ from ..errors import InputError, IntegrityError, SogError, SourceError, Unsuppor
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from .chunks import read_chunk
 from .compressed_ply import is_compressed_ply
-from .files import read_bytes
+from .files import read_bytes, read_head
 from .loaded import Loaded4D
 from .ply import read_ply, sniff_ply
 from .ply_header import MAX_HEADER_BYTES, parse_header
@@ -77,11 +77,7 @@ def sniff_frame(path: Path) -> str | None:
     """ "ply" or "sog" from a file's magic bytes (or a folder's meta.json), else None."""
     if path.is_dir():
         return "sog" if (path / META_JSON).is_file() else None
-    try:
-        with open(path, "rb") as f:
-            head = f.read(_SNIFF_BYTES)
-    except OSError as exc:
-        raise SourceError(f"cannot read: {exc.strerror or exc}", where=str(path)) from exc
+    head = read_head(path, _SNIFF_BYTES)
     if sniff_ply(head):
         return "ply"
     return "sog" if is_zip(head) else None
@@ -234,11 +230,7 @@ def _check_fps(fps: float) -> float:
 
 def _ply_shape(path: Path) -> tuple[int, int]:
     """(Gaussians, SH coefficients per channel) declared by a PLY frame's header."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(MAX_HEADER_BYTES)
-    except OSError as exc:
-        raise SourceError(f"cannot read: {exc.strerror or exc}", where=str(path)) from exc
+    head = read_head(path, MAX_HEADER_BYTES)
     header = parse_header(head, name=str(path))
     vertex = header.element("vertex")
     count = vertex.count if vertex else 0
