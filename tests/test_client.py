@@ -7,6 +7,7 @@ import asyncio
 import hashlib
 import re
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -88,6 +89,12 @@ class Origin:
         resp.headers["ETag"] = self.etag
         resp.content_length = len(body)
         await resp.prepare(request)
+        if "trickle" in self.faults:  # a byte every 0.2 s: never silent long enough to time out
+            for byte in bytes(body):
+                await resp.write(bytes([byte]))
+                self.sent += 1
+                await asyncio.sleep(0.2)
+            return resp
         if "drop_once" in self.faults and len(body) > 1:
             self.faults.discard("drop_once")
             await resp.write(bytes(body[: len(body) // 2]))
@@ -355,3 +362,12 @@ def test_the_cache_evicts_least_recently_used(container: Path) -> None:
     assert cache.get(0) is scenes[0]
     cache.put(2, scenes[2])
     assert 0 in cache and 1 not in cache and cache.nbytes <= cache.max_bytes
+
+
+def test_a_trickling_server_is_cut_off_at_the_request_deadline(origin: Origin) -> None:
+    origin.faults.add("trickle")
+    options = HttpOptions(retries=1, backoff_s=0.01, read_timeout_s=5.0, request_timeout_s=1.0)
+    began = time.monotonic()
+    with pytest.raises(SourceError, match="failed after 2 attempts"):
+        open_stream(origin.url(), http=options)
+    assert time.monotonic() - began < 5  # two attempts of 1 s, not 16 KiB x 0.2 s each

@@ -55,6 +55,10 @@ class HttpOptions:
     """Cap of one wait between attempts (the waits double from ``backoff_s``)."""
     connect_timeout_s: float = 10.0
     read_timeout_s: float = 30.0
+    """Longest wait for any bytes of a response."""
+    request_timeout_s: float = 120.0
+    """Deadline of one request, body included: a server that trickles a byte now and then
+    (never silent for ``read_timeout_s``) is cut off here, and the request retried."""
     max_unranged_bytes: int = 1 << 20
     """Largest whole-file (200) answer kept in memory when the origin ignores ``Range``."""
 
@@ -62,7 +66,9 @@ class HttpOptions:
 def new_session(options: HttpOptions) -> aiohttp.ClientSession:
     """A client session with the options' timeouts and no transparent decompression."""
     timeout = aiohttp.ClientTimeout(
-        sock_connect=options.connect_timeout_s, sock_read=options.read_timeout_s
+        total=options.request_timeout_s,
+        sock_connect=options.connect_timeout_s,
+        sock_read=options.read_timeout_s,
     )
     return aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
 
