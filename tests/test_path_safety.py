@@ -25,6 +25,7 @@ from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
+from tsog_stream.server.catalog import open_beneath, safe_path
 from tsog_stream.synthetic import small_scene
 
 SECRET = f"SECRET-{uuid.uuid4().hex}".encode()
@@ -270,6 +271,30 @@ def test_odd_file_names_are_skipped_never_fatal(odd_port: int) -> None:
         odd_port, [b"/play/" + quote(n, safe=b"").encode() + b"/inner" for n in ODD_FOLDERS]
     )
     assert raw_get(odd_port, b"/files/good.tsogs")[0] == 200
+
+
+def test_a_component_swapped_for_a_symlink_after_the_check_is_not_followed(
+    tmp_path: Path,
+) -> None:
+    """The path was checked (resolved, under the root), then a folder on it was replaced by a
+    symlink out of the root before the open: the open refuses it instead of leaking."""
+    root, outside = (tmp_path / "root").resolve(), (tmp_path / "outside").resolve()
+    (root / "scene").mkdir(parents=True)
+    (root / "scene" / "clip.bin").write_bytes(b"inside")
+    outside.mkdir()
+    (outside / "clip.bin").write_bytes(SECRET)
+    checked = safe_path(root, "scene/clip.bin")
+    with open_beneath(root, checked) as f:
+        assert f.read() == b"inside"
+    (root / "scene").rename(root / "moved")
+    (root / "scene").symlink_to(outside)  # the swap
+    with pytest.raises(OSError):
+        open_beneath(root, checked).close()
+    (root / "scene").unlink()
+    (root / "scene").mkdir()
+    (root / "scene" / "clip.bin").symlink_to(outside / "clip.bin")  # the file itself swapped
+    with pytest.raises(OSError):
+        open_beneath(root, checked).close()
 
 
 def test_non_ascii_and_broken_escapes(port: int) -> None:

@@ -599,10 +599,10 @@ def test_cold_etag_is_computed_once(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     calls: list[Path] = []
     real = catalog_module._content_etag
 
-    def slow_etag(path: Path) -> str:
+    def slow_etag(root: Path, path: Path) -> str:
         calls.append(path)
         time.sleep(0.5)  # every request arrives while the first hash runs
-        return real(path)
+        return real(root, path)
 
     monkeypatch.setattr(catalog_module, "_content_etag", slow_etag)
     (tmp_path / "fresh.bin").write_bytes(DATA)

@@ -18,7 +18,7 @@ import os
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, NamedTuple, TypeVar, cast
+from typing import Any, BinaryIO, NamedTuple, TypeVar, cast
 
 from ..constants import is_container
 from ..container.header import HEADER_SIZE, Header
@@ -68,6 +68,15 @@ class Representation:
     etag: str
     mtime: float
     content_type: str
+    beneath: Path | None = None
+    """The served root this file was checked to lie under (resolved, no symlink left in
+    ``path``): it is opened with :func:`open_beneath`. None for the server's own files."""
+
+    def open(self) -> BinaryIO:
+        """The file, opened for reading (see :func:`open_beneath`)."""
+        if self.beneath is None:
+            return open(self.path, "rb")
+        return open_beneath(self.beneath, self.path)
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +90,28 @@ class SceneEntry:
     manifest_json: bytes
     mtime: float
     size: int
+
+
+def open_beneath(root: Path, path: Path) -> BinaryIO:
+    """Open ``path``, a resolved path under the resolved ``root``, refusing a symlink at any
+    component below the root (OSError ELOOP or ENOTDIR).
+
+    :func:`safe_path` resolved the path with symlinks followed and checked it lies under the
+    root; a component swapped for a symlink between that check and this open (pointing out of
+    the root) is refused here, walking down from the root one ``openat(O_NOFOLLOW)`` at a time:
+    the effect of ``openat2(RESOLVE_BENEATH | RESOLVE_NO_SYMLINKS)``, portable to every POSIX.
+    """
+    parts = path.relative_to(root).parts
+    fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        for part in parts[:-1]:
+            below = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
+            os.close(fd)
+            fd = below
+        file_fd = os.open(parts[-1], os.O_RDONLY | os.O_NOFOLLOW, dir_fd=fd)
+    finally:
+        os.close(fd)
+    return os.fdopen(file_fd, "rb")
 
 
 def servable(name: str) -> bool:
@@ -128,9 +159,9 @@ def _signature(path: Path) -> FileVersion:
     return FileVersion(st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns)
 
 
-def _content_etag(path: Path) -> str:
+def _content_etag(root: Path, path: Path) -> str:
     """Strong ETag: a container's identity (index SHA-256) or the SHA-256 of the content."""
-    with open(path, "rb") as f:
+    with open_beneath(root, path) as f:
         head = f.read(HEADER_SIZE)
         if is_container(head):
             try:
@@ -175,7 +206,8 @@ class Catalog:
             cached = (version, await self._hash_once(path, version))
             _remember(self._etags, path, cached)
         kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else _guess_type(path)
-        return Representation(path, 0, version.size, cached[1], version.mtime_ns / 1e9, kind)
+        mtime = version.mtime_ns / 1e9
+        return Representation(path, 0, version.size, cached[1], mtime, kind, self.root)
 
     async def _once(
         self, kind: str, path: Path, version: FileVersion, work: Callable[[], Awaitable[_T]]
@@ -195,7 +227,7 @@ class Catalog:
         """The content ETag, computed once per file version (see :meth:`_once`)."""
         try:
             return await self._once(
-                "etag", path, version, lambda: asyncio.to_thread(_content_etag, path)
+                "etag", path, version, lambda: asyncio.to_thread(_content_etag, self.root, path)
             )
         except OSError as exc:  # vanished or unreadable since the stat
             raise unreadable(exc, "no such file", path.name) from exc
@@ -277,7 +309,8 @@ class Catalog:
             )
         path = safe_path(scene.path.parent, entry.file)
         version = _signature(path)
-        return Representation(path, 0, version.size, etag, version.mtime_ns / 1e9, SOG_TYPE)
+        mtime = version.mtime_ns / 1e9
+        return Representation(path, 0, version.size, etag, mtime, SOG_TYPE, self.root)
 
 
 def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes]:

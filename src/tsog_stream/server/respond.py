@@ -163,7 +163,7 @@ async def _send_body(
         await resp.prepare(request)
         return resp
     try:
-        file = await asyncio.to_thread(open, rep.path, "rb")
+        file = await asyncio.to_thread(rep.open)
     except OSError as exc:
         raise unreadable(exc, "no such file", rep.path.name) from exc
     try:
