@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from common import write_section
+from common import sample, write_section
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.demo import errors_over_time, extended_ply_size
@@ -34,29 +34,47 @@ from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.temporal import time_range
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "4d"
 RESULTS = REPO / "benchmarks" / "results"
 PLY_ROW_FLOATS = 17  # x y z nx ny nz f_dc*3 opacity scale*3 rot*4, before SH rest
 PLY_HEADER = 400
 FPS = 30.0
 
-INPUTS: list[tuple[str, Path | None, ReadOptions]] = [
-    ("fireworks PLY sequence (6 frames)", DATA / "tztechno_fireworks_frames", ReadOptions(fps=6)),
-    ("wave SOG flipbook (50 frames)", DATA / "pc_flipbook_wave", ReadOptions(fps=30)),
-    ("monkey SOG flipbook (50 frames)", DATA / "pc_flipbook_monkey", ReadOptions(fps=30)),
-    (
-        "hanabi2 .splatv (synthetic)",
-        DATA / "splatv" / "tztechno_hanabi2_synthetic.splatv",
-        ReadOptions(),
-    ),
-    ("coffee10 .splatv (real)", DATA / "splatv" / "macaburguera_coffee10.splatv", ReadOptions()),
-    (
-        "spinach_4 .splatv (real)",
-        DATA / "splatv" / "macaburguera_spinach_4.splatv",
-        ReadOptions(duration_s=5.0),
-    ),
-    ("synthetic FreeTimeGS-like (SH3)", None, ReadOptions()),
-]
+
+def inputs() -> list[tuple[str, Path | None, ReadOptions]]:
+    """The inputs measured (their files found when the benchmark runs, not at import)."""
+    return [
+        (
+            "fireworks PLY sequence (6 frames)",
+            sample("4d/tztechno_fireworks_frames"),
+            ReadOptions(fps=6),
+        ),
+        (
+            "wave SOG flipbook (50 frames)",
+            sample("4d/pc_flipbook_wave", in_tree=False),
+            ReadOptions(fps=30),
+        ),
+        (
+            "monkey SOG flipbook (50 frames)",
+            sample("4d/pc_flipbook_monkey", in_tree=False),
+            ReadOptions(fps=30),
+        ),
+        (
+            "hanabi2 .splatv (synthetic)",
+            sample("4d/splatv/tztechno_hanabi2_synthetic.splatv"),
+            ReadOptions(),
+        ),
+        (
+            "coffee10 .splatv (real)",
+            sample("4d/splatv/macaburguera_coffee10.splatv"),
+            ReadOptions(),
+        ),
+        (
+            "spinach_4 .splatv (real)",
+            sample("4d/splatv/macaburguera_spinach_4.splatv"),
+            ReadOptions(duration_s=5.0),
+        ),
+        ("synthetic FreeTimeGS-like (SH3)", None, ReadOptions()),
+    ]
 
 
 def input_bytes(path: Path | None) -> int:
@@ -178,7 +196,7 @@ def main() -> int:
     ).parse_args()
     rows = []
     with tempfile.TemporaryDirectory(prefix="tsog-inputs-") as tmp:
-        for name, path, options in INPUTS:
+        for name, path, options in inputs():
             rows.append(measure(name, path, options, Path(tmp)))
     stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from bench_temporal import generated_sequence
-from common import write_section
+from common import sample, write_section
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
@@ -44,7 +44,6 @@ from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.temporal import evaluate_at, time_range
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data"
 RESULTS = REPO / "benchmarks" / "results"
 TOOL = REPO / "node_modules" / ".bin" / "splat-transform"
 At = Callable[[float], Gaussians]
@@ -84,9 +83,9 @@ def static_rows(work: Path, views: int, size: tuple[int, int]) -> list[dict[str,
     """Real static scenes through our SOG and splat-transform's."""
     rows = []
     for name, path in (
-        ("donut (45k, SH0)", DATA / "3dgs" / "v3dg_donut_fused.ply"),
-        ("guitar (91k, SH0)", DATA / "3dgs" / "pc_guitar.compressed.ply"),
-        ("lod2 tile (7k, SH3)", DATA / "3dgs" / "gs3d_pr477_lod2_tile_0.ply"),
+        ("donut (45k, SH0)", sample("3dgs/v3dg_donut_fused.ply")),
+        ("guitar (91k, SH0)", sample("3dgs/pc_guitar.compressed.ply")),
+        ("lod2 tile (7k, SH3)", sample("3dgs/gs3d_pr477_lod2_tile_0.ply")),
     ):
         source = load_scene(path).scene
         cameras = scene_orbit(source.gaussians, views, *size)
@@ -124,7 +123,7 @@ def four_d_rows(work: Path, views: int, size: tuple[int, int], times: int) -> li
     inputs = [
         (
             "hanabi2 .splatv",
-            load_scene(DATA / "4d" / "splatv" / "tztechno_hanabi2_synthetic.splatv").scene,
+            load_scene(sample("4d/splatv/tztechno_hanabi2_synthetic.splatv")).scene,
         ),
         (
             "generated SH3, moving means",
@@ -203,8 +202,8 @@ def sequence_rows(
     generated = work / "generated"
     generated_sequence(generated, 60, 10_000)
     for name, folder, fps in (
-        ("wave SOG flipbook (50)", DATA / "4d" / "pc_flipbook_wave", 30.0),
-        ("fireworks PLY sequence (6)", DATA / "4d" / "tztechno_fireworks_frames", 6.0),
+        ("wave SOG flipbook (50)", sample("4d/pc_flipbook_wave", in_tree=False), 30.0),
+        ("fireworks PLY sequence (6)", sample("4d/tztechno_fireworks_frames"), 6.0),
         ("generated, 70% static (60 frames)", generated, 30.0),
     ):
         seq = open_sequence(folder, fps=fps)

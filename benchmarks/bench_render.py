@@ -15,17 +15,14 @@ import argparse
 import datetime as dt
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from common import write_section
+from common import sample, write_section
 from tsog_stream.io.ply import read_ply
 from tsog_stream.model import Gaussians
 from tsog_stream.render import numba_available, render
 from tsog_stream.render.camera import scene_orbit
-
-DONUT = Path(__file__).resolve().parents[2] / "shared" / "data" / "3dgs" / "v3dg_donut_fused.ply"
 
 
 def million(donut: Gaussians) -> Gaussians:
@@ -63,7 +60,7 @@ def main() -> int:
     )
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    donut = read_ply(DONUT).gaussians
+    donut = read_ply(sample("3dgs/v3dg_donut_fused.ply")).gaussians
     cases = [("donut, 45 624 Gaussians, SH0", donut, 320, 240)]
     big = million(donut)
     cases.append((f"{len(big)} Gaussians, SH3", big, 1280, 720))

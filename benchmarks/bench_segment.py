@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from common import run_measured, write_section
+from common import run_measured, sample, write_section
 from tsog_stream import TimelineType
 from tsog_stream.client import open_stream
 from tsog_stream.io.ply import write_ply
@@ -34,7 +34,6 @@ from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 TSOG = REPO / ".venv" / "bin" / "tsog"
-SPLATV = REPO.parent / "shared" / "data" / "4d" / "splatv" / "macaburguera_spinach_4.splatv"
 
 
 def seek_stats(path: Path, samples: int, seed: int) -> dict[str, float]:
@@ -99,7 +98,9 @@ def policies(args: argparse.Namespace) -> None:
                 seed=3,
             )
         ),
-        "spinach .splatv (real, 5 s)": load_scene(SPLATV, options=_splatv_options()).scene,
+        "spinach .splatv (real, 5 s)": load_scene(
+            sample("4d/splatv/macaburguera_spinach_4.splatv"), options=_splatv_options()
+        ).scene,
     }
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="tsog-seg-") as tmp:

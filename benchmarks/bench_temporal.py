@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from common import write_section
+from common import sample, write_section
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
@@ -37,7 +37,6 @@ from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment
 from tsog_stream.synthetic import static_gaussians
 
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "4d"
 RESULTS = REPO / "benchmarks" / "results"
 MODES = ("off", "merge", "fit")
 ERROR_KEYS = ("means", "scales", "quats", "sh0", "alpha")
@@ -194,9 +193,9 @@ def main() -> int:
         generated = work / "generated"
         generated_sequence(generated, frames, 10_000)
         inputs = [
-            ("monkey SOG flipbook", DATA / "pc_flipbook_monkey", 30.0),
-            ("wave SOG flipbook", DATA / "pc_flipbook_wave", 30.0),
-            ("fireworks PLY sequence", DATA / "tztechno_fireworks_frames", 6.0),
+            ("monkey SOG flipbook", sample("4d/pc_flipbook_monkey", in_tree=False), 30.0),
+            ("wave SOG flipbook", sample("4d/pc_flipbook_wave", in_tree=False), 30.0),
+            ("fireworks PLY sequence", sample("4d/tztechno_fireworks_frames"), 6.0),
             (f"generated, 70% static ({frames} frames)", generated, 30.0),
         ]
         for name, source, fps in inputs:

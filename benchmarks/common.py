@@ -13,7 +13,26 @@ from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+REPO = Path(__file__).resolve().parents[1]
+DOC = REPO / "docs" / "benchmarks.md"
+IN_TREE = REPO / "tests" / "data" / "real"
+SAMPLE_DATA_ENV = "TSOG_SAMPLE_DATA"
+
+
+def sample(rel: str, *, in_tree: bool = True) -> Path:
+    """A real sample by its path in the sample layout (``4d/splatv/x.splatv``): from
+    ``$TSOG_SAMPLE_DATA``, else ``../shared/data``, else (``in_tree``: the repository carries
+    it whole) ``tests/data/real``. Exits with a message saying how to provide it otherwise."""
+    chosen = os.environ.get(SAMPLE_DATA_ENV)
+    roots = ([Path(chosen)] if chosen else []) + [REPO.parent / "shared" / "data"]
+    roots += [IN_TREE] if in_tree else []
+    for root in roots:
+        if (root / rel).exists():
+            return root / rel
+    raise SystemExit(
+        f"benchmark sample {rel} not found: set {SAMPLE_DATA_ENV}=/path/to/data (the layout of "
+        "../shared/data, see its PROVENANCE.md) or put shared/data beside the checkout"
+    )
 
 
 def write_section(name: str, body: str, script: str) -> None:

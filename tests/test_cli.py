@@ -37,10 +37,10 @@ def dynamic_chunk(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_encode_decode_round_trip(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "donut.sog"
-    assert main(["encode", str(shared_data / DONUT), str(out), "-q"]) == 0
+    assert main(["encode", str(samples / DONUT), str(out), "-q"]) == 0
     assert "45624 Gaussians" in capsys.readouterr().out
     assert main(["decode", str(out), str(tmp_path / "back.ply"), "-q"]) == 0
     back = read_ply(tmp_path / "back.ply").gaussians
@@ -53,11 +53,11 @@ def test_encode_decode_round_trip(
 
 
 def test_encode_refuses_to_overwrite_without_force(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "x.sog"
     out.write_bytes(b"keep me")
-    assert main(["encode", str(shared_data / DONUT), str(out), "-q"]) == 1
+    assert main(["encode", str(samples / DONUT), str(out), "-q"]) == 1
     assert "already exists" in capsys.readouterr().err
     assert out.read_bytes() == b"keep me"
 

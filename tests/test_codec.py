@@ -26,8 +26,8 @@ ROTATION_MEAN_DEG = 0.4
 
 
 @pytest.fixture(scope="module")
-def sh3_scene(shared_data: Path) -> Scene:
-    return Scene(read_ply(shared_data / "3dgs/supersplat_pr291_fruit_drops_minimal.ply").gaussians)
+def sh3_scene(samples: Path) -> Scene:
+    return Scene(read_ply(samples / "3dgs/supersplat_pr291_fruit_drops_minimal.ply").gaussians)
 
 
 def test_static_round_trip_within_tolerances(sh3_scene: Scene) -> None:

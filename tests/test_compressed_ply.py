@@ -126,9 +126,9 @@ def test_synthetic_pack_decodes_by_the_formulas(colors: bool) -> None:
 # --- real files ----------------------------------------------------------------------------
 
 
-def test_detector(shared_data: Path) -> None:
-    assert is_compressed_ply(parse_header((shared_data / GUITAR).read_bytes()))
-    assert is_compressed_ply(parse_header((shared_data / ENGINE).read_bytes()))
+def test_detector(samples: Path) -> None:
+    assert is_compressed_ply(parse_header((samples / GUITAR).read_bytes()))
+    assert is_compressed_ply(parse_header((samples / ENGINE).read_bytes()))
     plain = ply_bytes(Gaussians.empty())
     assert not is_compressed_ply(parse_header(plain))
     with pytest.raises(PlyError, match="not a compressed PLY"):
@@ -136,8 +136,8 @@ def test_detector(shared_data: Path) -> None:
 
 
 @pytest.mark.parametrize("rel", [GUITAR, ENGINE])
-def test_real_quaternions_are_plausible(shared_data: Path, rel: Path) -> None:
-    data = (shared_data / rel).read_bytes()
+def test_real_quaternions_are_plausible(samples: Path, rel: Path) -> None:
+    data = (samples / rel).read_bytes()
     g = parse_compressed_ply(data, name=str(rel)).gaussians
     np.testing.assert_allclose(np.linalg.norm(g.quats, axis=1), 1.0, atol=1e-3)
     header = parse_header(data)
@@ -150,8 +150,8 @@ def test_real_quaternions_are_plausible(shared_data: Path, rel: Path) -> None:
 
 
 @pytest.mark.parametrize("cut", [1, 1000])
-def test_truncated_file_is_an_error(shared_data: Path, cut: int) -> None:
-    data = (shared_data / GUITAR).read_bytes()[:-cut]
+def test_truncated_file_is_an_error(samples: Path, cut: int) -> None:
+    data = (samples / GUITAR).read_bytes()[:-cut]
     with pytest.raises(PlyError, match=r"expected \d+ bytes .* found \d+"):
         parse_compressed_ply(data)
 
@@ -202,10 +202,10 @@ def reference_decode(tool: Path, source: Path, tmp_path: Path) -> Gaussians:
 @pytest.mark.interop
 @pytest.mark.parametrize("rel", [GUITAR, ENGINE])
 def test_matches_splat_transform_bit_for_bit(
-    shared_data: Path, splat_transform: Path, tmp_path: Path, rel: Path
+    samples: Path, splat_transform: Path, tmp_path: Path, rel: Path
 ) -> None:
-    ours = parse_compressed_ply((shared_data / rel).read_bytes()).gaussians
-    ref = reference_decode(splat_transform, shared_data / rel, tmp_path)
+    ours = parse_compressed_ply((samples / rel).read_bytes()).gaussians
+    ref = reference_decode(splat_transform, samples / rel, tmp_path)
     assert ours.sh_bands == ref.sh_bands == (3 if rel == ENGINE else 0)
     for attr in ("means", "scales", "quats", "sh0", "shN"):
         assert np.array_equal(getattr(ours, attr), getattr(ref, attr)), attr

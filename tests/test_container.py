@@ -539,9 +539,9 @@ def test_pack_refuses_a_tampered_chunk(unpacked: Path, tmp_path: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def hanabi(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def hanabi(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("cli") / "hanabi.tsogs"
-    args = ["segment", str(shared_data / HANABI), "--window", "0.25s", "-o", str(out)]
+    args = ["segment", str(samples / HANABI), "--window", "0.25s", "-o", str(out)]
     assert main([*args, "--workers", "1", "-q"]) == 0
     return out
 
@@ -641,10 +641,10 @@ def test_cli_unpack_pack_round_trip(
 
 
 def test_cli_segments_a_frame_folder(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "fw.tsogs"
-    folder = shared_data / FIREWORKS
+    folder = samples / FIREWORKS
     args = ["segment", str(folder), "--fps", "6", "--window", "2f", "-o", str(out)]
     assert main([*args, "--workers", "1", "-q"]) == 0
     assert "3 windows" in capsys.readouterr().out
@@ -675,13 +675,13 @@ def test_cli_segments_a_frame_folder(
 def test_cli_errors_are_one_friendly_line(
     args: list[str],
     message: str,
-    shared_data: Path,
+    samples: Path,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     bad = tmp_path / "bad.tsogs"
     bad.write_bytes(b"\x00" * 200)
-    fields = {"tmp": tmp_path, "hanabi_src": shared_data / HANABI, "bad": bad}
+    fields = {"tmp": tmp_path, "hanabi_src": samples / HANABI, "bad": bad}
     capsys.readouterr()
     assert main([a.format(**fields) for a in args] + ["-q"]) == 1
     err = capsys.readouterr().err.strip().splitlines()

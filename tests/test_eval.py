@@ -144,9 +144,9 @@ def _quantised_positions(g: Gaussians, bits: int = 8) -> Gaussians:
 
 
 @pytest.fixture(scope="module")
-def donut_files(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def donut_files(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("eval")
-    source = shared_data / DONUT
+    source = samples / DONUT
     sog = folder / "donut.sog"
     assert main(["encode", str(source), str(sog), "-q"]) == 0
     damaged = folder / "damaged.ply"
@@ -278,10 +278,10 @@ def test_eval_refuses_a_reading_option_that_fits_neither_input(
 
 
 def test_render_writes_a_png_and_refuses_to_overwrite(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "view.png"
-    argv = ["render", str(shared_data / DONUT), "--view", "1", "--views", "4", *SIZE]
+    argv = ["render", str(samples / DONUT), "--view", "1", "--views", "4", *SIZE]
     assert main([*argv, "-o", str(out), "-q"]) == 0
     assert capsys.readouterr().out.strip() == f"{out}: 160x120, t = 0 s, view 1"
     with Image.open(out) as image:
@@ -297,10 +297,10 @@ def test_render_writes_a_png_and_refuses_to_overwrite(
 
 
 def test_cameras_json_gives_the_views_it_describes(
-    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The orbit written as a 3DGS cameras.json (at another size) renders the same images."""
-    source = shared_data / DONUT
+    source = samples / DONUT
     orbit = scene_orbit(read_ply(source).gaussians, 4, 320, 240)
     entries = [
         {
@@ -336,14 +336,14 @@ def test_cameras_json_gives_the_views_it_describes(
     ],
 )
 def test_render_errors_are_one_line(
-    shared_data: Path,
+    samples: Path,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     extra: list[str],
     message: str,
 ) -> None:
     out = tmp_path / "x.png"
-    argv = ["render", str(shared_data / DONUT), "--views", "4", *extra, "-o", str(out), "-q"]
+    argv = ["render", str(samples / DONUT), "--views", "4", *extra, "-o", str(out), "-q"]
     assert main(argv) == 1
     err = capsys.readouterr().err
     assert err.startswith("tsog: error:") and message in err and err.count("\n") == 1

@@ -133,13 +133,11 @@ def test_types_0_and_1_become_exact_windows(fd: ModuleType, kind: TimelineType) 
         assert np.all(np.abs(ga.means - gb.means)[ma] <= tol[ma, None])
 
 
-def test_file_written_by_fourdgs_matches_its_own_state_at(
-    fd: ModuleType, shared_data: Path
-) -> None:
+def test_file_written_by_fourdgs_matches_its_own_state_at(fd: ModuleType, samples: Path) -> None:
     convert = importlib.import_module("fourdgs.convert")  # its PLY-sequence importer
     fps = 30.0
     gaussians, duration = convert.convert_ply_sequence(
-        str(shared_data / "4d" / "tztechno_fireworks_frames"), fps=fps
+        str(samples / "4d" / "tztechno_fireworks_frames"), fps=fps
     )
     buffer = io.BytesIO()
     fd.write(buffer, gaussians, duration)

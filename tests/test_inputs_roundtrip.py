@@ -38,9 +38,14 @@ LOADERS: dict[str, Callable[[Path], Scene]] = {
 }
 
 
+OPTIONAL = {"splatv coffeeshort2"}
+"""Inputs from the optional sample set (real captures derived from N3DV, CC-BY-NC-4.0)."""
+
+
 @pytest.mark.parametrize("name", list(LOADERS))
-def test_input_survives_encode_decode(name: str, shared_data: Path) -> None:
-    scene = LOADERS[name](shared_data)
+def test_input_survives_encode_decode(name: str, request: pytest.FixtureRequest) -> None:
+    data: Path = request.getfixturevalue("optional_samples" if name in OPTIONAL else "samples")
+    scene = LOADERS[name](data)
     assert scene.timeline is not None
     files = encode_chunk(scene)
     decoded = decode_chunk(files)

@@ -45,9 +45,9 @@ def assert_same_gaussians(a: Gaussians, b: Gaussians) -> None:
 
 @pytest.mark.parametrize("name", INPUTS)
 def test_a_reference_decodes_our_sog_like_we_do(
-    name: str, shared_data: Path, splat_transform: Path, tmp_path: Path
+    name: str, samples: Path, splat_transform: Path, tmp_path: Path
 ) -> None:
-    scene = Scene(read_ply(shared_data / name).gaussians)
+    scene = Scene(read_ply(samples / name).gaussians)
     ours = tmp_path / "ours.sog"
     ours.write_bytes(bundle_bytes(encode_chunk(scene)))
     run_tool(splat_transform, ours, tmp_path / "theirs.ply")
@@ -57,10 +57,10 @@ def test_a_reference_decodes_our_sog_like_we_do(
 
 @pytest.mark.parametrize("name", INPUTS)
 def test_b_we_decode_reference_sog_like_it_does(
-    name: str, shared_data: Path, splat_transform: Path, tmp_path: Path
+    name: str, samples: Path, splat_transform: Path, tmp_path: Path
 ) -> None:
-    source = read_ply(shared_data / name).gaussians
-    run_tool(splat_transform, shared_data / name, tmp_path / "ref.sog")
+    source = read_ply(samples / name).gaussians
+    run_tool(splat_transform, samples / name, tmp_path / "ref.sog")
     run_tool(splat_transform, tmp_path / "ref.sog", tmp_path / "ref.ply")
     ours = read_chunk(tmp_path / "ref.sog").gaussians
     assert_same_gaussians(ours, read_ply(tmp_path / "ref.ply").gaussians)
@@ -72,11 +72,11 @@ def test_b_we_decode_reference_sog_like_it_does(
 
 @pytest.mark.parametrize("name", INPUTS)
 def test_codebooks_no_worse_than_reference(
-    name: str, shared_data: Path, splat_transform: Path, tmp_path: Path
+    name: str, samples: Path, splat_transform: Path, tmp_path: Path
 ) -> None:
-    source = Scene(read_ply(shared_data / name).gaussians)
+    source = Scene(read_ply(samples / name).gaussians)
     src = source.subset(texel_order(source)).gaussians
-    run_tool(splat_transform, shared_data / name, tmp_path / "ref.sog")
+    run_tool(splat_transform, samples / name, tmp_path / "ref.sog")
     theirs = read_chunk(tmp_path / "ref.sog").gaussians
     ours = decode_chunk(encode_chunk(source)).gaussians
     for attr in ("scales", "sh0", "shN"):

@@ -94,9 +94,11 @@ def assert_same(a: Gaussians, b: Gaussians) -> None:
         assert np.array_equal(x.view(np.uint32), y.view(np.uint32)), attr
 
 
-def appendix_b(shared_data: Path) -> dict[str, dict[str, object]]:
-    """PROVENANCE.md Appendix B: the checker's ranges for every PLY, by relative path."""
-    text = (shared_data / "PROVENANCE.md").read_text()
+def appendix_b(document: Path) -> dict[str, dict[str, object]]:
+    """Appendix B of a provenance document (../shared/data/PROVENANCE.md, or its copy for the
+    files the repository carries, tests/data/README.md): the checker's ranges for every PLY,
+    by relative path."""
+    text = document.read_text()
     section = text.split("## Appendix B", 1)[1].split("\n## ", 1)[0]
     return {m[1]: json.loads(m[2]) for m in re.finditer(r"^- `([^`]+)`: (\{.*\})$", section, re.M)}
 
@@ -112,14 +114,25 @@ def assert_range(values: npt.NDArray, expected: object, what: str) -> None:
 # --- real files ----------------------------------------------------------------------------
 
 
-def test_appendix_b_lists_every_real_ply(shared_data: Path) -> None:
-    on_disk = {str(p.relative_to(shared_data)) for p in shared_data.rglob("*.ply")}
-    assert set(appendix_b(shared_data)) == on_disk and len(on_disk) == 16
+SAMPLE_DOCS = {"samples": "../README.md", "optional_samples": "PROVENANCE.md"}
+"""Each sample set's provenance document, relative to the set (tests/data/real and its
+README one level up; ../shared/data and its PROVENANCE.md)."""
+PLY_COUNTS = {"samples": 15, "optional_samples": 16}
 
 
-def test_real_plys_match_provenance_ranges(shared_data: Path) -> None:
-    for rel, facts in appendix_b(shared_data).items():
-        contents = read_ply(shared_data / rel)
+@pytest.mark.parametrize("kind", list(SAMPLE_DOCS))
+def test_appendix_b_lists_every_real_ply(kind: str, request: pytest.FixtureRequest) -> None:
+    data: Path = request.getfixturevalue(kind)
+    on_disk = {str(p.relative_to(data)) for p in data.rglob("*.ply")}
+    listed = set(appendix_b(data / SAMPLE_DOCS[kind]))
+    assert listed == on_disk and len(on_disk) == PLY_COUNTS[kind]
+
+
+@pytest.mark.parametrize("kind", list(SAMPLE_DOCS))
+def test_real_plys_match_provenance_ranges(kind: str, request: pytest.FixtureRequest) -> None:
+    data: Path = request.getfixturevalue(kind)
+    for rel, facts in appendix_b(data / SAMPLE_DOCS[kind]).items():
+        contents = read_ply(data / rel)
         g = contents.gaussians
         assert len(g) == facts["count"], rel
         for i, axis in enumerate("xyz"):
@@ -139,14 +152,14 @@ def test_real_plys_match_provenance_ranges(shared_data: Path) -> None:
         assert has_trailing_note is (not facts["size_exact"]), rel
 
 
-def test_trailing_bytes_are_a_note(shared_data: Path) -> None:
-    contents = read_ply(shared_data / "3dgs" / "cvlab_pc_short.ply")
+def test_trailing_bytes_are_a_note(samples: Path) -> None:
+    contents = read_ply(samples / "3dgs" / "cvlab_pc_short.ply")
     assert len(contents.gaussians) == 100
     assert "ignored 14029 trailing bytes after the declared 100 'vertex' rows" in contents.notes
 
 
-def test_extra_property_is_kept(shared_data: Path) -> None:
-    contents = read_ply(shared_data / "3dgs" / "supersplat_pr291_fruit_drops_minimal.ply")
+def test_extra_property_is_kept(samples: Path) -> None:
+    contents = read_ply(samples / "3dgs" / "supersplat_pr291_fruit_drops_minimal.ply")
     assert list(contents.extra) == ["transform"]
     assert contents.extra["transform"].shape == (4721,)
     assert contents.extra["transform"].dtype == np.float32

@@ -31,9 +31,8 @@ from tsog_stream.schemas import (
 from tsog_stream.schemas.manifest import manifest_json_schema_text
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = Path("/work/shared/data")
-PLAYBOT = DATA / "3dgs" / "pc_playbot_lod6_sog" / "meta.json"
-WAVE = DATA / "4d" / "pc_flipbook_wave" / "wave_0001.sog"
+PLAYBOT = Path("3dgs") / "pc_playbot_lod6_sog" / "meta.json"
+WAVE = Path("4d") / "pc_flipbook_wave" / "wave_0001.sog"
 
 Doc = dict[str, Any]
 
@@ -96,18 +95,16 @@ def tsog_doc() -> Doc:
 # --- real files and round trips --------------------------------------------------------------
 
 
-@pytest.mark.skipif(not PLAYBOT.exists(), reason="shared SOG sample not available")
-def test_real_sog_meta_round_trips_byte_for_byte() -> None:
-    raw = PLAYBOT.read_bytes()
+def test_real_sog_meta_round_trips_byte_for_byte(samples: Path) -> None:
+    raw = (samples / PLAYBOT).read_bytes()
     meta = parse_meta(raw, where=str(PLAYBOT))
     assert meta.shN is not None and meta.shN.bands == 2
     assert json.loads(dump_meta(meta)) == json.loads(raw)
     assert dump_meta(meta) == raw.strip()  # same key order and float repr as splat-transform
 
 
-@pytest.mark.skipif(not WAVE.exists(), reason="shared flipbook sample not available")
-def test_real_sog_bundle_meta_round_trips() -> None:
-    with zipfile.ZipFile(WAVE) as bundle:
+def test_real_sog_bundle_meta_round_trips(samples: Path) -> None:
+    with zipfile.ZipFile(samples / WAVE) as bundle:
         raw = bundle.read("meta.json")
         names = set(bundle.namelist())
     meta = parse_meta(raw, where=f"{WAVE}/meta.json")

@@ -32,8 +32,8 @@ ROTATION_MAX_DEG = 1.1
 
 
 @pytest.fixture(scope="module")
-def fireworks(shared_data: Path) -> Path:
-    return shared_data / "4d" / "tztechno_fireworks_frames"
+def fireworks(samples: Path) -> Path:
+    return samples / "4d" / "tztechno_fireworks_frames"
 
 
 @pytest.fixture(scope="module")
@@ -44,12 +44,12 @@ def fireworks_scene(fireworks: Path) -> Scene:
 
 
 @pytest.fixture()
-def wave5(shared_data: Path, tmp_path: Path) -> Path:
+def wave5(samples: Path, tmp_path: Path) -> Path:
     """The first five wave frames, copied so the test stays fast."""
     folder = tmp_path / "wave"
     folder.mkdir()
     for i in range(1, 6):
-        shutil.copy(shared_data / "4d" / "pc_flipbook_wave" / f"wave_{i:04d}.sog", folder)
+        shutil.copy(samples / "4d" / "pc_flipbook_wave" / f"wave_{i:04d}.sog", folder)
     return folder
 
 
@@ -172,24 +172,26 @@ def test_sog_sequence_frame_k_is_that_chunk(wave5: Path) -> None:
         _assert_same_gaussians(scene.at(k / 10.0), read_chunk(path).gaussians)
 
 
-def test_monkey_sog_sequence_count(shared_data: Path) -> None:
-    loaded = read_sog_sequence(shared_data / "4d" / "pc_flipbook_monkey")
+@pytest.mark.parametrize(("kind", "frames"), [("samples", 3), ("optional_samples", 50)])
+def test_monkey_sog_sequence_count(kind: str, frames: int, request: pytest.FixtureRequest) -> None:
+    data: Path = request.getfixturevalue(kind)  # 3 frames in the repository, 50 optional
+    loaded = read_sog_sequence(data / "4d" / "pc_flipbook_monkey")
     tl = loaded.scene.timeline
-    assert tl is not None and len(loaded.scene) == 50 * 31658
+    assert tl is not None and len(loaded.scene) == frames * 31658
     ids, counts = np.unique(tl.t0, return_counts=True)
-    assert ids.tolist() == list(range(50)) and set(counts.tolist()) == {31658}
+    assert ids.tolist() == list(range(frames)) and set(counts.tolist()) == {31658}
 
 
-def test_detect_sequence_says_none_for_other_inputs(shared_data: Path, tmp_path: Path) -> None:
-    assert detect_sequence(shared_data / "4d" / "splatv") is None
-    assert detect_sequence(shared_data / "4d" / "pc_flipbook_wave" / "wave_0001.sog") is None
+def test_detect_sequence_says_none_for_other_inputs(samples: Path, tmp_path: Path) -> None:
+    assert detect_sequence(samples / "4d" / "splatv") is None
+    assert detect_sequence(samples / "4d" / "pc_flipbook_wave" / "wave_0001.sog") is None
     assert detect_sequence(tmp_path) is None
     write_ply(tmp_path / "only_1.ply", static_gaussians(2))
     assert detect_sequence(tmp_path) is None  # one frame is not a sequence
     assert len(read_ply_sequence(tmp_path).scene) == 2  # ... but it reads
 
 
-def test_bad_sequences_are_refused(shared_data: Path, tmp_path: Path) -> None:
+def test_bad_sequences_are_refused(samples: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no numbered PLY or SOG frames"):
         list_frames(tmp_path)
     with pytest.raises(InputError, match="no such folder"):
@@ -197,7 +199,7 @@ def test_bad_sequences_are_refused(shared_data: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no numbered"):
         list_frames(str(tmp_path / "nothing_*.ply"))
     write_ply(tmp_path / "f_1.ply", static_gaussians(2))
-    shutil.copy(shared_data / "4d" / "pc_flipbook_wave" / "wave_0001.sog", tmp_path / "f_2.sog")
+    shutil.copy(samples / "4d" / "pc_flipbook_wave" / "wave_0001.sog", tmp_path / "f_2.sog")
     with pytest.raises(InputError, match="mixes PLY frames"):
         list_frames(tmp_path)
     (tmp_path / "f_2.sog").unlink()

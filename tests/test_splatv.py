@@ -136,9 +136,10 @@ def test_short_payload_and_extra_chunks_are_noted() -> None:
 
 
 @pytest.fixture(scope="module", params=sorted(NONFINITE))
-def real(request: pytest.FixtureRequest, shared_data: Path) -> tuple[str, list[str], Scene]:
+def real(request: pytest.FixtureRequest, optional_samples: Path) -> tuple[str, list[str], Scene]:
+    """A real Spacetime Gaussians capture (optional: derived from N3DV, CC-BY-NC-4.0)."""
     name: str = request.param
-    loaded = read_splatv(shared_data / "4d" / "splatv" / f"{name}.splatv")
+    loaded = read_splatv(optional_samples / "4d" / "splatv" / f"{name}.splatv")
     return name, loaded.notes, loaded.scene
 
 
@@ -183,14 +184,14 @@ def test_real_files_stay_bounded_over_the_clip(real: tuple[str, list[str], Scene
         assert inside.mean() > (0.999 if t == 0.5 else 0.99)  # clip ends: cubic tails
 
 
-def test_hanabi_frames_are_the_source_plys(shared_data: Path) -> None:
+def test_hanabi_frames_are_the_source_plys(samples: Path) -> None:
     """tztechno's converter put frame k's PLY at centre k: compare against those PLYs."""
-    scene = read_splatv(shared_data / "4d" / "splatv" / "tztechno_hanabi2_synthetic.splatv").scene
+    scene = read_splatv(samples / "4d" / "splatv" / "tztechno_hanabi2_synthetic.splatv").scene
     assert scene.timeline is not None
     centres = np.unique(scene.timeline.t0)
     assert len(centres) == 6
     for k, centre in enumerate(centres):
-        path = shared_data / "4d" / "tztechno_fireworks_frames" / f"frame_{k:03d}.ply"
+        path = samples / "4d" / "tztechno_fireworks_frames" / f"frame_{k:03d}.ply"
         ply = parse_ply(path.read_bytes()).gaussians
         ours = scene.gaussians.subset(scene.timeline.t0 == centre)
         a, b = np.lexsort(ours.means.T[::-1]), np.lexsort(ply.means.T[::-1])
