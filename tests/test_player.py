@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import time
@@ -17,14 +18,15 @@ from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Privacy, make_app
-from tsog_stream.server.player import ENGINE_ENV, PLAYER_DIR, REPO_ROOT
+from tsog_stream.server.player import ENGINE_ENV, PACKAGED_ENGINE, PLAYER_DIR
 from tsog_stream.signing import sign_url
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"player-test-secret-0123456789abcdef"
 JS_MODULES = ("player.js", "stream.js", "manifest.js", "zip.js", "tsog.js", "orbit.js")
 OUTSIDE = b"OUTSIDE-THE-PLAYER-FOLDER"
-ENGINE = REPO_ROOT / "node_modules" / "playcanvas" / "build" / "playcanvas.mjs"
+ENGINE = Path(__file__).resolve().parents[1] / "node_modules/playcanvas/build/playcanvas.mjs"
+"""The pinned npm build (package.json) that the package's copy must equal."""
 
 
 @pytest.fixture(scope="module")
@@ -164,9 +166,21 @@ def test_static_files_with_etag_and_304(port: int, name: str, kind: str) -> None
     assert again.headers["ETag"] == etag
 
 
-def test_engine_is_the_npm_build_file(port: int) -> None:
+def test_the_packaged_engine_is_the_pinned_npm_build(port: int) -> None:
     if not ENGINE.is_file():
         pytest.fail(f"{ENGINE} is missing: run scripts/setup (npm ci installs playcanvas)")
+    assert PACKAGED_ENGINE.read_bytes() == ENGINE.read_bytes(), (
+        "the engine the package carries is not the npm build package.json pins: copy "
+        f"{ENGINE} to {PACKAGED_ENGINE} (and update its README's SHA-256)"
+    )
+    digest = hashlib.sha256(PACKAGED_ENGINE.read_bytes()).hexdigest()
+    assert digest in (PACKAGED_ENGINE.parent / "README.md").read_text()
+    version = json.loads((ENGINE.parents[1] / "package.json").read_text())["version"]
+    pinned = json.loads((ENGINE.parents[3] / "package.json").read_text())["dependencies"]
+    assert (
+        pinned["playcanvas"] == version
+        and version in (PACKAGED_ENGINE.parent / "README.md").read_text()
+    )
     r = fetch(port, "/player/engine/playcanvas.mjs")
     assert r.status == 200
     assert r.headers["Content-Type"].split(";")[0] == "text/javascript"
@@ -179,7 +193,7 @@ def test_engine_is_the_npm_build_file(port: int) -> None:
     )
 
 
-def test_engine_missing_says_how_to_install(
+def test_engine_missing_where_the_environment_says_is_explained(
     root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv(ENGINE_ENV, str(tmp_path))
@@ -190,7 +204,7 @@ def test_engine_missing_says_how_to_install(
         server.stop()
     assert r.status == 404
     message = json.loads(r.body)["error"]["message"]
-    assert "npm ci" in message and ENGINE_ENV in message
+    assert ENGINE_ENV in message and "the package carries" in message
 
 
 def test_engine_from_the_environment_folder(

@@ -29,7 +29,8 @@ from .scenes import find_scene, public_scenes
 PLAYER_DIR = Path(__file__).with_name("player")
 ENGINE_ENV = "TSOG_PLAYCANVAS_DIR"
 ENGINE_FILE = "playcanvas.mjs"
-REPO_ROOT = Path(__file__).resolve().parents[3]
+PACKAGED_ENGINE = PLAYER_DIR / "engine" / ENGINE_FILE
+"""The pinned engine build the package carries (player/engine/README.md)."""
 ASSET_TYPES = {
     ".js": "text/javascript",
     ".mjs": "text/javascript",
@@ -39,19 +40,20 @@ HTML_TYPE = "text/html"
 PAGE_HEADERS = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
 TEMPLATE = "index.html"
 INSTALL_HINT = (
-    "the PlayCanvas engine is not installed: run scripts/setup (npm ci) in the repository, "
-    f"or set {ENGINE_ENV} to the folder holding {ENGINE_FILE}"
+    f"the PlayCanvas engine is not where {ENGINE_ENV} says: point it at the folder holding "
+    f"{ENGINE_FILE} (or its build/ folder), or unset it to use the engine the package carries"
 )
 ETAGS = web.AppKey("player_etags", dict)
 
 
 def engine_path() -> Path | None:
-    """The engine's ``playcanvas.mjs``: from $TSOG_PLAYCANVAS_DIR, else node_modules."""
+    """The engine's ``playcanvas.mjs``: from $TSOG_PLAYCANVAS_DIR (another build), else the
+    one the package carries."""
     custom = os.environ.get(ENGINE_ENV)
     if custom:
         candidates = [Path(custom) / ENGINE_FILE, Path(custom) / "build" / ENGINE_FILE]
     else:
-        candidates = [REPO_ROOT / "node_modules" / "playcanvas" / "build" / ENGINE_FILE]
+        candidates = [PACKAGED_ENGINE]
     return next((p for p in candidates if p.is_file()), None)
 
 
