@@ -209,10 +209,10 @@ BAD_DOCS: list[tuple[str, Callable[[Doc], None], str]] = [
     ("timeline three files", _set("timeline.files", ["a", "b", "c"]), "timeline.files"),
     ("timeline three mins", _set("timeline.mins", [0.0, 0.0, 0.0]), "timeline.mins"),
     (
-        "quats three channels",
+        "quats two channels",  # 4 (w, x, y, z) or the paper's 3 (x, y, z) only
         _chain(
-            _set("temporal.quats.mins", [[0, 0, 0], [0, 0, 0]]),
-            _set("temporal.quats.maxs", [[1, 1, 1], [1, 1, 1]]),
+            _set("temporal.quats.mins", [[0, 0], [0, 0]]),
+            _set("temporal.quats.maxs", [[1, 1], [1, 1]]),
         ),
         "temporal.quats.mins[0]",
     ),

@@ -53,6 +53,20 @@ TEMPORAL_CHANNELS: Final[dict[str, int]] = {
 ``means`` are world units, ``scales`` log-scale, ``quats`` raw (w, x, y, z) components
 renormalised on evaluation, ``sh0`` f_dc values, ``opacity`` the logit.
 """
+STORED_CHANNELS: Final[dict[str, tuple[int, ...]]] = {
+    "means": (3,),
+    "scales": (3,),
+    "quats": (4, 3),
+    "sh0": (3, 4),
+    "opacity": (1,),
+}
+"""Channel counts a ``temporal.<attr>`` entry of ``meta.json`` may have (docs/spec.md §6), the
+first being the one written. ``quats``: 4 = (w, x, y, z), or 3 = (x, y, z) as in the paper's
+example, w's coefficient being 0. ``sh0``: 3 = R, G, B, or 4 = R, G, B and opacity in A, the
+channel mapping of SOG's ``sh0.webp`` (written whenever opacity is dynamic). ``opacity``: a
+separate one-channel attribute, written by spec 0.2 and still read."""
+OPACITY_IN_SH0: Final = 3
+"""Channel (A) of a 4-channel ``temporal.sh0`` entry that holds the opacity coefficients."""
 MAX_TEMPORAL_ORDER: Final = 8
 
 SCALE_CAP_SPANS: Final = 20.0

@@ -125,6 +125,23 @@ def decode_timeline(meta: Any, images: Mapping[str, U8], count: int) -> Timeline
     return Timeline(kind, values[:, 0], values[:, 1], meta.fps, meta.scene_length)
 
 
+def stored_temporal(temporal: Mapping[str, F32]) -> dict[str, F64]:
+    """The coefficients as ``meta.json`` stores them (docs/spec.md §6): opacity's in the A
+    channel of ``sh0``, as in SOG's ``sh0.webp`` (R, G, B zero when only opacity is dynamic;
+    the shorter of the two padded with zero orders), everything else as it is."""
+    stored = {a: np.asarray(c, np.float64) for a, c in temporal.items() if a != "opacity"}
+    if "opacity" not in temporal:
+        return stored
+    opacity = np.asarray(temporal["opacity"], np.float64)
+    sh0 = stored.get("sh0", np.zeros((*opacity.shape[:2], 3)))
+    orders = max(sh0.shape[1], opacity.shape[1])
+    combined = np.zeros((len(opacity), orders, 4))
+    combined[:, : sh0.shape[1], :3] = sh0
+    combined[:, : opacity.shape[1], C.OPACITY_IN_SH0] = opacity[:, :, 0]
+    stored["sh0"] = combined
+    return stored
+
+
 def encode_temporal(
     temporal: Mapping[str, F32], quats: F32, width: int, height: int
 ) -> tuple[dict[str, U8], dict[str, Any]]:
@@ -135,10 +152,11 @@ def encode_temporal(
     """
     images: dict[str, U8] = {}
     meta: dict[str, Any] = {}
+    stored = stored_temporal(temporal)
     for attr in C.TEMPORAL_CHANNELS:
-        if attr not in temporal:
+        if attr not in stored:
             continue
-        coeffs = temporal[attr].astype(np.float64)
+        coeffs = stored[attr]
         if attr == "quats":
             coeffs = coeffs * canonical_factor(quats)[0][:, None, None]
         entry: dict[str, Any] = {"mins": [], "maxs": [], "files": []}
@@ -156,18 +174,52 @@ def encode_temporal(
     return images, meta
 
 
+def _used_orders(entry: Any, channels: slice) -> int:
+    """Orders of an entry up to its last one whose range is not exactly [0, 0] on ``channels``
+    (orders the writer added only to pad a shorter polynomial)."""
+    zero = [
+        all(lo == hi == 0.0 for lo, hi in zip(mins[channels], maxs[channels], strict=True))
+        for mins, maxs in zip(entry.mins, entry.maxs, strict=True)
+    ]
+    return max((k + 1 for k, z in enumerate(zero) if not z), default=0)
+
+
 def decode_temporal(
     meta: Mapping[str, Any], images: Mapping[str, U8], count: int
 ) -> dict[str, F32]:
-    """attr -> (N, order, channels) coefficients from the ``temporal`` meta object and images."""
+    """attr -> (N, order, channels) coefficients from the ``temporal`` meta object and images.
+
+    Every stored form is read (docs/spec.md §6): opacity in the A channel of a 4-channel
+    ``sh0``, or as its own attribute (spec 0.2); ``quats`` in 4 channels (w, x, y, z) or in
+    the paper's 3 (x, y, z; w's coefficient is 0).
+    """
     out: dict[str, F32] = {}
     for attr, entry in meta.items():
-        channels = C.TEMPORAL_CHANNELS[attr]
+        channels = len(entry.mins[0])
         orders = []
         for k in range(len(entry.mins)):
             files = (entry.files[2 * k], entry.files[2 * k + 1])
             mins = np.asarray(entry.mins[k], np.float64)
             maxs = np.asarray(entry.maxs[k], np.float64)
             orders.append(dequantize_u16(_codes(images, files, count, channels), mins, maxs))
-        out[attr] = np.stack(orders, axis=1).astype(np.float32)
-    return out
+        coeffs = np.stack(orders, axis=1).astype(np.float32)
+        if attr == "quats" and channels == 3:
+            coeffs = np.concatenate([np.zeros_like(coeffs[:, :, :1]), coeffs], axis=2)
+        if attr == "sh0" and channels == 4:
+            out.update(_split_sh0(entry, coeffs))
+            continue
+        out[attr] = coeffs
+    return {attr: out[attr] for attr in C.TEMPORAL_CHANNELS if attr in out}
+
+
+def _split_sh0(entry: Any, coeffs: F32) -> dict[str, F32]:
+    """sh0's colour coefficients (R, G, B) and opacity's (A) from a 4-channel entry, each
+    without the all-zero orders (or the all-zero colour) the writer adds for the other."""
+    parts: dict[str, F32] = {}
+    colour_orders = _used_orders(entry, slice(0, 3))
+    if colour_orders:
+        parts["sh0"] = np.ascontiguousarray(coeffs[:, :colour_orders, :3])
+    opacity_orders = _used_orders(entry, slice(C.OPACITY_IN_SH0, C.OPACITY_IN_SH0 + 1))
+    if opacity_orders:
+        parts["opacity"] = np.ascontiguousarray(coeffs[:, :opacity_orders, 3:4])
+    return parts

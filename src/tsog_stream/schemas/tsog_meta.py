@@ -11,7 +11,14 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BeforeValidator, Field, model_validator
 
-from ..constants import MAX_TEMPORAL_ORDER, TEMPORAL_CHANNELS, TIMELINE_L, TIMELINE_U, temporal_file
+from ..constants import (
+    MAX_TEMPORAL_ORDER,
+    STORED_CHANNELS,
+    TEMPORAL_CHANNELS,
+    TIMELINE_L,
+    TIMELINE_U,
+    temporal_file,
+)
 from ..model import TimelineType
 from .sog_meta import (
     FileName,
@@ -193,12 +200,19 @@ def _channels_and_order(
             "", "expected at least one attribute; omit 'temporal' when none is dynamic"
         )
     for attr, entry in value.items():
-        want = TEMPORAL_CHANNELS[attr]
-        if entry.channels != want:
+        allowed = STORED_CHANNELS[attr]
+        if entry.channels not in allowed:
+            want = " or ".join(str(c) for c in allowed)
             raise field_error(
                 f"{attr}.mins[0]",
-                f"expected {want} values ({attr} has {want} channels), found {entry.channels}",
+                f"expected {want} values ({attr}'s channels), found {entry.channels}",
             )
+    sh0 = value.get("sh0")
+    if "opacity" in value and sh0 is not None and sh0.channels == 4:
+        raise field_error(
+            "opacity",
+            "expected opacity's coefficients once: they are in sh0's A channel already",
+        )
     return {attr: value[attr] for attr in TEMPORAL_CHANNELS if attr in value}
 
 

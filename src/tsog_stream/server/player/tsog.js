@@ -24,9 +24,11 @@ export function readLayout(meta) {
     const pad = (values) => [0, 1, 2, 3].map((i) => values[i] ?? 0);
     const layers = [{ files: timeline.files, mins: pad(timeline.mins), maxs: pad(timeline.maxs) }];
     const terms = {};
+    const channels = {};
     for (const attr of ATTRIBUTES) {
         const entry = meta.temporal?.[attr];
         if (!entry) continue;
+        channels[attr] = entry.mins[0].length;
         terms[attr] = entry.mins.map((mins, k) => {
             layers.push({
                 files: entry.files.slice(2 * k, 2 * k + 2),
@@ -37,7 +39,7 @@ export function readLayout(meta) {
         });
     }
     const fps = timeline.type === TYPES.CENTER_SCALE ? null : timeline.fps ?? null;
-    return { type: timeline.type, secondsPerUnit: fps ? 1 / fps : 1, layers, terms };
+    return { type: timeline.type, secondsPerUnit: fps ? 1 / fps : 1, layers, terms, channels };
 }
 
 /** GLSL of the sum over orders k of layer_k * dt^k for one attribute. */
@@ -65,12 +67,18 @@ function timelineCode(type) {
 
 /** The gsplatModifyVS chunk for one layout (chunks of the same layout share the shader). */
 export function modifierGlsl(layout) {
-    const { terms } = layout;
+    const { terms, channels } = layout;
     const polys = Object.entries(terms).map(([attr, ids]) => polynomial(attr, ids)).join('');
     const center = terms.means ? '\tcenter += mat3(matrix_model) * tsogPoly_means().xyz;\n' : '';
+    // (w, x, y, z) in R, G, B, A; the paper's 3-channel form is (x, y, z), w's coefficient 0
+    const quatTerm = channels.quats === 3 ? 'tsogPoly_quats().wxyz' : 'tsogPoly_quats()';
+    // opacity is the A channel of a 4-channel sh0 (spec 0.3), or its own attribute (spec 0.2)
+    const opacityTerm = terms.opacity
+        ? 'tsogPoly_opacity().x'
+        : channels.sh0 === 4 ? 'tsogPoly_sh0().a' : null;
     const rotation = terms.quats
         ? `#ifndef GSPLAT_WORKBUFFER_GEOMETRY
-\tvec4 q = getRotation() + tsogPoly_quats();
+\tvec4 q = getRotation() + ${quatTerm};
 \tfloat n = length(q);
 \tq = n > 0.0 ? q / n : vec4(1.0, 0.0, 0.0, 0.0);
 \trotation = quatMul(model_rotation, q.yzwx);
@@ -79,9 +87,9 @@ export function modifierGlsl(layout) {
         : '';
     const scale = terms.scales ? '\tscale *= exp(tsogPoly_scales().xyz);\n' : '';
     const colour = terms.sh0 ? '\tcolor.rgb += 0.28209479177387814 * tsogPoly_sh0().rgb;\n' : '';
-    const opacity = terms.opacity
+    const opacity = opacityTerm
         ? `\tfloat a = clamp(color.a, ${ALPHA_EPS}, ${1 - ALPHA_EPS});
-\tcolor.a = 1.0 / (1.0 + exp(-(log(a / (1.0 - a)) + tsogPoly_opacity().x)));
+\tcolor.a = 1.0 / (1.0 + exp(-(log(a / (1.0 - a)) + ${opacityTerm})));
 `
         : '';
     const count = layout.layers.length;
