@@ -1,6 +1,6 @@
 """256-entry scalar codebooks of SOG v2 (scales, sh0, shN), after splat-transform's quantizer.
 
-:func:`dp_codebook` is the reference algorithm of docs/spec.md §6.1 (splat-transform
+:func:`dp_codebook` is the reference algorithm of the SOG v2 notes §6.1 (splat-transform
 ``quantize-1d-core.ts``): pool the samples, keep ±Infinity out (each present sign reserves an
 end slot holding finite min − 20 / finite max + 20), drop NaN, bin the sorted finite values
 into H = min(1024, n) bins whose position blends rank and value, weight each bin by
@@ -42,7 +42,7 @@ REFINE_PASSES: Final = 200
 
 
 def dp_codebook(samples: npt.ArrayLike) -> F32:
-    """The plain reference codebook of spec §6.1 (histogram + DP), without refinement."""
+    """The plain reference codebook (histogram + DP, docs/design/quantizers.md §1), unrefined."""
     return _codebook(samples, refine=False)
 
 
@@ -135,7 +135,7 @@ def _compose(centroids: F32, finite: F64, has_neg: bool, has_pos: bool) -> F32:
 
 
 def _histogram(finite: F64) -> tuple[F64, F64]:
-    """Bin centres (means) and counts of the rank/value-blended histogram (spec §6.1)."""
+    """Bin centres (means) and counts of the rank/value-blended histogram (docs/design/quantizers.md §1)."""
     n = finite.size
     bins = min(HIST_BINS, n)
     vmin, vrange = finite[0], finite[-1] - finite[0]

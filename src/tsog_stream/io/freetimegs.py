@@ -7,7 +7,7 @@ standard deviation sigma and a velocity v, all on a timeline normalised to [0, 1
 
 which is exactly TSOG timeline type 2 (centre mu_t, scale sigma) with order-1 temporal means
 and t_ref = centre (``mean`` is the position *at* mu_t). Decisions (see
-docs/inputs-4d-splatv-freetimegs.md):
+docs/inputs.md, "FreeTimeGS"):
 
 * **Time unit.** Normalised time becomes seconds through ``scene_length_s`` (default 1.0 s,
   since neither source stores a frame rate): centre and sigma are multiplied by it and

@@ -19,7 +19,7 @@ offset type        field
 The viewer (antimatter15/splaTV ``main.js``/``hybrid.js`` vertex shader) evaluates, with
 dt = t - centre and t in [0, 1]: position + m1 dt + m2 dt^2 + m3 dt^3, normalize(rotation +
 omega dt), alpha * exp(-(dt / s)^2), and skips the Gaussian below 0.02. Spacetime Gaussians'
-training code uses the same equations. Mapping to TSOG (docs: inputs-4d-splatv-freetimegs.md):
+training code uses the same equations. Mapping to TSOG (docs/inputs.md, "splaTV .splatv"):
 
 * **Time unit.** splaTV time is normalised to [0, 1] over the clip and no clip length is
   stored (the viewer plays ``0.5 + 0.5 sin(seconds)``). One normalised unit becomes

@@ -246,9 +246,11 @@ class ChunkMeta(SogMeta):
     )
     temporal: Temporal | None = Field(
         default=None,
-        description="Polynomial coefficients of dynamic attributes, keyed by attribute: "
-        + ", ".join(f"{k} ({v} channel{'s' * (v > 1)})" for k, v in TEMPORAL_CHANNELS.items())
-        + ". Requires timeline.",
+        description="Polynomial coefficients of dynamic attributes, keyed by attribute, with "
+        "their channels: "
+        + ", ".join(f"{k} ({' or '.join(map(str, v))})" for k, v in STORED_CHANNELS.items())
+        + ". Opacity's coefficients are written in sh0's A channel (4 channels); a separate "
+        "opacity is read. Requires timeline.",
     )
 
     @model_validator(mode="after")
