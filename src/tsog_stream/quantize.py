@@ -135,7 +135,7 @@ def _compose(centroids: F32, finite: F64, has_neg: bool, has_pos: bool) -> F32:
 
 
 def _histogram(finite: F64) -> tuple[F64, F64]:
-    """Bin centres (means) and counts of the rank/value-blended histogram (docs/design/quantizers.md §1)."""
+    """Bin centres (means) and counts of the rank/value-blended histogram (quantizers.md §1)."""
     n = finite.size
     bins = min(HIST_BINS, n)
     vmin, vrange = finite[0], finite[-1] - finite[0]
