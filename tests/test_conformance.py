@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tsog_stream import read_chunk
+from tsog_stream import Scene, TimelineType, decode_chunk, encode_chunk, read_chunk
+from tsog_stream.codec.chunk import texel_order
 from tsog_stream.opacity import logit_to_alpha
+from tsog_stream.synthetic import small_scene
 
 CORPUS = Path(__file__).resolve().parent / "data" / "conformance"
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "make_conformance_corpus.py"
@@ -60,3 +62,30 @@ def test_each_case_reads_as_its_writer_meant(case: str) -> None:
         np.testing.assert_allclose(
             logit_to_alpha(got.opacities), frame["alpha"], atol=1e-3, err_msg=where
         )
+
+
+@pytest.mark.parametrize(
+    ("orders", "want_sh0_orders"),
+    [({"opacity": 2}, None), ({"sh0": 1, "opacity": 2}, 1), ({"sh0": 2, "opacity": 1}, 2)],
+)
+def test_the_writer_puts_opacity_in_sh0s_alpha_channel(
+    orders: dict[str, int], want_sh0_orders: int | None
+) -> None:
+    scene = small_scene(TimelineType.CENTER_SCALE, dynamic=tuple(orders), motion_order=2)
+    temporal = {a: np.ascontiguousarray(scene.temporal[a][:, :k]) for a, k in orders.items()}
+    scene = Scene(scene.gaussians, scene.timeline, temporal)
+    files = encode_chunk(scene)
+    meta = json.loads(files["meta.json"])
+    assert set(meta["temporal"]) == {"sh0"}  # no separate opacity attribute any more
+    entry = meta["temporal"]["sh0"]
+    assert [len(row) for row in entry["mins"]] == [4] * max(orders.values())
+    decoded = decode_chunk(files)
+    assert set(decoded.temporal) == set(orders)  # the padding the writer added is dropped
+    order = texel_order(scene)
+    for attr, k in orders.items():
+        got, src = decoded.temporal[attr], scene.temporal[attr][order]
+        assert got.shape == src.shape == (len(scene), k, 3 if attr == "sh0" else 1)
+        span = np.ptp(src, axis=0)
+        assert np.all(np.abs(got - src) <= span / 65535 + 1e-6), attr
+    if want_sh0_orders is None:
+        assert all(v == 0.0 for row in entry["mins"] + entry["maxs"] for v in row[:3])
