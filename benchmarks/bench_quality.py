@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from bench_temporal import generated_sequence
 from common import sample, write_section
@@ -186,7 +187,10 @@ def eight_bit(coeffs: np.ndarray) -> np.ndarray:
     lo = coeffs.min(axis=0, keepdims=True)
     hi = coeffs.max(axis=0, keepdims=True)
     span = np.where(hi > lo, hi - lo, 1.0)
-    return (lo + np.rint((coeffs - lo) / span * 255) / 255 * span).astype(np.float32)
+    rounded: npt.NDArray[np.float32] = (
+        lo + np.rint((coeffs - lo) / span * 255) / 255 * span
+    ).astype(np.float32)
+    return rounded
 
 
 def frame_lookup(frames: dict[int, Gaussians], fps: float) -> At:
@@ -217,7 +221,7 @@ def sequence_rows(
             if mode == "off":
                 segment_sequence(seq, out, SegmentOptions())
             else:
-                scene, _ = merge_sequence(seq, mode)  # type: ignore[arg-type]
+                scene, _ = merge_sequence(seq, mode)
                 if scene is None:
                     continue
                 segment_scene(scene, out, SegmentOptions())

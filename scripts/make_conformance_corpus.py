@@ -58,12 +58,14 @@ def split16(codes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def codes16(values: np.ndarray, mins: np.ndarray, maxs: np.ndarray) -> np.ndarray:
     """Round-to-nearest 16-bit codes of values over [mins, maxs] (0 where the range is empty)."""
     span = np.where(maxs > mins, maxs - mins, 1.0)
-    return np.rint(np.clip((values - mins) / span, 0, 1) * 65535).astype(np.uint16)
+    codes: np.ndarray = np.rint(np.clip((values - mins) / span, 0, 1) * 65535).astype(np.uint16)
+    return codes
 
 
 def decode16(codes: np.ndarray, mins: np.ndarray, maxs: np.ndarray) -> np.ndarray:
     """The paper's 16-bit dequantisation: min + (max - min) * code / 65535."""
-    return mins + (maxs - mins) * codes.astype(np.float64) / 65535
+    values: np.ndarray = mins + (maxs - mins) * codes.astype(np.float64) / 65535
+    return values
 
 
 class Chunk:
@@ -154,7 +156,8 @@ def poly(base: np.ndarray, orders: list[np.ndarray], dt: np.ndarray) -> np.ndarr
 def logit(alpha: np.ndarray) -> np.ndarray:
     """The opacity logit of an alpha (clamped as SOG readers do)."""
     a = np.clip(alpha, 1e-6, 1 - 1e-6)
-    return np.log(a / (1 - a))
+    logits: np.ndarray = np.log(a / (1 - a))
+    return logits
 
 
 def frames(
@@ -197,8 +200,8 @@ def type1_start_duration(fps: float | None) -> tuple[Chunk, list[Meta]]:
     chunk = Chunk()
     base = sog_base(chunk, [255, 255, 255, 255])
     unit = 1 / fps if fps else 1.0
-    given = [0, 0, 5, 5.0], [5, 10, 5, 1.0]
-    start, duration = timeline(chunk, 1, *given, **({"fps": fps} if fps else {}))
+    extra = {"fps": fps} if fps else {}
+    start, duration = timeline(chunk, 1, [0, 0, 5, 5.0], [5, 10, 5, 1.0], **extra)
     [c1] = temporal(chunk, "means", [np.array([[1, -1, 0.5], [-1, 1, -0.5]] * 2, np.float64)])
 
     def state(t: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:

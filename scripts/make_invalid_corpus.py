@@ -42,7 +42,7 @@ Case = tuple[str, str, bytes]
 
 # --- PLY ----------------------------------------------------------------------------------
 
-PLY_PROPS = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity")
+PLY_PROPS: tuple[str, ...] = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity")
 PLY_PROPS += ("scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
 
 

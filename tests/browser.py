@@ -143,7 +143,8 @@ class PlayerPage:
 
 def image_difference(a: RGB, b: RGB) -> npt.NDArray[np.int16]:
     """Per-pixel largest channel difference."""
-    return np.abs(a - b).max(axis=2)
+    diff: npt.NDArray[np.int16] = np.abs(a - b).max(axis=2)
+    return diff
 
 
 def near(points: npt.NDArray[np.float64], shape: tuple[int, int], radius: int) -> np.ndarray:

@@ -17,6 +17,7 @@ import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -136,7 +137,8 @@ def freetime_npz(truth: FreeTimeTruth, **overrides: npt.ArrayLike | None) -> byt
     }
     arrays.update(overrides)
     buffer = io.BytesIO()
-    np.savez(buffer, **{k: np.asarray(v) for k, v in arrays.items() if v is not None})
+    named: dict[str, Any] = {k: np.asarray(v) for k, v in arrays.items() if v is not None}
+    np.savez(buffer, **named)
     return buffer.getvalue()
 
 

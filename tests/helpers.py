@@ -42,7 +42,7 @@ def _edges(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return lifespans(scene.timeline)
 
 
-def check_decoded_at(src: Scene, decoded: Scene, meta: dict, t: float) -> None:
+def check_decoded_at(src: Scene, decoded: Scene, meta: dict[str, Any], t: float) -> None:
     """Decoded positions at t are within the base step plus every order's coefficient step."""
     ref, mask = evaluate_all(src, t)
     got, got_mask = evaluate_all(decoded, t)

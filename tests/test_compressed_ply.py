@@ -6,6 +6,7 @@ import math
 import subprocess
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -55,10 +56,11 @@ def pack_rotation(quats: npt.NDArray[np.float64]) -> U32:
     others = np.stack([np.delete(row, i) for row, i in zip(q, largest, strict=True)])
     bits = np.rint((others / (2 * ROT) + 0.5) * 1023).astype(np.int64)
     word = (largest << 30) | (bits[:, 0] << 20) | (bits[:, 1] << 10) | bits[:, 2]
-    return word.astype(np.uint32)
+    packed: npt.NDArray[np.uint32] = word.astype(np.uint32)
+    return packed
 
 
-def chunk_bounds(n_chunks: int, colors: bool) -> dict[str, tuple[str, npt.NDArray]]:
+def chunk_bounds(n_chunks: int, colors: bool) -> dict[str, tuple[str, npt.NDArray[Any]]]:
     """Distinct bounds per chunk so a vertex decoded with the wrong chunk shows."""
     base = np.arange(n_chunks, dtype=np.float64) * 10
     cols = {f"min_{a}": ("<f4", base - i) for i, a in enumerate("xyz")}

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tsog_stream import TimelineType
+from tsog_stream import Gaussians, TimelineType
 from tsog_stream.client import open_stream
 from tsog_stream.client.stream import StreamClient
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -35,7 +35,7 @@ def test_play_over_http_equals_local_frames(tmp_path: Path) -> None:
     segment_scene(scene, path, SegmentOptions(window_s=1.0, policy="hybrid"))
     start = float(np.random.default_rng(8).uniform(0.0, 1.5))
 
-    async def run() -> tuple[list[tuple[float, object]], int, int, int]:
+    async def run() -> tuple[list[tuple[float, Gaussians]], int, int, int]:
         runner, port = await start_server(make_app(tmp_path))
         try:
             url = f"http://127.0.0.1:{port}/files/clip.tsogs"

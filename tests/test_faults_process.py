@@ -367,7 +367,7 @@ def test_a_full_disk_when_finishing_fails_cleanly(
     def no_space(fd: int) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(writer.os, "fsync", no_space)
+    monkeypatch.setattr(os, "fsync", no_space)  # the writer's os
     with (
         pytest.raises(SourceError, match="No space left on device") as err,
         writer.ContainerFile(out) as w,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import zipfile
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -96,7 +97,7 @@ def test_ply_spellings_match_the_equations(
 )
 def test_ply_duration_modes(duration_name: str, linear: bool) -> None:
     data = freetime_ply(TRUTH, duration_name=duration_name, linear=linear)
-    mode = "linear" if linear else "log"
+    mode: Literal["linear", "log"] = "linear" if linear else "log"
     loaded = parse_freetimegs_ply(data, scene_length_s=0.8, duration=mode)
     _check_against_truth(loaded, TRUTH, 0.8)
 

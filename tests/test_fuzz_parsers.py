@@ -259,7 +259,7 @@ def test_the_atheris_harness_replays_the_corpus(tmp_path: Path) -> None:
     pytest.importorskip("atheris")
     files = sorted(str(p) for p in corpus.OUT.glob("*.sog"))
     stats, crashes = tmp_path / "stats.json", tmp_path / "crashes"
-    harness = targets.__file__.replace("targets.py", "harness.py")
+    harness = str(Path(targets.__file__ or "").with_name("harness.py"))
     command = [sys.executable, harness, "sog", "--stats", str(stats), "--crashes", str(crashes)]
     done = subprocess.run(
         [*command, "--", *files], check=False, capture_output=True, text=True, timeout=120

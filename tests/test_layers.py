@@ -185,7 +185,7 @@ def test_the_public_api_is_pinned() -> None:
         assert getattr(tsog_stream, name) is not None
     assert issubclass(tsog_stream.AccessError, tsog_stream.SourceError)
     with pytest.raises(AttributeError):
-        _ = tsog_stream.StreamReader  # type: ignore[attr-defined]  # the second reader is gone
+        _ = tsog_stream.StreamReader  # the second reader is gone
 
 
 def test_a_format_import_does_not_load_the_public_names_it_does_not_use() -> None:

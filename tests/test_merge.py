@@ -72,6 +72,7 @@ def test_static_set_is_stored_once_and_blinking_set_gets_its_lifespan(
 ) -> None:
     seq = write_frames(tmp_path / "seq", sequence_frames(parts))
     scene, stats = merge_sequence(seq, "merge")
+    assert scene is not None
     n_static, n_moving, n_blink = (len(parts[k]) for k in ("static", "moving", "blink"))
     assert len(scene) == n_static + n_moving * FRAMES + n_blink
     assert stats.gaussians_in == n_static * FRAMES + n_moving * FRAMES + n_blink * 5
@@ -87,6 +88,7 @@ def test_static_set_is_stored_once_and_blinking_set_gets_its_lifespan(
 def test_fit_stores_a_linear_mover_once(tmp_path: Path, parts: dict[str, Gaussians]) -> None:
     seq = write_frames(tmp_path / "seq", sequence_frames(parts, blink=range(0)))
     scene, stats = merge_sequence(seq, "fit")
+    assert scene is not None
     assert len(scene) == len(parts["static"]) + len(parts["moving"])
     assert stats.moving_out == len(parts["moving"])
     coeffs = scene.temporal["means"]
@@ -109,6 +111,7 @@ def test_every_frame_decodes_within_the_budget(
     frames = sequence_frames(parts)
     seq = write_frames(tmp_path / "seq", frames)
     scene, _ = merge_sequence(seq, mode)  # type: ignore[arg-type]
+    assert scene is not None
     out = tmp_path / "m.tsogs"
     segment_scene(scene, out, SegmentOptions(window_s=0.5, workers=1))
     steps = Steps.of(frames[0])
@@ -142,6 +145,7 @@ def test_reordered_and_jittered_frames_still_merge(
         jitter = rng.uniform(-0.4, 0.4, (len(static), 3)) * tol[:, 0:3]
         frames.append(moved(static, jitter))
     scene, _ = merge_sequence(write_frames(tmp_path / "seq", frames), "merge")
+    assert scene is not None
     assert len(scene) == len(static)
 
 
@@ -157,6 +161,7 @@ def test_no_redundancy_is_not_made_larger(tmp_path: Path) -> None:
     frames = [static_gaussians(1500, seed=100 + k) for k in range(6)]
     seq = write_frames(tmp_path / "seq", frames)
     scene, stats = merge_sequence(seq, "merge")
+    assert scene is not None
     assert len(scene) == stats.gaussians_in == 9000
     _, fitted = merge_sequence(seq, "fit")  # nothing follows a path: motion would not pay
     assert "merged lifespans only" in fitted.note and fitted.moving_out == 0
@@ -243,6 +248,7 @@ def test_fit_follows_fading_and_turning_gaussians(
         )
     seq = write_frames(tmp_path / "seq", frames)
     scene, stats = merge_sequence(seq, "fit")
+    assert scene is not None
     assert len(scene) == n and stats.moving_out == n
     assert {"opacity", "quats"} <= set(scene.temporal) and "means" not in scene.temporal
     out = tmp_path / "turn.tsogs"

@@ -245,12 +245,12 @@ def odd_port(base: Path) -> Iterator[int]:
     root = base / "odd"
     root.mkdir()
     shutil.copy(base / "root" / "clip.tsogs", root / "good.tsogs")
-    top = os.fsencode(root)
+    top, clip = os.fsencode(root), os.fsencode(base / "root" / "clip.tsogs")
     for name in ODD_NAMES:
-        shutil.copy(base / "root" / "clip.tsogs", top + b"/" + name)
+        shutil.copy(clip, top + b"/" + name)
     for name in ODD_FOLDERS:
         os.mkdir(top + b"/" + name)
-        shutil.copy(base / "root" / "clip.tsogs", top + b"/" + name + b"/inner.tsogs")
+        shutil.copy(clip, top + b"/" + name + b"/inner.tsogs")
     server = ThreadedServer(make_app(root))
     try:
         yield server.port

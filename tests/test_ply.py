@@ -8,6 +8,7 @@ import re
 import tracemalloc
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -31,11 +32,16 @@ def make_gaussians(n: int, bands: int, seed: int = 0) -> Gaussians:
     """Seeded Gaussians whose every column holds distinct values (catches mix-ups)."""
     rng = np.random.default_rng(seed)
     k = {0: 0, 1: 3, 2: 8, 3: 15}[bands]
-    f = rng.standard_normal
-    return Gaussians(f((n, 3)), f((n, 3)) - 4, f((n, 4)), f(n), f((n, 3)), f((n, k, 3)) * 0.1)
+
+    def f(*shape: int) -> npt.NDArray[np.float32]:
+        return rng.standard_normal(shape).astype(np.float32)
+
+    return Gaussians(f(n, 3), f(n, 3) - 4, f(n, 4), f(n), f(n, 3), f(n, k, 3) * 0.1)
 
 
-def standard_columns(g: Gaussians, order: Sequence[str] | None = None) -> dict[str, npt.NDArray]:
+def standard_columns(
+    g: Gaussians, order: Sequence[str] | None = None
+) -> dict[str, npt.NDArray[Any]]:
     """The standard PLY columns of ``g`` by name (f_rest channel-major), optionally reordered."""
     k = g.shN.shape[1]
     cols = {n: g.means[:, i] for i, n in enumerate("xyz")}
@@ -81,7 +87,7 @@ def _body(fmt: str, props: Columns, count: int) -> bytes:
     return records.tobytes()
 
 
-def floats(cols: Mapping[str, npt.NDArray]) -> dict[str, tuple[str, npt.NDArray]]:
+def floats(cols: Mapping[str, npt.NDArray[Any]]) -> dict[str, tuple[str, npt.NDArray[Any]]]:
     """Every column as a PLY float."""
     return {n: ("float", v) for n, v in cols.items()}
 
@@ -103,7 +109,7 @@ def appendix_b(document: Path) -> dict[str, dict[str, object]]:
     return {m[1]: json.loads(m[2]) for m in re.finditer(r"^- `([^`]+)`: (\{.*\})$", section, re.M)}
 
 
-def assert_range(values: npt.NDArray, expected: object, what: str) -> None:
+def assert_range(values: npt.NDArray[Any], expected: object, what: str) -> None:
     """``values`` span the "[lo, hi]" range the appendix gives to 4 significant digits."""
     assert isinstance(expected, str)
     lo, hi = (float(v) for v in expected.strip("[]").split(","))
@@ -213,7 +219,7 @@ def test_empty_scene_round_trips() -> None:
 
 def test_any_numeric_type_and_normals_ignored() -> None:
     g = make_gaussians(20, 0)
-    cols: dict[str, tuple[str, npt.NDArray]] = floats(standard_columns(g))
+    cols: dict[str, tuple[str, npt.NDArray[Any]]] = floats(standard_columns(g))
     cols["x"] = ("double", g.means[:, 0].astype(np.float64))
     cols["opacity"] = ("uchar", np.arange(20))
     cols["rot_0"] = ("short", -np.arange(20))
@@ -342,7 +348,7 @@ def test_sniff() -> None:
     "extra",
     [{"x": np.zeros(3)}, {"two words": np.zeros(3)}, {"t": np.zeros(4)}, {"t": np.zeros((3, 1))}],
 )
-def test_bad_extras_are_input_errors(extra: dict[str, npt.NDArray]) -> None:
+def test_bad_extras_are_input_errors(extra: dict[str, npt.NDArray[Any]]) -> None:
     with pytest.raises(InputError):
         ply_bytes(make_gaussians(3, 0), extra)
 

@@ -22,6 +22,7 @@ from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
 from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.compare import rotation_angles_deg
+from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment.plan import window_count
 from tsog_stream.segment.segmenter import SegmentOptions, SegmentReport, segment_scene
 from tsog_stream.summary import chunk_summary
@@ -139,7 +140,8 @@ def _position_bound(src: Scene, ref: Gaussians, steps: Steps, t: float) -> F64:
     for k, half in enumerate(steps.coeff_half):
         bound += half * dt ** (k + 1) + (k + 1) * coeff[k] * (dt + 1) ** k * t_err
     size = np.maximum(np.abs(ref.means).max(axis=1), np.abs(src.gaussians.means).max(axis=1))
-    return bound + (1 + size) * steps.means_log + 1e-5
+    total: npt.NDArray[np.float64] = bound + (1 + size) * steps.means_log + 1e-5
+    return total
 
 
 def _opacity_bound(src: Scene, steps: Steps) -> F64:
@@ -212,7 +214,10 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., tuple[Path,
     cache: dict[tuple[object, ...], tuple[Path, SegmentReport]] = {}
 
     def build(
-        kind: TimelineType, policy: str, window_s: float = WINDOW_S, max_pixels: int = SMALL_CHUNKS
+        kind: TimelineType,
+        policy: Policy,
+        window_s: float = WINDOW_S,
+        max_pixels: int = SMALL_CHUNKS,
     ) -> tuple[Path, SegmentReport]:
         key = (kind, policy, window_s, max_pixels)
         if key not in cache:
@@ -242,7 +247,7 @@ def _in_range(reader: Stream, t: float) -> bool:
 @pytest.mark.parametrize("policy", POLICIES)
 @pytest.mark.parametrize("kind", KINDS)
 def test_frames_equal_the_unsegmented_scene(
-    kind: TimelineType, policy: str, built: Callable[..., tuple[Path, SegmentReport]]
+    kind: TimelineType, policy: Policy, built: Callable[..., tuple[Path, SegmentReport]]
 ) -> None:
     path, _ = built(kind, policy)
     src = scenes(kind)
@@ -259,7 +264,7 @@ def test_frames_equal_the_unsegmented_scene(
 @pytest.mark.parametrize("policy", ["duplicate", "hierarchy"])
 @pytest.mark.parametrize("kind", [TimelineType.FRAME, TimelineType.START_DURATION])
 def test_every_frame_time_with_windows_in_frames(
-    kind: TimelineType, policy: str, tmp_path: Path
+    kind: TimelineType, policy: Policy, tmp_path: Path
 ) -> None:
     """24 fps, 5-frame windows: k * (5/24) and frame times f/24 round differently (35/24 <
     7 * (5/24) in floats); the frame at every f/24 must still be the source's."""
@@ -403,7 +408,7 @@ def test_policies_store_what_they_promise(
 @pytest.mark.parametrize("policy", POLICIES)
 @pytest.mark.parametrize("kind", KINDS)
 def test_chunks_for_t_only_returns_nodes_holding_t(
-    kind: TimelineType, policy: str, built: Callable[..., tuple[Path, SegmentReport]]
+    kind: TimelineType, policy: Policy, built: Callable[..., tuple[Path, SegmentReport]]
 ) -> None:
     path, _ = built(kind, policy)
     with open_stream(path) as reader:
@@ -475,7 +480,7 @@ def test_a_failed_segmentation_leaves_the_destination_untouched(tmp_path: Path) 
     [
         (SegmentOptions(window_s=0.0), "--window"),
         (SegmentOptions(window_s=float("nan")), "--window"),
-        (SegmentOptions(policy="copy"), "--policy"),
+        (SegmentOptions(policy="copy"), "--policy"),  # type: ignore[arg-type]  # on purpose
         (SegmentOptions(max_pixels=8), "--max-pixels"),
         (SegmentOptions(max_pixels=16384 * 16384), "--max-pixels"),
     ],

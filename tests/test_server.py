@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import email.message
 import email.parser
 import hashlib
 import json
@@ -104,8 +105,10 @@ def parse_multipart(r: Resp) -> list[tuple[str, str, bytes]]:
     assert msg.is_multipart()
     out = []
     for part in msg.get_payload():
+        assert isinstance(part, email.message.Message)
         payload = part.get_payload(decode=True)
-        out.append((part["Content-Type"], part["Content-Range"], payload))
+        assert isinstance(payload, bytes)
+        out.append((str(part["Content-Type"]), str(part["Content-Range"]), payload))
     return out
 
 

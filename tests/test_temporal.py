@@ -5,20 +5,26 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
 from tsog_stream.temporal import evaluate_all, lifespans, time_range, visibility_half_width
 
 
+def f64(values: list[float]) -> npt.NDArray[np.float64]:
+    """Times as the model holds them."""
+    return np.asarray(values, np.float64)
+
+
 def _gaussians(n: int) -> Gaussians:
-    z = np.zeros
-    quats = np.tile([1.0, 0, 0, 0], (n, 1))
-    return Gaussians(z((n, 3)), z((n, 3)), quats, np.full(n, 2.0), z((n, 3)))
+    z = np.zeros((n, 3), np.float32)
+    quats = np.tile(np.array([1.0, 0, 0, 0], np.float32), (n, 1))
+    return Gaussians(z, z.copy(), quats, np.full(n, 2.0, np.float32), z.copy())
 
 
 def test_frame_ids_select_their_frame_only() -> None:
-    tl = Timeline(TimelineType.FRAME, [0, 1, 2, 2], np.zeros(4), fps=10)
+    tl = Timeline(TimelineType.FRAME, f64([0, 1, 2, 2]), np.zeros(4), fps=10)
     scene = Scene(_gaussians(4), tl)
     assert len(scene.at(0.0)) == 1
     assert len(scene.at(0.1)) == 1  # exactly at 1/fps: frame 1 despite float rounding
@@ -27,14 +33,14 @@ def test_frame_ids_select_their_frame_only() -> None:
 
 
 def test_start_duration_is_half_open() -> None:
-    tl = Timeline(TimelineType.START_DURATION, [0, 5], [5, 5], fps=10)
+    tl = Timeline(TimelineType.START_DURATION, f64([0, 5]), f64([5, 5]), fps=10)
     scene = Scene(_gaussians(2), tl)
     assert [len(scene.at(t)) for t in (0.0, 0.49, 0.5, 0.99, 1.0)] == [1, 1, 1, 1, 0]
     assert scene.at(0.5).opacities[0] == pytest.approx(2.0)
 
 
 def test_center_scale_scales_opacity_and_cuts_at_threshold() -> None:
-    tl = Timeline(TimelineType.CENTER_SCALE, [1.0], [0.5])
+    tl = Timeline(TimelineType.CENTER_SCALE, f64([1.0]), f64([0.5]))
     scene = Scene(_gaussians(1), tl)
     alpha = 1 / (1 + math.exp(-2.0))
     at = scene.at(1.5)  # one sigma away: factor exp(-1/2)
@@ -48,7 +54,7 @@ def test_center_scale_scales_opacity_and_cuts_at_threshold() -> None:
 
 
 def test_polynomial_motion_and_quaternion_renormalisation() -> None:
-    tl = Timeline(TimelineType.START_DURATION, [10.0], [100.0], fps=10)  # starts at 1 s
+    tl = Timeline(TimelineType.START_DURATION, f64([10.0]), f64([100.0]), fps=10)  # starts at 1 s
     means = np.zeros((1, 1, 3), np.float32)
     means[0, :, 0] = [2.0]  # 2 units per second along x
     quats = np.zeros((1, 2, 4), np.float32)
@@ -65,31 +71,35 @@ def test_polynomial_motion_and_quaternion_renormalisation() -> None:
 
 
 def test_evaluate_all_keeps_alignment() -> None:
-    tl = Timeline(TimelineType.FRAME, [0, 1], np.zeros(2), fps=1)
+    tl = Timeline(TimelineType.FRAME, f64([0, 1]), np.zeros(2), fps=1)
     g, mask = evaluate_all(Scene(_gaussians(2), tl), 0.5)
     assert len(g) == 2 and mask.tolist() == [True, False]
 
 
 def test_time_range_prefers_declared_length() -> None:
-    tl = Timeline(TimelineType.FRAME, [0, 29], np.zeros(2), fps=30)
-    assert time_range(tl) == (0.0, pytest.approx(1.0))
-    tl2 = Timeline(TimelineType.FRAME, [0, 29], np.zeros(2), fps=30, scene_length=2.0)
+    tl = Timeline(TimelineType.FRAME, f64([0, 29]), np.zeros(2), fps=30)
+    assert time_range(tl) == pytest.approx((0.0, 1.0))
+    tl2 = Timeline(TimelineType.FRAME, f64([0, 29]), np.zeros(2), fps=30, scene_length=2.0)
     assert time_range(tl2) == (0.0, 2.0)
 
 
 @pytest.mark.parametrize("t", [math.nan, math.inf])
 def test_non_finite_time_is_an_input_error(t: float) -> None:
-    scene = Scene(_gaussians(1), Timeline(TimelineType.FRAME, [0], [0], fps=1))
+    scene = Scene(_gaussians(1), Timeline(TimelineType.FRAME, f64([0]), f64([0]), fps=1))
     with pytest.raises(InputError):
         scene.at(t)
 
 
 def test_bad_timelines_are_refused() -> None:
     with pytest.raises(InputError, match="fps"):
-        Timeline(TimelineType.CENTER_SCALE, [0], [1], fps=30)
+        Timeline(TimelineType.CENTER_SCALE, f64([0]), f64([1]), fps=30)
     with pytest.raises(InputError, match="scales must be positive"):
-        Timeline(TimelineType.CENTER_SCALE, [0], [0])
+        Timeline(TimelineType.CENTER_SCALE, f64([0]), f64([0]))
     with pytest.raises(InputError, match="temporal"):
-        Scene(_gaussians(1), None, {"means": np.zeros((1, 1, 3))})
+        Scene(_gaussians(1), None, {"means": np.zeros((1, 1, 3), np.float32)})
     with pytest.raises(InputError, match=r"temporal\.means"):
-        Scene(_gaussians(1), Timeline(TimelineType.FRAME, [0], [0]), {"means": np.zeros((1, 1, 4))})
+        Scene(
+            _gaussians(1),
+            Timeline(TimelineType.FRAME, f64([0]), f64([0])),
+            {"means": np.zeros((1, 1, 4), np.float32)},
+        )

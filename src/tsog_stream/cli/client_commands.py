@@ -7,6 +7,7 @@ Thin: parse arguments, call :mod:`tsog_stream.client`, print results; no logic o
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
 from ..client import PlayStats, open_stream
@@ -50,7 +51,7 @@ def cmd_fetch(args: argparse.Namespace, progress: Progress) -> int:
     return 0
 
 
-def cmd_play(args: argparse.Namespace, progress: Progress) -> int:
+def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """tsog play: a simulated playback with startup latency, stalls and throughput."""
     progress(f"opening {args.url}")
     with open_stream(args.url) as client:
