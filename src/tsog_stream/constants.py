@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Final
 
 # --- SOG v2 -------------------------------------------------------------------------------
@@ -95,6 +96,23 @@ def is_container(head: bytes) -> bool:
 
 
 # --- Limits on untrusted input (docs/reliability.md) ---------------------------------------
+DEFAULT_MAX_PIXELS: Final = 4096 * 4096
+"""Pixels per image: the segmenter's budget for every image of a chunk, and the default
+budget of what a reader decodes (:func:`pixel_budget`)."""
+MAX_PIXELS_ENV: Final = "TSOG_MAX_PIXELS"
+"""Environment variable raising (or lowering) the read budget, in pixels per image."""
+
+
+def pixel_budget() -> int:
+    """Largest image (and Gaussian count) a reader decodes: ``$TSOG_MAX_PIXELS`` when set to a
+    positive integer (at most MAX_IMAGE_PIXELS), else DEFAULT_MAX_PIXELS. Checked before any
+    pixel is decoded, so a small hostile file cannot make a reader allocate gigabytes."""
+    text = os.environ.get(MAX_PIXELS_ENV, "").strip()
+    if text.isdigit() and int(text) > 0:
+        return min(int(text), MAX_IMAGE_PIXELS)
+    return DEFAULT_MAX_PIXELS
+
+
 MAX_IMAGE_PIXELS: Final = WEBP_MAX_SIDE * WEBP_MAX_SIDE
 """Largest image any reader decodes; Pillow's decompression-bomb limit is set to this."""
 IMAGE_SLACK_TEXELS: Final = 4096

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
+from ..constants import DEFAULT_MAX_PIXELS
 from ..container.sources import ReadStats
 from ..errors import InputError
 from ..io.chunks import write_chunk_files
@@ -30,7 +31,6 @@ from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
-    DEFAULT_MAX_PIXELS,
     DEFAULT_POLICY,
     DEFAULT_WINDOW_S,
     SegmentOptions,

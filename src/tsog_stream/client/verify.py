@@ -10,7 +10,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from ..codec.bundle import read_bundle
+from ..codec.bundle import read_bundle, unnamed_entries
 from ..codec.chunk import decode_chunk, decode_images, read_meta
 from ..container.header import HEADER_SIZE
 from ..container.ranges import ByteRange
@@ -50,13 +50,17 @@ class VerifyReport:
         return min((int(c) for c, _, _ in self.problems), default=0)
 
 
-def _check_chunk(
+def check_chunk(
     chunk: ChunkEntry, data: bytes, max_pixels: int, where: str
 ) -> list[tuple[Check, str]]:
     """Every check of one chunk's bytes."""
     if hashlib.sha256(data).hexdigest() != chunk.sha256:
         return [(Check.HASH, "SHA-256 does not match the index")]
     try:
+        unnamed = unnamed_entries(data, where=where)
+        if unnamed:
+            shown = ", ".join(unnamed[:5]) + (" ..." if len(unnamed) > 5 else "")
+            return [(Check.DECODE, f"entries not named by meta.json (never read): {shown}")]
         files = read_bundle(data, where=where)
         meta = read_meta(files, where=where)
         images = decode_images(meta, files, where=where)
@@ -123,6 +127,6 @@ async def verify_stream(source: ChunkFetcher, index: StreamIndex) -> VerifyRepor
     for chunk in index.manifest.chunks:
         where = f"{source.name} chunk {chunk.id}"
         [data] = await source.fetch([chunk])
-        found = await asyncio.to_thread(_check_chunk, chunk, data, index.manifest.max_pixels, where)
+        found = await asyncio.to_thread(check_chunk, chunk, data, index.manifest.max_pixels, where)
         report.problems.extend((kind, chunk.id, msg) for kind, msg in found)
     return report

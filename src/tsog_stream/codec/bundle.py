@@ -15,6 +15,7 @@ from collections.abc import Mapping
 
 from ..constants import META_JSON
 from ..errors import SogError
+from ..schemas import listed_files, parse_meta
 
 FIXED_DATE = (1980, 1, 1, 0, 0, 0)
 MAX_ENTRIES = 4096
@@ -54,23 +55,54 @@ def bundle_bytes(files: Mapping[str, bytes]) -> bytes:
 
 
 def read_bundle(data: bytes, *, where: str = "<bundle>") -> dict[str, bytes]:
-    """Entries of a .sog archive (stored or deflated); any damage raises SogError."""
+    """``meta.json`` and the entries it names, of a .sog archive (stored or deflated).
+
+    Only those are inflated: an entry ``meta.json`` never names is not read at all, and every
+    entry read is checked against the central directory first (see :func:`_read_entry`), so a
+    small archive cannot make a reader inflate gigabytes. Any damage raises SogError.
+    """
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
     except ZIP_ERRORS as exc:
         raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
     with archive:
-        infos = archive.infolist()
-        if len(infos) > MAX_ENTRIES:
-            raise SogError(
-                f"{len(infos)} entries, more than the {MAX_ENTRIES} allowed", where=where
-            )
-        files: dict[str, bytes] = {}
-        for info in infos:
-            files[info.filename] = _read_entry(archive, info, len(data), where)
-    if META_JSON not in files:
-        raise SogError("archive has no meta.json at its root", where=where)
+        infos = _entries(archive, where)
+        if META_JSON not in infos:
+            raise SogError("archive has no meta.json at its root", where=where)
+        meta = _read_entry(archive, infos[META_JSON], len(data), where)
+        files = {META_JSON: meta}
+        for name in named_files(meta, where=f"{where}/{META_JSON}"):
+            if name in infos:
+                files[name] = _read_entry(archive, infos[name], len(data), where)
     return files
+
+
+def unnamed_entries(data: bytes, *, where: str = "<bundle>") -> list[str]:
+    """Entries of a .sog archive that its ``meta.json`` does not name (readers skip them)."""
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except ZIP_ERRORS as exc:
+        raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
+    with archive:
+        infos = _entries(archive, where)
+        if META_JSON not in infos:
+            return sorted(infos)
+        meta = _read_entry(archive, infos[META_JSON], len(data), where)
+    named = {META_JSON, *named_files(meta, where=f"{where}/{META_JSON}")}
+    return sorted(set(infos) - named)
+
+
+def named_files(meta_json: bytes, *, where: str) -> list[str]:
+    """The image files a ``meta.json`` names (it is validated on the way)."""
+    return [name for _, name in listed_files(parse_meta(meta_json, where=where))]
+
+
+def _entries(archive: zipfile.ZipFile, where: str) -> dict[str, zipfile.ZipInfo]:
+    """The central directory by name, bounded in length."""
+    infos = archive.infolist()
+    if len(infos) > MAX_ENTRIES:
+        raise SogError(f"{len(infos)} entries, more than the {MAX_ENTRIES} allowed", where=where)
+    return {info.filename: info for info in infos}
 
 
 def _read_entry(archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, where: str) -> bytes:

@@ -93,11 +93,32 @@ def decode_images(meta: ChunkMeta, files: Mapping[str, bytes], *, where: str) ->
     _check_plausible_count(meta, sum(len(data) for data in needed.values()), where)
     sizes = {name: webp_size(data, where=f"{where}/{name}") for name, data in needed.items()}
     check_image_sizes(meta, sizes, where=f"{where}/{C.META_JSON}")
+    _check_budget(sizes, where)
     return decode_many(needed, where=where, sizes=sizes)
 
 
+def _check_budget(sizes: Mapping[str, tuple[int, int]], where: str) -> None:
+    """Refuse, before decoding, any image over the read budget (constants.pixel_budget)."""
+    budget = C.pixel_budget()
+    for name, (width, height) in sizes.items():
+        if width * height > budget:
+            raise SogError(
+                f"image of {width}x{height} = {width * height} pixels, over the read budget of "
+                f"{budget} (set {C.MAX_PIXELS_ENV} to allow more)",
+                where=f"{where}/{name}",
+            )
+
+
 def _check_plausible_count(meta: ChunkMeta, image_bytes: int, where: str) -> None:
-    """Refuse a count far beyond what the image bytes can describe (a decompression bomb)."""
+    """Refuse a count over the read budget, or far beyond what the image bytes can describe
+    (a decompression bomb)."""
+    budget = C.pixel_budget()
+    if meta.count > budget:
+        raise SogError(
+            f"meta.json declares {meta.count} Gaussians, over the read budget of {budget} "
+            f"(one pixel each; set {C.MAX_PIXELS_ENV} to allow more)",
+            where=where,
+        )
     most = max(C.FREE_GAUSSIANS, C.MAX_GAUSSIANS_PER_IMAGE_BYTE * image_bytes)
     if meta.count > most:
         raise SogError(

@@ -24,6 +24,7 @@ from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
 from ..constants import (
+    DEFAULT_MAX_PIXELS,
     GENERATOR,
     SH_BANDS_BY_COEFFS,
     SH_CENTROIDS_PER_ROW,
@@ -40,7 +41,6 @@ from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan
 
-DEFAULT_MAX_PIXELS = 4096 * 4096
 DEFAULT_WINDOW_S = 1.0
 DEFAULT_POLICY: Policy = "hybrid"
 MIN_PIXELS = 16
