@@ -61,48 +61,40 @@ def read_bundle(data: bytes, *, where: str = "<bundle>") -> dict[str, bytes]:
     entry read is checked against the central directory first (see :func:`_read_entry`), so a
     small archive cannot make a reader inflate gigabytes. Any damage raises SogError.
     """
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(data))
-    except ZIP_ERRORS as exc:
-        raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
-    with archive:
-        infos = _entries(archive, where)
-        if META_JSON not in infos:
-            raise SogError("archive has no meta.json at its root", where=where)
-        meta = _read_entry(archive, infos[META_JSON], len(data), where)
-        files = {META_JSON: meta}
-        for name in named_files(meta, where=f"{where}/{META_JSON}"):
-            if name in infos:
-                files[name] = _read_entry(archive, infos[name], len(data), where)
-    return files
+    return _scan(data, where, read_named=True)[0]
 
 
 def unnamed_entries(data: bytes, *, where: str = "<bundle>") -> list[str]:
     """Entries of a .sog archive that its ``meta.json`` does not name (readers skip them)."""
+    return _scan(data, where, read_named=False)[1]
+
+
+def _scan(data: bytes, where: str, *, read_named: bool) -> tuple[dict[str, bytes], list[str]]:
+    """(``meta.json`` and, if ``read_named``, the entries it names; the other entries' names)."""
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
     except ZIP_ERRORS as exc:
         raise SogError(f"not a readable zip archive: {exc}", where=where) from exc
     with archive:
-        infos = _entries(archive, where)
-        if META_JSON not in infos:
-            return sorted(infos)
-        meta = _read_entry(archive, infos[META_JSON], len(data), where)
-    named = {META_JSON, *named_files(meta, where=f"{where}/{META_JSON}")}
-    return sorted(set(infos) - named)
+        infos = archive.infolist()
+        if len(infos) > MAX_ENTRIES:
+            raise SogError(
+                f"{len(infos)} entries, more than the {MAX_ENTRIES} allowed", where=where
+            )
+        by_name = {info.filename: info for info in infos}
+        if META_JSON not in by_name:
+            raise SogError("archive has no meta.json at its root", where=where)
+        files = {META_JSON: _read_entry(archive, by_name[META_JSON], len(data), where)}
+        named = named_files(files[META_JSON], where=f"{where}/{META_JSON}")
+        for name in named if read_named else []:
+            if name in by_name:
+                files[name] = _read_entry(archive, by_name[name], len(data), where)
+    return files, sorted(set(by_name) - {META_JSON, *named})
 
 
 def named_files(meta_json: bytes, *, where: str) -> list[str]:
     """The image files a ``meta.json`` names (it is validated on the way)."""
     return [name for _, name in listed_files(parse_meta(meta_json, where=where))]
-
-
-def _entries(archive: zipfile.ZipFile, where: str) -> dict[str, zipfile.ZipInfo]:
-    """The central directory by name, bounded in length."""
-    infos = archive.infolist()
-    if len(infos) > MAX_ENTRIES:
-        raise SogError(f"{len(infos)} entries, more than the {MAX_ENTRIES} allowed", where=where)
-    return {info.filename: info for info in infos}
 
 
 def _read_entry(archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, where: str) -> bytes:
