@@ -143,7 +143,7 @@ def test_dump_key_order_and_preserved_keys() -> None:
 def test_floats_round_trip_exactly() -> None:
     doc = sog_doc()
     doc["means"]["mins"] = [-4.692155711711776, 5e-324, -0.0]
-    doc["means"]["maxs"] = [1.7976931348623157e308, 0.1 + 0.2, 0.0]
+    doc["means"]["maxs"] = [87.99999999999999, 0.1 + 0.2, 0.0]  # the largest bounds kept
     out = json.loads(dump_meta(parse_meta(json.dumps(doc))))
     assert out["means"]["mins"] == doc["means"]["mins"]
     assert out["means"]["maxs"][1] == 0.1 + 0.2
@@ -451,9 +451,13 @@ JSON_VALUES = st.recursive(
 
 
 @st.composite
-def ranges(draw: st.DrawFn, width: int) -> tuple[list[float], list[float]]:
-    """mins <= maxs, ``width`` channels."""
-    pairs = [sorted(draw(st.tuples(FLOATS, FLOATS))) for _ in range(width)]
+def ranges(
+    draw: st.DrawFn, width: int, bound: float = 3.4028234663852886e38
+) -> tuple[list[float], list[float]]:
+    """mins <= maxs, ``width`` channels, within ±``bound`` (float32's, or the log-position
+    bound of ``means``)."""
+    values = st.floats(-bound, bound)
+    pairs = [sorted(draw(st.tuples(values, values))) for _ in range(width)]
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
@@ -466,7 +470,7 @@ def metas(draw: st.DrawFn) -> Doc:
         return f"{role}.{suffix}.webp"
 
     doc = sog_doc(draw(st.integers(0, 10**7)), sh=draw(st.booleans()))
-    doc["means"]["mins"], doc["means"]["maxs"] = draw(ranges(3))
+    doc["means"]["mins"], doc["means"]["maxs"] = draw(ranges(3, bound=88.0))
     doc["means"]["files"] = [name("ml"), name("mu")]
     doc["scales"]["codebook"] = draw(st.lists(FLOATS, min_size=256, max_size=256))
     if "shN" in doc:
@@ -523,3 +527,24 @@ def test_random_valid_metas_round_trip(doc: Doc) -> None:
 def test_committed_manifest_schema_is_fresh() -> None:
     committed = (ROOT / "docs" / "schema" / "manifest.schema.json").read_text(encoding="utf-8")
     assert committed == manifest_json_schema_text(), "run scripts/export_schemas.py"
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "field"),
+    [
+        ("means.mins", [-1e308, 0.0, 0.0], "means.mins[0]"),
+        ("means.maxs", [1000.0, 1.0, 1.0], "means.maxs[0]"),
+        ("timeline.maxs", [1e308, 1.0], "timeline.mins[0]"),
+        ("temporal.means.mins", [[-1e308, 0.0, 0.0]], "temporal.means.mins[0][0]"),
+    ],
+)
+def test_ranges_that_would_decode_to_inf_or_nan_are_refused(
+    path: str, value: list[Any], field: str
+) -> None:
+    doc = tsog_doc()
+    _set(path, value)(doc)
+    if path == "timeline.maxs":
+        _set("timeline.mins", [-1e308, 0.0])(doc)
+    with pytest.raises(MetaError) as info:
+        parse_meta(json.dumps(doc).encode())
+    assert info.value.field == field, str(info.value)

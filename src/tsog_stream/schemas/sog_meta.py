@@ -229,17 +229,28 @@ Files2 = Annotated[tuple[FileName, ...], Field(min_length=2, max_length=2)]
 
 
 def check_ranges(mins: Sequence[float], maxs: Sequence[float], row: str = "") -> None:
-    """Raise a field error naming ``mins{row}[i]`` for the first channel with min > max."""
+    """Raise a field error naming ``mins{row}[i]`` for the first channel with min > max, or
+    with a bound outside float32 (decoded values are float32: ±1e308 would become inf and NaN)."""
     for i, (lo, hi) in enumerate(zip(mins, maxs, strict=False)):
+        name = f"mins{row}[{i}]"
         if lo > hi:
-            name = f"mins{row}[{i}]"
             raise field_error(name, f"expected {name} <= maxs{row}[{i}], found {lo!r} > {hi!r}")
+        if max(abs(lo), abs(hi)) > FLOAT32_MAX:
+            raise field_error(
+                name, f"expected bounds within ±{FLOAT32_MAX:.4g} (float32), found [{lo!r}, {hi!r}]"
+            )
 
 
 class FrozenModel(BaseModel):
     """Base of our closed objects: immutable, unknown keys are errors (they catch typos)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+FLOAT32_MAX = 3.4028234663852886e38
+"""Largest float32: every decoded value is one."""
+MAX_LOG_POSITION = 88.0
+"""Largest |sign(v)·ln(1+|v|)| of a position: e^88 - 1 is about 1.65e38, under float32's max."""
 
 
 class MeansMeta(FrozenModel):
@@ -251,8 +262,17 @@ class MeansMeta(FrozenModel):
 
     @model_validator(mode="after")
     def _ordered(self) -> MeansMeta:
-        """mins <= maxs per axis (the writer takes them from the data)."""
+        """mins <= maxs per axis (the writer takes them from the data), and no bound whose
+        position, e^|v| - 1, overflows a float32 (the decoded positions' type)."""
         check_ranges(self.mins, self.maxs)
+        for key, values in (("mins", self.mins), ("maxs", self.maxs)):
+            for i, v in enumerate(values):
+                if abs(v) > MAX_LOG_POSITION:
+                    raise field_error(
+                        f"{key}[{i}]",
+                        f"expected |{key}[{i}]| <= {MAX_LOG_POSITION} (a position that fits a "
+                        f"float32), found {v!r}",
+                    )
         return self
 
 
