@@ -264,3 +264,29 @@ def test_a_reader_that_leaves_early_is_no_traceback(dynamic_stream: Path) -> Non
         proc.stdout.close()  # as `| head -0` would
         err = proc.stderr.read().decode()
         assert proc.wait(60) == 1 and "Traceback" not in err and "BrokenPipe" not in err
+
+
+def test_non_finite_input_values_are_notes_and_one_line_errors_never_warnings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """pytest turns every warning into an error here: numpy's must not escape."""
+    rng = np.random.default_rng(0)
+    g = Gaussians.from_arrays(
+        rng.standard_normal((50, 3)),
+        rng.standard_normal((50, 3)) - 4,
+        rng.standard_normal((50, 4)),
+        rng.standard_normal(50),
+        rng.standard_normal((50, 3)),
+    )
+    g.quats[6] = np.nan  # no rotation: stored as the identity
+    g.scales[4] = -np.inf  # a flat splat: SOG's codebook sentinel
+    path = tmp_path / "odd.ply"
+    write_ply(path, g)
+    assert main(["encode", str(path), str(tmp_path / "ok.sog"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "non-finite values as read" in err and "Warning" not in err
+    g.means[3] = np.nan
+    write_ply(path, g)
+    assert main(["encode", str(path), str(tmp_path / "bad.sog"), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "1 Gaussians have non-finite positions" in err and not (tmp_path / "bad.sog").exists()

@@ -49,6 +49,12 @@ def encode_chunk(
     """
     if len(scene) == 0:
         raise InputError("the scene has no Gaussians: there is nothing to encode")
+    misplaced = int(np.count_nonzero(~np.all(np.isfinite(scene.gaussians.means), axis=1)))
+    if misplaced:
+        raise InputError(
+            f"{misplaced} Gaussians have non-finite positions: SOG cannot place them "
+            "(remove them from the input first)"
+        )
     note = progress or (lambda _msg: None)
     note("ordering")
     ordered = scene.subset(texel_order(scene) if order is None else order)

@@ -29,11 +29,13 @@ def canonical_factor(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[n
 
 
 def canonical_quats(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.intp]]:
-    """Unit quaternions whose largest component is positive, and that component's index."""
+    """Unit quaternions whose largest component is positive, and that component's index
+    (a zero or non-finite quaternion, which names no rotation, becomes the identity)."""
     factor, largest = canonical_factor(quats)
-    q = quats.astype(np.float64) * factor[:, None]
-    zero = ~np.any(quats != 0, axis=1)
-    q[zero] = (1.0, 0.0, 0.0, 0.0)
+    with np.errstate(invalid="ignore"):  # inf x 0: those rows become the identity below
+        q = quats.astype(np.float64) * factor[:, None]
+    zero = ~np.any(quats != 0, axis=1) | ~np.all(np.isfinite(q), axis=1)
+    q[zero] = (1.0, 0.0, 0.0, 0.0)  # no rotation to keep: the identity
     largest[zero] = 0
     return q, largest
 
