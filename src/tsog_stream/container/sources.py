@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -85,11 +86,16 @@ class FileSource:
         self.stats = ReadStats()
 
     async def size(self) -> int:
-        """Current size of the file."""
+        """Current size of the file (a FIFO, device or socket is refused: reading it could
+        block forever or never end)."""
         try:
-            return (await asyncio.to_thread(os.stat, self.path)).st_size
+            st = await asyncio.to_thread(os.stat, self.path)
         except OSError as exc:
             raise SourceError(f"cannot read: {exc.strerror}", where=self.name) from exc
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO, device or socket"
+            raise SourceError(f"not a regular file ({kind}): refused", where=self.name)
+        return st.st_size
 
     def _pread(self, span: ByteRange) -> bytes:
         with open(self.path, "rb") as f:
