@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from pydantic import TypeAdapter
 
 from tsog_stream import SogError, TimelineType, decode_chunk, encode_chunk
 from tsog_stream.cli.main import main
@@ -79,7 +80,7 @@ def test_an_entry_meta_json_never_names_is_never_inflated(
 
 def test_verify_reports_an_unnamed_entry(files: dict[str, bytes], bomb: bytes) -> None:
     """A chunk whose hash is consistent still shows its unnamed entry to ``tsog verify``."""
-    entry = ChunkEntry.model_validate(
+    entry = TypeAdapter(ChunkEntry).validate_python(
         {
             "id": 0,
             "level": 0,

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import copy
 import dataclasses
 import hashlib
 import json
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import pytest
@@ -136,10 +138,21 @@ def with_manifest(data: bytes, manifest: Manifest) -> bytes:
     )
 
 
+R = TypeVar("R")
+
+
+def unvalidated_copy(record: R, changes: Mapping[str, object]) -> R:
+    """A copy of an index record with fields changed and not validated (to write bad ones)."""
+    changed = copy.copy(record)
+    for name, value in changes.items():
+        object.__setattr__(changed, name, value)
+    return changed
+
+
 def edit_chunks(data: bytes, changes: Mapping[int, Mapping[str, object]]) -> bytes:
     """``data`` with chunk fields changed (``{chunk id: {field: value}}``), unvalidated."""
     manifest = open_bytes(data).manifest
-    chunks = [c.model_copy(update=changes.get(c.id, {})) for c in manifest.chunks]
+    chunks = [unvalidated_copy(c, changes.get(c.id, {})) for c in manifest.chunks]
     return with_manifest(data, manifest.model_copy(update={"chunks": chunks}))
 
 
@@ -149,10 +162,10 @@ def short_file_with_chunk_in_prefix(data: bytes) -> bytes:
     chunk = min(manifest.chunks, key=lambda c: c.length)
     payload = data[chunk.offset : chunk.offset + chunk.length]
     at = 1024
-    entry = chunk.model_copy(update={"id": 0, "file": "chunks/000000.sog", "offset": at})
+    entry = dataclasses.replace(chunk, id=0, file="chunks/000000.sog", offset=at)
     home = (chunk.level, chunk.node)
     nodes = [
-        n.model_copy(update={"chunks": [0] if (n.level, n.index) == home else []})
+        dataclasses.replace(n, chunks=[0] if (n.level, n.index) == home else [])
         for n in manifest.nodes
     ]
     manifest = manifest.model_copy(
@@ -370,7 +383,7 @@ def test_every_flipped_index_byte_is_caught(small_bytes: bytes) -> None:
 def test_absurd_but_valid_index_values_do_not_break_chunk_choice(small_bytes: bytes) -> None:
     """Huge levels and extreme window lengths pass the schema; choosing chunks must cope."""
     manifest = open_bytes(small_bytes).manifest
-    far = manifest.nodes[0].model_copy(update={"level": 10**9, "index": 0})
+    far = dataclasses.replace(manifest.nodes[0], level=10**9, index=0)
     index = open_bytes(with_manifest(small_bytes, manifest.model_copy(update={"nodes": [far]})))
     for t in (0.0, 0.2, 0.7, 2.0):
         chosen = index.chunks_for(t)

@@ -15,16 +15,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from urllib.parse import unquote, urljoin, urlparse, urlsplit, urlunsplit
 
+from ..container.index import MAX_INDEX_BYTES
 from ..container.ranges import ByteRange
 from ..container.sources import ByteSource, FileSource, ReadStats, read_index
 from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import SourceError
-from ..io.files import read_bytes
+from ..io.files import read_head
 from ..schemas.manifest import ChunkEntry
 from ..signing import redact_url
 from .http_source import HttpFiles, HttpOptions, HttpSource
-
-MAX_MANIFEST_BYTES = 64 << 20
 
 
 class ChunkFetcher(ABC):
@@ -97,15 +96,17 @@ class FolderFetcher(ChunkFetcher):
             size = (await asyncio.to_thread(os.stat, path)).st_size
         except OSError as exc:
             raise SourceError(f"cannot read: {exc.strerror}", where=str(path)) from exc
-        if size > limit:
-            raise SourceError(f"{size} bytes, expected at most {limit}", where=str(path))
-        data = await asyncio.to_thread(read_bytes, path)
+        data = b"" if size > limit else await asyncio.to_thread(read_head, path, limit + 1)
+        if size > limit or len(data) > limit:
+            raise SourceError(
+                f"{max(size, len(data))} bytes, expected at most {limit}", where=str(path)
+            )
         self.stats.add(len(data))
         return data
 
     async def open(self) -> StreamIndex:
         """Read ``manifest.json`` (one request) and present it as an opened container."""
-        raw = await self._get(MANIFEST, MAX_MANIFEST_BYTES)
+        raw = await self._get(MANIFEST, MAX_INDEX_BYTES)
         index = unpacked_index(raw, where=self._where(MANIFEST))
         return StreamIndex(index.header, index.manifest, self.name)
 

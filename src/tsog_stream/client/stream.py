@@ -12,10 +12,11 @@ and http(s) URLs of a ``.tsogs`` file or of an unpacked folder are read alike; `
 from __future__ import annotations
 
 import asyncio
+import bisect
 import math
 import os
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -157,6 +158,27 @@ class Playback:
         return self.frames
 
 
+@dataclass
+class _Job:
+    """One queued fetch: a run of chunks read with one request, and their futures."""
+
+    group: list[ChunkEntry]
+    futures: dict[int, asyncio.Future[Scene]]
+    started: bool = False
+
+
+def _settle_failed(futures: dict[int, asyncio.Future[Scene]], exc: BaseException) -> None:
+    """Fail the unsettled futures with ``exc`` (an error) or cancel them (a cancellation)."""
+    for fut in futures.values():
+        if fut.done():
+            continue
+        if isinstance(exc, Exception):
+            fut.set_exception(exc)
+            fut.exception()  # a failed prefetch nobody awaits is not an error
+        else:
+            fut.cancel()
+
+
 class StreamClient:
     """An opened container: frames at any time, prefetching and simulated playback.
 
@@ -182,9 +204,10 @@ class StreamClient:
         self.cache = SceneCache(cache_bytes)
         self.cache_stats = CacheStats()
         self.coalesce_gap = coalesce_gap
-        self._limit = asyncio.Semaphore(concurrency)
-        self._pending: dict[int, asyncio.Future[Scene]] = {}
-        self._tasks: set[asyncio.Task[None]] = set()
+        self.concurrency = concurrency
+        self._queue: deque[_Job] = deque()
+        self._pending: dict[int, _Job] = {}
+        self._workers: set[asyncio.Task[None]] = set()
 
     @classmethod
     async def open(
@@ -245,31 +268,63 @@ class StreamClient:
         return len(futures)
 
     async def chunk_scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
-        """The decoded chunks, from the cache or fetched (in-flight fetches are shared)."""
+        """The decoded chunks, from the cache or fetched ahead of any queued prefetch
+        (in-flight fetches are shared)."""
         found = {c.id: s for c in chunks if (s := self.cache.get(c.id)) is not None}
-        futures = self._schedule([c for c in chunks if c.id not in found])
+        futures = self._schedule([c for c in chunks if c.id not in found], urgent=True)
         for cid, fut in futures.items():
             found[cid] = await fut
         return [found[c.id] for c in chunks]
 
-    def _schedule(self, chunks: Sequence[ChunkEntry]) -> dict[int, asyncio.Future[Scene]]:
-        """Futures of the given chunks, starting coalesced fetches for those not under way."""
-        out = {c.id: self._pending[c.id] for c in chunks if c.id in self._pending}
+    def _schedule(
+        self, chunks: Sequence[ChunkEntry], *, urgent: bool = False
+    ) -> dict[int, asyncio.Future[Scene]]:
+        """Futures of the given chunks, queueing coalesced fetches for those not under way.
+
+        Fetches wait in one queue served by at most ``concurrency`` workers, so a prefetch of
+        any length costs one future per chunk, not one task. ``urgent`` ones (a frame being
+        shown) go to the front, queued ones included: a job queued twice is fetched once.
+        """
+        waiting = {c.id: self._pending[c.id] for c in chunks if c.id in self._pending}
+        out = {cid: job.futures[cid] for cid, job in waiting.items()}
         todo = [c for c in chunks if c.id not in out and c.id not in self.cache]
         loop = asyncio.get_running_loop()
+        jobs = list({id(job): job for job in waiting.values() if not job.started}.values())
+        if not urgent:
+            jobs = []  # already queued: they keep their place
         for group in self._groups(todo):
-            futures = {c.id: loop.create_future() for c in group}
-            self._pending.update(futures)
-            out.update(futures)
-            task = loop.create_task(self._fetch_group(group, futures))
-            self._tasks.add(task)
-            task.add_done_callback(self._tasks.discard)
+            job = _Job(group, {c.id: loop.create_future() for c in group})
+            self._pending.update(dict.fromkeys(job.futures, job))
+            out.update(job.futures)
+            jobs.append(job)
+        if urgent:
+            self._queue.extendleft(reversed(jobs))
+        else:
+            self._queue.extend(jobs)
+        self._start_workers()
         for c in chunks:
             if c.id not in out and (s := self.cache.get(c.id)) is not None:
                 done: asyncio.Future[Scene] = loop.create_future()
                 done.set_result(s)
                 out[c.id] = done
         return out
+
+    def _start_workers(self) -> None:
+        """Start workers until ``concurrency`` run or each queued job has one (a worker that
+        has returned counts as gone before its done-callback runs)."""
+        running = sum(1 for task in self._workers if not task.done())
+        for _ in range(min(self.concurrency - running, len(self._queue))):
+            task = asyncio.get_running_loop().create_task(self._work())
+            self._workers.add(task)
+            task.add_done_callback(self._workers.discard)
+
+    async def _work(self) -> None:
+        """Fetch queued jobs, front first, until the queue is empty."""
+        while self._queue:
+            job = self._queue.popleft()
+            if not job.started:
+                job.started = True
+                await self._fetch_group(job)
 
     def _groups(self, chunks: Sequence[ChunkEntry]) -> list[list[ChunkEntry]]:
         """Chunks split into runs whose byte ranges are at most ``coalesce_gap`` apart.
@@ -280,20 +335,19 @@ class StreamClient:
         if self.coalesce_gap is None or not self.source.coalesces:
             return [[c] for c in chunks]
         spans = coalesce((self.index.chunk_range(c) for c in chunks), self.coalesce_gap)
+        starts = [s.start for s in spans]
         groups: dict[ByteRange, list[ChunkEntry]] = {}
         for c in chunks:
-            span = next(s for s in spans if s.start <= c.offset < s.end)
+            span = spans[bisect.bisect_right(starts, c.offset) - 1]
             groups.setdefault(span, []).append(c)
         return list(groups.values())
 
-    async def _fetch_group(
-        self, group: list[ChunkEntry], futures: dict[int, asyncio.Future[Scene]]
-    ) -> None:
+    async def _fetch_group(self, job: _Job) -> None:
         """Fetch one run with one request, verify and decode each chunk, settle its future."""
+        futures = job.futures
         try:
-            group = sorted(group, key=lambda c: c.offset)
-            async with self._limit:
-                bodies = await self.source.fetch(group)
+            group = sorted(job.group, key=lambda c: c.offset)
+            bodies = await self.source.fetch(group)
             for c, body in zip(group, bodies, strict=True):
                 where = f"{self.source.name} chunk {c.id}"
                 data = verify_chunk(c, body, where=where)
@@ -301,14 +355,7 @@ class StreamClient:
                 self.cache.put(c.id, scene)
                 futures[c.id].set_result(scene)
         except BaseException as exc:
-            for fut in futures.values():
-                if fut.done():
-                    continue
-                if isinstance(exc, Exception):
-                    fut.set_exception(exc)
-                    fut.exception()  # a failed prefetch nobody awaits is not an error
-                else:
-                    fut.cancel()
+            _settle_failed(futures, exc)
             if not isinstance(exc, Exception):
                 raise
         finally:
@@ -403,10 +450,16 @@ class StreamClient:
                 )
 
     async def aclose(self) -> None:
-        """Cancel background fetches and close the source's connections."""
-        for task in list(self._tasks):
+        """Cancel queued and running fetches and close the source's connections."""
+        while self._queue:
+            job = self._queue.popleft()
+            _settle_failed(job.futures, asyncio.CancelledError())
+            for cid in job.futures:
+                self._pending.pop(cid, None)
+        workers = list(self._workers)
+        for task in workers:
             task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
+        await asyncio.gather(*workers, return_exceptions=True)
         await self.source.aclose()
 
     async def __aenter__(self) -> StreamClient:

@@ -7,11 +7,12 @@ import hashlib
 import zstandard
 
 from ..constants import MAX_INDEX_RATIO
-from ..errors import FormatError, IntegrityError
+from ..errors import FormatError, InputError, IntegrityError
 from ..schemas.manifest import Manifest, dump_manifest, parse_manifest
 
-MAX_INDEX_BYTES = 256 * 1024 * 1024
-"""Largest decompressed index accepted (about a million chunks); a bigger claim is refused."""
+MAX_INDEX_BYTES = 64 << 20
+"""Largest index JSON written or read, packed or as an unpacked ``manifest.json`` (about 180k
+chunks): opening one costs up to ten times its size in memory, so a bigger claim is refused."""
 ZSTD_LEVEL = 19
 INDEX_SLACK = 64 * 1024
 """Raw bytes any index may declare regardless of its compressed size."""
@@ -20,6 +21,11 @@ INDEX_SLACK = 64 * 1024
 def encode_index(manifest: Manifest) -> tuple[bytes, bytes, int]:
     """(compressed index, SHA-256 of the raw JSON, raw length)."""
     raw = dump_manifest(manifest)
+    if len(raw) > MAX_INDEX_BYTES:
+        raise InputError(
+            f"the index of {len(manifest.chunks)} chunks takes {len(raw)} bytes, over the "
+            f"{MAX_INDEX_BYTES} readers accept: use longer windows or split the scene"
+        )
     compressed = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_content_size=True).compress(raw)
     return compressed, hashlib.sha256(raw).digest(), len(raw)
 

