@@ -332,7 +332,6 @@ def test_cameras_json_gives_the_views_it_describes(
     [
         (["--view", "4"], "no view 4; there are views 0-3"),
         (["--background", "2,0,0"], "--background"),
-        (["--width", "0"], "--width"),
     ],
 )
 def test_render_errors_are_one_line(

@@ -355,9 +355,8 @@ def test_serve_command_arguments(tree: Path) -> None:
     bad = parser.parse_args(["serve", str(tree / "missing"), "--port", "1"])
     with pytest.raises(InputError):
         cmd_serve(bad, Progress(quiet=True))
-    bad = parser.parse_args(["serve", str(tree), "--port", "70000"])
-    with pytest.raises(InputError, match="port"):
-        cmd_serve(bad, Progress(quiet=True))
+    with pytest.raises(SystemExit):  # a usage error naming the range 0-65535
+        parser.parse_args(["serve", str(tree), "--port", "70000"])
 
 
 class SendfileSpy:

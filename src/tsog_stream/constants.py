@@ -126,3 +126,10 @@ MAX_GAUSSIANS_PER_IMAGE_BYTE: Final = 64
 file from making a reader decode gigabytes of pixels (lossless WebP reaches 10^5:1)."""
 FREE_GAUSSIANS: Final = 65536
 """Counts up to this are accepted whatever the image bytes (a 256x256 image per attribute)."""
+
+RENDER_MAX_SIDE: Final = 16384
+"""Largest image side ``render``/``eval`` draw (a 16384² float image is already 3 GiB)."""
+RENDER_MAX_VIEWS: Final = 1000
+"""Most orbit cameras per time: past it a typo would render for days."""
+EVAL_MAX_TIMES: Final = 1000
+"""Most times ``eval`` samples, for the same reason."""

@@ -21,6 +21,30 @@ else:
     Subparsers: TypeAlias = argparse._SubParsersAction
 
 
+class Integer:
+    """An argparse type for an integer option with its range declared: a value outside it is a
+    usage error naming the range, never a value that overflows or loops for ever later."""
+
+    def __init__(self, low: int, high: int) -> None:
+        self.low, self.high = low, high
+        self.__name__ = f"integer from {low} to {high}"  # argparse names the type in errors
+
+    def __call__(self, text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not self.low <= value <= self.high:
+            raise argparse.ArgumentTypeError(
+                f"expected an integer from {self.low} to {self.high}, got {text}"
+            )
+        return value
+
+
+SEED = Integer(0, 2**32 - 1)
+"""Seeds of numpy's generators."""
+
+
 def add_common(p: argparse.ArgumentParser) -> None:
     """Options every subcommand has."""
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output on stderr")

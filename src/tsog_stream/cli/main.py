@@ -27,7 +27,7 @@ from ..summary import chunk_summary, scene_summary
 from ..temporal import time_range
 from . import interrupt
 from .client_commands import add_client_commands, cmd_fetch, cmd_play
-from .common import add_common, add_input, check_time, load_input, note
+from .common import SEED, add_common, add_input, check_time, load_input, note
 from .progress import Progress
 from .render_commands import add_render_commands, cmd_eval, cmd_render
 from .serve_commands import add_serve_command, add_sign_command, cmd_serve, cmd_sign
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the SH palette fit (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fit (default 0)")
     p.add_argument(
         "--lossy",
         action="store_true",
@@ -114,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--out", type=Path, default=Path("out"), help="folder for demo.sog (default ./out)"
     )
-    p.add_argument("--seed", type=int, default=0, help="scene and palette seed (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="scene and palette seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     add_common(p)
     return parser

@@ -14,9 +14,10 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..constants import EVAL_MAX_TIMES, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
 from ..errors import InputError
 from ..io.files import refuse_existing
-from .common import Subparsers, add_common, add_input, read_options
+from .common import Integer, Subparsers, add_common, add_input, read_options
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -44,9 +45,17 @@ images; SSIM uses the 3DGS evaluation's 11x11 Gaussian window, zero-padded (docs
 
 def _add_views(p: argparse.ArgumentParser, views_help: str) -> None:
     """Camera, image-size and rasterizer options shared by render and eval."""
-    p.add_argument("--views", type=int, help=views_help)
-    p.add_argument("--width", type=int, help="image width in pixels (orbits: default 640)")
-    p.add_argument("--height", type=int, help="image height in pixels (orbits: default 480)")
+    p.add_argument("--views", type=Integer(1, RENDER_MAX_VIEWS), help=views_help)
+    p.add_argument(
+        "--width",
+        type=Integer(1, RENDER_MAX_SIDE),
+        help="image width in pixels (orbits: default 640)",
+    )
+    p.add_argument(
+        "--height",
+        type=Integer(1, RENDER_MAX_SIDE),
+        help="image height in pixels (orbits: default 480)",
+    )
     p.add_argument("--cameras", type=Path, help="a 3DGS cameras.json instead of orbit cameras")
     p.add_argument(
         "--background",
@@ -73,7 +82,12 @@ def add_render_commands(sub: Subparsers) -> None:
     )
     add_input(p)
     p.add_argument("--t", type=float, default=0.0, help="time in seconds (default 0)")
-    p.add_argument("--view", type=int, default=0, help="camera index, from 0 (default 0)")
+    p.add_argument(
+        "--view",
+        type=Integer(0, RENDER_MAX_VIEWS - 1),
+        default=0,
+        help="camera index, from 0 (default 0)",
+    )
     _add_views(p, "orbit cameras around the scene (default 8); with --cameras: all")
     p.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
@@ -87,7 +101,9 @@ def add_render_commands(sub: Subparsers) -> None:
     )
     p.add_argument("reference", help="the reference: any input, a .tsogs, its folder or a URL")
     p.add_argument("candidate", help="the candidate, in any of the same forms")
-    p.add_argument("--times", type=int, default=5, help="times sampled (default 5)")
+    p.add_argument(
+        "--times", type=Integer(1, EVAL_MAX_TIMES), default=5, help="times sampled (default 5)"
+    )
     _add_views(p, "views per time (default 4 orbit cameras; with --cameras: all)")
     p.add_argument("--plot", type=Path, help="also draw PSNR over time to this PNG")
     p.add_argument("-f", "--force", action="store_true", help="replace the PLOT if it exists")

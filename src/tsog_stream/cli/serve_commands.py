@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..server import Limits, Privacy, run_server
 from ..signing import load_secret, parse_ttl, sign_url
-from .common import Subparsers
+from .common import Integer, Subparsers
 from .progress import Progress
 
 SECRET_HELP = (
@@ -31,11 +31,18 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("root", help="folder to serve, or one .tsogs file (only that file is served)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 = any free)")
-    p.add_argument("--max-concurrent", type=int, default=256, help="requests at once; more get 503")
+    p.add_argument(
+        "--port", type=Integer(0, 65535), default=8080, help="port (default 8080; 0 = any free)"
+    )
+    p.add_argument(
+        "--max-concurrent",
+        type=Integer(1, 1_000_000),
+        default=256,
+        help="requests at once; more get 503",
+    )
     p.add_argument(
         "--max-per-client",
-        type=int,
+        type=Integer(1, 1_000_000),
         default=32,
         help="requests at once from one client address once the server is half busy (default "
         "32; raise it behind a proxy, where every request comes from one address)",

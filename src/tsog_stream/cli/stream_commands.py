@@ -17,7 +17,7 @@ import numpy as np
 
 from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
-from ..constants import DEFAULT_MAX_PIXELS
+from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
 from ..container.sources import ReadStats
 from ..errors import InputError
 from ..io.chunks import write_chunk_files
@@ -38,6 +38,8 @@ from ..segment.segmenter import (
     segment_sequence,
 )
 from .common import (
+    SEED,
+    Integer,
     Subparsers,
     add_common,
     add_input,
@@ -107,12 +109,14 @@ def add_stream_commands(sub: Subparsers) -> None:
     )
     p.add_argument(
         "--max-pixels",
-        type=int,
+        type=Integer(1, MAX_IMAGE_PIXELS),
         default=DEFAULT_MAX_PIXELS,
         help="pixel budget per image (default 4096x4096)",
     )
-    p.add_argument("--workers", type=int, default=2, help="encoder processes (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the SH palette fits")
+    p.add_argument(
+        "--workers", type=Integer(1, 256), default=2, help="encoder processes (default 2)"
+    )
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
     p.add_argument(
         "--temporal",
         choices=TEMPORAL_MODES,
@@ -144,7 +148,7 @@ def add_stream_commands(sub: Subparsers) -> None:
 
     p = sub.add_parser("extract", help="copy one chunk of a container out as a standalone .sog")
     p.add_argument("input", help=STREAM_HELP)
-    p.add_argument("chunk", type=int, help="chunk id (see tsog info)")
+    p.add_argument("chunk", type=Integer(0, 2**31 - 1), help="chunk id (see tsog info)")
     p.add_argument("-o", "--output", type=Path, required=True)
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)

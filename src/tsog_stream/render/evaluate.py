@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ..constants import EVAL_MAX_TIMES, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
 from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..temporal import time_range
@@ -78,8 +79,8 @@ def sample_times(span: Span | None, count: int, fps: float | None = None) -> lis
     a frame for 1/fps while a candidate with fitted motion moves on, and what is compared is
     the frames themselves.
     """
-    if count < 1:
-        raise InputError(f"expected at least 1 time, got {count}", where="--times")
+    if not 1 <= count <= EVAL_MAX_TIMES:
+        raise InputError(f"expected 1-{EVAL_MAX_TIMES} times, got {count}", where="--times")
     if span is None:
         return [0.0]
     start, end = span
@@ -120,10 +121,12 @@ class CameraSetup:
     def check(self) -> None:
         """Refuse sizes and counts that cannot make an image."""
         for name, value in (("--width", self.width), ("--height", self.height)):
-            if value is not None and not 1 <= value <= 16384:
-                raise InputError(f"expected 1-16384 pixels, got {value}", where=name)
-        if self.views is not None and self.views < 1:
-            raise InputError(f"expected at least 1 view, got {self.views}", where="--views")
+            if value is not None and not 1 <= value <= RENDER_MAX_SIDE:
+                raise InputError(f"expected 1-{RENDER_MAX_SIDE} pixels, got {value}", where=name)
+        if self.views is not None and not 1 <= self.views <= RENDER_MAX_VIEWS:
+            raise InputError(
+                f"expected 1-{RENDER_MAX_VIEWS} views, got {self.views}", where="--views"
+            )
 
     def fixed(self) -> list[Camera] | None:
         """The cameras of the cameras.json (the same at every t), or None for orbits."""
