@@ -197,6 +197,9 @@ def hostile_cases() -> dict[str, tuple[str, bytes, type[TsogError] | None]]:
     ascii_ply = corpus.ply(10**12, b"1 2 3 4 5 6 7 8 9 10 11 12 13 14\n", fmt="ascii")
     files = corpus.sog_files()
     big = {**files, "means_l.webp": corpus.webp_header(b"VP8X", 60000, 60000)}
+    canvas = {n: corpus.webp_header(b"VP8X", 4096, 4096) for n in files if n != "meta.json"}
+    canvas_meta = corpus.meta_bytes(corpus.meta(4096 * 4096))
+    wide = {n: corpus.webp_header(b"VP8X", 16384, 1024) for n in files if n != "meta.json"}
     within = {n: corpus.webp_header(b"VP8L", 16383, 16383) for n in files if n != "meta.json"}
     many = {**within, "meta.json": corpus.meta_bytes(corpus.meta(16383 * 16000))}
     splat = json.dumps([{"type": "splat", "size": 64 * 10**9}]).encode()
@@ -207,6 +210,16 @@ def hostile_cases() -> dict[str, tuple[str, bytes, type[TsogError] | None]]:
         "small PLY declaring 10^9 vertices": ("ply", ply_small, PlyError),
         "ASCII PLY declaring 10^12 vertices": ("ply", ascii_ply, PlyError),
         "zip holding a 60000x60000 WebP": ("sog", bundle_bytes(big), SogError),
+        "VP8X canvases of 2^24 pixels and a count to match": (
+            "sog",
+            bundle_bytes({**canvas, "meta.json": canvas_meta}),
+            SogError,
+        ),
+        "VP8X canvases 16384 wide": (
+            "sog",
+            bundle_bytes({**wide, "meta.json": files["meta.json"]}),
+            SogError,
+        ),
         "16383^2 images for 16 Gaussians": (
             "sog",
             bundle_bytes({**within, **{"meta.json": files["meta.json"]}}),
