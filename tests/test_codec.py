@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +63,21 @@ def test_bundle_round_trip_and_layout(sh3_scene: Scene) -> None:
     data = bundle_bytes(files)
     assert read_bundle(data) == files
     assert data[-22:-20] == b"PK" and data[-2:] == b"\x00\x00"  # end record, no comment
+
+
+def test_meta_json_is_deflated_and_its_floats_are_exact(sh3_scene: Scene) -> None:
+    """Spec 0.4: images stored, meta.json deflated; every codebook value is written as the
+    shortest decimal that reads back as the very float32 the encoder chose."""
+    files = encode_chunk(sh3_scene)
+    with zipfile.ZipFile(io.BytesIO(bundle_bytes(files))) as archive:
+        methods = {i.filename: i.compress_type for i in archive.infolist()}
+        packed = archive.getinfo("meta.json").compress_size
+    assert methods.pop("meta.json") == zipfile.ZIP_DEFLATED
+    assert set(methods.values()) == {zipfile.ZIP_STORED}
+    assert packed < 0.6 * len(files["meta.json"])
+    meta = json.loads(files["meta.json"])
+    for values in (meta["scales"]["codebook"], meta["sh0"]["codebook"], meta["means"]["mins"]):
+        assert all(float(str(np.float32(v))) == v for v in values)  # shortest for its float32
 
 
 @pytest.mark.parametrize("kind", list(TimelineType))

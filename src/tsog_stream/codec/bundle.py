@@ -42,13 +42,17 @@ def is_zip(data: bytes) -> bool:
 
 
 def bundle_bytes(files: Mapping[str, bytes]) -> bytes:
-    """A .sog archive of ``files`` (name -> bytes), meta.json last, byte-for-byte reproducible."""
+    """A .sog archive of ``files`` (name -> bytes), meta.json last, byte-for-byte reproducible.
+
+    WebP images are stored (already compressed); ``meta.json`` is deflated, which the engine
+    and splat-transform read too: its codebooks are most of a small chunk's fixed cost.
+    """
     names = [n for n in files if n != META_JSON] + ([META_JSON] if META_JSON in files else [])
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED, allowZip64=False) as archive:
         for name in names:
             info = zipfile.ZipInfo(name, date_time=FIXED_DATE)
-            info.compress_type = zipfile.ZIP_STORED
+            info.compress_type = zipfile.ZIP_DEFLATED if name == META_JSON else zipfile.ZIP_STORED
             info.external_attr = 0o644 << 16
             archive.writestr(info, files[name])
     return out.getvalue()

@@ -35,8 +35,13 @@ class SogParts:
 
 
 def _floats(values: npt.ArrayLike) -> list[float]:
-    """JSON-ready list of Python floats (float32 values keep their exact float64 repr)."""
-    return [float(v) for v in np.asarray(values).reshape(-1)]
+    """JSON-ready list of float32 values, each the shortest decimal that reads back as the
+    same float32 (0.1, not 0.10000000149011612): codebooks take half the bytes, exactly."""
+    out = []
+    for v in np.asarray(values, dtype=np.float32).reshape(-1):
+        short = float(str(v))
+        out.append(short if np.float32(short) == v else float(v))
+    return out
 
 
 def opacity_bytes(logits: npt.NDArray[np.float32]) -> U8:

@@ -107,7 +107,7 @@ export class ChunkStream {
         }
         const digest = await sha256(buffer);
         if (digest !== null && digest !== c.info.sha256) throw new Error('SHA-256 differs from the manifest');
-        const files = readZip(buffer);
+        const files = await readZip(buffer);
         const meta = JSON.parse(new TextDecoder().decode(files.get('meta.json')));
         c.layout = readLayout(meta);
         if (c.layout) {
