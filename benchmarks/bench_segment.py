@@ -1,5 +1,6 @@
 """Segmenter benchmark: policies and window lengths by seek cost; throughput and peak memory.
 
+    .venv/bin/python benchmarks/bench_segment.py content      # default layout per input (minutes)
     .venv/bin/python benchmarks/bench_segment.py policies     # policy x window table (minutes)
     .venv/bin/python benchmarks/bench_segment.py scale        # PLY sequences: 10 and 100 frames
     .venv/bin/python benchmarks/bench_segment.py scale --frames 10 --per-frame 300000
@@ -21,15 +22,23 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fourdgs.indexed_reader import open_indexed  # type: ignore[import-untyped]
+from fourdgs.readable import BytesReadable  # type: ignore[import-untyped]
 
 from common import run_measured, sample, write_section
 from tsog_stream import TimelineType
 from tsog_stream.client import open_stream
+from tsog_stream.codec.bundle import bundle_bytes
+from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.container.header import PREFIX_SIZE
+from tsog_stream.errors import TsogError
+from tsog_stream.io.fourdgs import encode_4dgs
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import ReadOptions, load_scene
 from tsog_stream.model import Scene
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
+from tsog_stream.synthetic import SceneSpec, freetime_scene, generate_scene, static_gaussians
+from tsog_stream.temporal import time_range
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
@@ -212,12 +221,181 @@ def scale(args: argparse.Namespace) -> None:
     write_section(name, "\n".join(lines) + "\n", "bench_segment.py")
 
 
+FLIPBOOKS = {
+    "monkey flipbook (50 SOG)": "4d/pc_flipbook_monkey",
+    "wave flipbook (50 SOG)": "4d/pc_flipbook_wave",
+    "fireworks (6 PLY frames)": "4d/tztechno_fireworks_frames",
+}
+SPLATV = ("coffee10", "coffeeshort2", "spinach_4", "yellow_clip2")
+LIFESPANS = {"short": (0.005, 0.02), "medium": (0.05, 0.2), "long": (0.5, 1.0)}
+"""FreeTimeGS-style scenes from the real 45k donut: lifespans as fractions of a 10 s clip."""
+
+
+def _seek_figures(path: Path, reference: list[int] | None, samples: int) -> dict[str, float]:
+    """Mean bytes and requests to show a random t, opening included, and the ratio to what
+    is shown: the frame's own file (``reference``, a flipbook) or the visible Gaussians."""
+    with open_stream(path) as reader:
+        header = reader.index.header
+        opening = PREFIX_SIZE + (0 if header.index_offset < PREFIX_SIZE else header.index_length)
+        scene = reader.index.manifest.scene
+        times = np.random.default_rng(1).uniform(scene.start_s, scene.end_s, samples)
+        costs = [reader.seek_cost(float(t)) for t in times]
+        fps = reader.index.manifest.scene.fps
+    fetched = np.array([c.bytes for c in costs], float) + opening
+    if reference is not None and fps:
+        frame = np.minimum(((times - scene.start_s) * fps).astype(int), len(reference) - 1)
+        shown = np.array([reference[k] for k in frame], float)
+    else:
+        shown = np.array([c.visible_bytes for c in costs], float)
+    return {
+        "seek_bytes": float(fetched.mean()),
+        "shown_bytes": float(shown.mean()),
+        "seek_ratio": float(fetched.mean() / (shown.mean() + PREFIX_SIZE)),
+        "requests": 1 + float(np.mean([c.requests for c in costs])),
+    }
+
+
+def _fourdgs_figures(scene: Scene, samples: int) -> dict[str, float]:
+    """.4dgs (fourdgs defaults) bytes and mean bytes a seek reads: the chunks covering t plus
+    everything that is not a chunk (header, index), which an opening reads at most."""
+    try:
+        data, _ = encode_4dgs(scene, lossy=True)
+    except TsogError as exc:
+        return {"4dgs_error": str(exc)[:120]}  # type: ignore[dict-item]
+    indexed = open_indexed(BytesReadable(data))
+    chunks = sum(e.chunk_length + sum(b[2] for b in e.bands) for e in indexed.index)
+    first, last = time_range(scene.timeline) if scene.timeline is not None else (0.0, 1.0)
+    times = np.random.default_rng(1).uniform(first, last, samples)
+    seeks = [indexed.bytes_for_time(float(t), max_sh_band=3) for t in times]
+    return {"4dgs_bytes": len(data), "4dgs_seek": len(data) - chunks + float(np.mean(seeks))}
+
+
+def _content_cases(work: Path) -> list[tuple[str, Path, list[int] | None, Scene | None]]:
+    """(name, input path, per-frame file sizes of a flipbook, scene for .4dgs) per input."""
+    cases: list[tuple[str, Path, list[int] | None, Scene | None]] = []
+    for name, rel in FLIPBOOKS.items():
+        folder = sample(rel, in_tree=False) if "monkey" in name else sample(rel)
+        files = sorted(p for p in folder.iterdir() if p.suffix in (".sog", ".ply"))
+        cases.append((name, folder, [p.stat().st_size for p in files], None))
+    generated = work / "independent"
+    generated.mkdir()
+    sizes = []
+    for k in range(12):  # independently made frames: nothing corresponds
+        path = generated / f"frame_{k:03d}.sog"
+        path.write_bytes(bundle_bytes(encode_chunk(Scene(static_gaussians(30_000, seed=50 + k)))))
+        sizes.append(path.stat().st_size)
+    cases.append(("12 independent generated frames (SOG)", generated, sizes, None))
+    for clip in SPLATV:
+        path = sample(f"4d/splatv/macaburguera_{clip}.splatv", in_tree=False)
+        cases.append((f"{clip}.splatv (1 s)", path, None, load_scene(path).scene))
+    donut = load_scene(sample("3dgs/v3dg_donut_fused.ply")).scene.gaussians
+    for label, life in LIFESPANS.items():
+        scene = freetime_scene(donut, duration_s=10.0, lifespan=life, seed=7)
+        path = work / f"donut-{label}.sog"  # a 4D chunk is an input like any other
+        path.write_bytes(bundle_bytes(encode_chunk(scene)))
+        cases.append((f"donut FreeTimeGS {label} ({life[0]:.1%}-{life[1]:.0%})", path, None, scene))
+    return cases
+
+
+def _frames_encode_seconds(folder: Path) -> float:
+    """Seconds to encode each frame of a folder to its own SOG, one after another."""
+    start = time.monotonic()
+    for frame in sorted(folder.iterdir()):
+        bundle_bytes(encode_chunk(load_scene(frame).scene))
+    return time.monotonic() - start
+
+
+def content(args: argparse.Namespace) -> None:
+    """The default layout on every kind of input: file, seek bytes against what is shown,
+    requests, time and peak RSS of `tsog segment`, beside the flipbook and .4dgs."""
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="tsog-content-") as tmp:
+        for name, path, frames, scene in _content_cases(Path(tmp)):
+            out = Path(tmp) / "out.tsogs"
+            cmd = [str(TSOG), "segment", str(path), "-o", str(out), "-f", "-q", "--workers", "2"]
+            m = run_measured(cmd)
+            if not m["finished"]:
+                raise SystemExit(f"{cmd} failed:\n{m.get('error', '')}")
+            size = sum(frames) if frames else path.stat().st_size
+            row: dict[str, Any] = {
+                "input": name,
+                "input_bytes": size,
+                "bytes": out.stat().st_size,
+                "layout": _layout_of(out),
+                "seconds": m["seconds"],
+                "peak_mib": m["peak_mib"],
+                **_seek_figures(out, frames, args.samples),
+            }
+            if frames is not None and path.name == "independent":
+                row["frames_encode_s"] = round(_frames_encode_seconds(path), 2)
+            if scene is not None:
+                row.update(_fourdgs_figures(scene, args.samples))
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    (RESULTS / "segment-content.json").write_text(
+        json.dumps({"date": stamp, "rows": rows}, indent=2)
+    )
+    write_section("segment-content", _content_table(stamp, rows, args.samples), "bench_segment.py")
+
+
+def _layout_of(path: Path) -> str:
+    """'50 windows of 1 frame, hybrid, 50 chunks' from a written container."""
+    with open_stream(path) as reader:
+        manifest = reader.index.manifest
+        fps = manifest.scene.fps
+        window = manifest.window_s
+        frames = f"{window * fps:.3g} frame(s)" if fps else f"{window:.3g} s"
+        return f"{frames}, {manifest.policy}, {len(manifest.chunks)} chunks"
+
+
+def _content_table(stamp: str, rows: list[dict[str, Any]], samples: int) -> str:
+    """The markdown table of the content part."""
+    lines = [
+        "## Segmenting real content: the layout chosen per input",
+        "",
+        f"Run {stamp}: default `tsog segment INPUT -o OUT --workers 2` as a child process "
+        f"(time and peak RSS of it and its workers). *seek*: mean bytes to show one of "
+        f"{samples} random t (seeded), the 16 KiB opening included; *shown*: that frame's own "
+        "file for a flipbook, else the bytes of the Gaussians visible at t in a chunk of their "
+        "own; *ratio*: seek / (shown + 16 KiB), target <= 1.25. `.4dgs`: fourdgs defaults "
+        "(lossy where it cannot hold the motion); its seek is the chunks covering t plus "
+        "everything in the file that is not a chunk.",
+        "",
+        "| input | input MB | layout chosen | .tsogs MB | x input | seek kB | shown kB | ratio | requests | s | peak MiB | .4dgs MB | .4dgs seek kB |",
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        fourdgs = (
+            f"{r['4dgs_bytes'] / 1e6:.2f} | {r['4dgs_seek'] / 1e3:.0f}"
+            if "4dgs_bytes" in r
+            else "– | –"
+        )
+        lines.append(
+            f"| {r['input']} | {r['input_bytes'] / 1e6:.2f} | {r['layout']} | "
+            f"{r['bytes'] / 1e6:.2f} | {r['bytes'] / r['input_bytes']:.2f} | "
+            f"{r['seek_bytes'] / 1e3:.0f} | {r['shown_bytes'] / 1e3:.0f} | {r['seek_ratio']:.2f} | "
+            f"{r['requests']:.1f} | {r['seconds']:.1f} | {r['peak_mib']:.0f} | {fourdgs} |"
+        )
+    timed = [r for r in rows if "frames_encode_s" in r]
+    for r in timed:
+        lines += [
+            "",
+            f"{r['input']}: segmenting took {r['seconds']:.1f} s against {r['frames_encode_s']:.1f}"
+            f" s to encode its frames one by one in one process "
+            f"({r['seconds'] / r['frames_encode_s']:.2f}x, process start included).",
+        ]
+    return "\n".join(lines) + "\n"
+
+
 def main() -> int:
     """Dispatch the benchmark parts."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="part", required=True)
+    p = sub.add_parser("content")
+    p.add_argument("--samples", type=int, default=64)
     p = sub.add_parser("policies")
     p.add_argument("--windows", type=float, nargs="+", default=[0.5, 1.0, 2.0])
     p.add_argument("--samples", type=int, default=50)
@@ -229,7 +407,7 @@ def main() -> int:
     p.add_argument("--tmp", default=None, help="folder for the generated sequences (needs ~2 GB)")
     args = parser.parse_args()
     RESULTS.mkdir(parents=True, exist_ok=True)
-    {"policies": policies, "scale": scale}[args.part](args)
+    {"content": content, "policies": policies, "scale": scale}[args.part](args)
     return 0
 
 

@@ -555,7 +555,8 @@ def test_pack_refuses_a_tampered_chunk(unpacked: Path, tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def hanabi(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("cli") / "hanabi.tsogs"
-    args = ["segment", str(samples / HANABI), "--window", "0.25s", "-o", str(out)]
+    args = ["segment", str(samples / HANABI), "--window", "0.25s", "--policy", "hybrid"]
+    args += ["-o", str(out)]
     assert main([*args, "--workers", "1", "-q"]) == 0
     return out
 

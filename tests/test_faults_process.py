@@ -351,7 +351,8 @@ def test_a_full_disk_fails_cleanly_naming_the_path(
         return add(self, payload)
 
     monkeypatch.setattr(writer.PayloadWriter, "add", full_disk)
-    code = main(["segment", str(source_chunk), "-o", str(out), "--workers", "1", "-q"])
+    args = ["--window", "1s", "--policy", "hybrid", "--workers", "1", "-q"]  # several chunks
+    code = main(["segment", str(source_chunk), "-o", str(out), *args])
     err = capsys.readouterr().err
     assert code == 1
     assert err.strip() == f"tsog: error: {out}: cannot write: No space left on device"

@@ -17,7 +17,7 @@ from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.merge.check import frame_errors
 from tsog_stream.merge.features import Steps, Tolerance, columns, quat_tolerance, tolerances
 from tsog_stream.merge.fit import fit_tracks
-from tsog_stream.merge.sequence import merge_sequence
+from tsog_stream.merge.sequence import merge_frames, merge_sequence, probe_merge
 from tsog_stream.model import Gaussians, Scene, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import static_gaussians
@@ -113,7 +113,7 @@ def test_every_frame_decodes_within_the_budget(
     scene, _ = merge_sequence(seq, mode)  # type: ignore[arg-type]
     assert scene is not None
     out = tmp_path / "m.tsogs"
-    segment_scene(scene, out, SegmentOptions(window_s=0.5, workers=1))
+    segment_scene(scene, out, SegmentOptions(window_s=0.5, policy="hybrid", workers=1))
     steps = Steps.of(frames[0])
     tol = tolerances(columns(frames[0]), steps, Tolerance()).max(axis=0)
     with open_stream(out) as reader:
@@ -157,15 +157,20 @@ def test_merging_past_the_memory_bound_gives_up(
     assert scene is None and stats.frames == 1  # the first frame alone holds more
 
 
-def test_no_redundancy_is_not_made_larger(tmp_path: Path) -> None:
+def test_frames_without_correspondence_are_probed_not_merged(tmp_path: Path) -> None:
+    """Independently made frames: a probe of a few frames finds that nothing carries over, so
+    the whole sequence is never merged (merging a 50-frame flipbook that way took 85 s)."""
     frames = [static_gaussians(1500, seed=100 + k) for k in range(6)]
     seq = write_frames(tmp_path / "seq", frames)
-    scene, stats = merge_sequence(seq, "merge")
-    assert scene is not None
-    assert len(scene) == stats.gaussians_in == 9000
-    _, fitted = merge_sequence(seq, "fit")  # nothing follows a path: motion would not pay
-    assert "merged lifespans only" in fitted.note and fitted.moving_out == 0
-    options = SegmentOptions(window_s=0.5, workers=1)
+    for mode in ("merge", "fit"):
+        assert probe_merge(seq, mode)[0] is None
+        scene, stats = merge_sequence(seq, mode)
+        assert scene is None and "not merged" in stats.note and stats.frames == 0
+    # merged anyway (no probe), the result is no larger than one Gaussian per frame
+    merged_scene, merged_stats = merge_frames(frames, fps=FPS, sh_coeffs=0, mode="merge")
+    assert merged_scene is not None and len(merged_scene) == merged_stats.gaussians_in == 9000
+    scene = merged_scene
+    options = SegmentOptions(window_s=0.5, policy="hybrid", workers=1)
     flip = segment_sequence(seq, tmp_path / "off.tsogs", options)
     merged = segment_scene(scene, tmp_path / "merge.tsogs", options)
     off_size = (tmp_path / "off.tsogs").stat().st_size

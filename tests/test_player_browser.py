@@ -75,7 +75,7 @@ def root(tmp_path_factory: pytest.TempPathFactory, scenes: dict[str, Scene]) -> 
     """Each scene segmented (1 s windows), one also unpacked, one private copy."""
     root = tmp_path_factory.mktemp("browser")
     for name, scene in scenes.items():
-        segment_scene(scene, root / f"{name}.tsogs", SegmentOptions(window_s=1.0))
+        segment_scene(scene, root / f"{name}.tsogs", SegmentOptions(window_s=1.0, policy="hybrid"))
     (root / "static").mkdir()
     with open_stream(root / "centre.tsogs") as reader:
         reader.unpack(root / "static" / "centre")

@@ -17,6 +17,7 @@ import numpy.typing as npt
 from .constants import SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
 from .model import Gaussians, Scene, Timeline, TimelineType
+from .temporal import visibility_half_width
 
 F64 = npt.NDArray[np.float64]
 
@@ -234,3 +235,30 @@ def static_gaussians(n: int, *, sh_bands: int = 0, seed: int = 0) -> Gaussians:
     g = _static_attributes(rng, means, sh_bands)
     decay = 1.0 / (1.0 + np.arange(g.shN.shape[1]))[None, :, None]  # higher bands are smaller
     return Gaussians.from_arrays(g.means, g.scales, g.quats, g.opacities, g.sh0, shN=g.shN * decay)
+
+
+def freetime_scene(
+    g: Gaussians,
+    *,
+    duration_s: float,
+    lifespan: tuple[float, float],
+    speed: float = 0.05,
+    seed: int = 0,
+) -> Scene:
+    """A FreeTimeGS-style scene from any static Gaussians (a real capture, say): each gets a
+    random centre in [0, duration_s], a visible lifespan (type 2, at the visibility threshold)
+    drawn uniformly from ``lifespan`` as fractions of the clip, and a linear velocity of up to
+    ``speed`` scene extents per second. The benchmarks' short, medium and long scenes."""
+    lo, hi = lifespan
+    if not (0 < lo <= hi) or duration_s <= 0:
+        raise InputError(f"expected 0 < {lo} <= {hi} and a positive duration", where="lifespan")
+    rng = np.random.default_rng(seed)
+    n = len(g)
+    visible = rng.uniform(lo, hi, n) * duration_s
+    centre = rng.uniform(0.0, duration_s, n)
+    scale = visible / (2 * visibility_half_width())
+    finite = g.means[np.all(np.isfinite(g.means), axis=1)]
+    extent = float(np.max(np.ptp(finite, axis=0))) if len(finite) else 1.0
+    velocity = rng.normal(0.0, speed * extent / np.sqrt(3), (n, 1, 3))
+    timeline = Timeline(TimelineType.CENTER_SCALE, centre, scale, scene_length=duration_s)
+    return Scene(g, timeline, {"means": velocity.astype(np.float32)})

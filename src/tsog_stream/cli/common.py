@@ -95,6 +95,11 @@ def note(message: str) -> None:
     print(f"tsog: note: {message}", file=sys.stderr)
 
 
+def warn(message: str) -> None:
+    """Something the user asked for works, but worse than it could: on stderr."""
+    print(f"tsog: warning: {message}", file=sys.stderr)
+
+
 def load_input(args: argparse.Namespace, progress: Progress) -> Scene:
     """Load the INPUT with progress and reader notes on stderr."""
     progress(f"reading {args.input}")

@@ -29,13 +29,13 @@ from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
 from ..merge.check import frame_errors
 from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
+from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
-    DEFAULT_POLICY,
-    DEFAULT_WINDOW_S,
     SegmentOptions,
     segment_scene,
     segment_sequence,
+    why_store_frames,
 )
 from .common import (
     SEED,
@@ -47,6 +47,7 @@ from .common import (
     input_bytes,
     load_input,
     note,
+    warn,
 )
 from .progress import Progress
 
@@ -57,13 +58,14 @@ STREAM_HELP = (
     "a .tsogs container or unpacked folder: path, file:// URL or http(s):// URL "
     "(a folder URL ends with / or /manifest.json)"
 )
+AUTO = "auto"
 _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
 
 def check_segment_args(args: argparse.Namespace) -> None:
     """Refuse bad options before the (possibly long) input read."""
     refuse_existing(args.output, overwrite=args.force)
-    if not _WINDOW.match(args.window):
+    if args.window != AUTO and not _WINDOW.match(args.window):
         raise InputError(
             f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
         )
@@ -72,8 +74,10 @@ def check_segment_args(args: argparse.Namespace) -> None:
     tolerance_option(args)  # refuses a negative or non-finite tolerance now, not after a read
 
 
-def parse_window(text: str, fps: float | None) -> float:
-    """'1s', '0.5', '30f' -> seconds; frames need the scene's fps."""
+def parse_window(text: str, fps: float | None) -> float | None:
+    """'1s', '0.5', '30f' -> seconds (frames need the scene's fps); 'auto' -> None."""
+    if text == AUTO:
+        return None
     m = _WINDOW.match(text)
     if not m:
         raise InputError(
@@ -99,13 +103,15 @@ def add_stream_commands(sub: Subparsers) -> None:
         "-o", "--output", type=Path, required=True, help="the container to write (.tsogs)"
     )
     p.add_argument(
-        "--window", default=f"{DEFAULT_WINDOW_S:g}s", help="time window: 1s, 0.5, or 30f (frames)"
+        "--window",
+        default="auto",
+        help="time window: auto (default: chosen per scene by a cost model so that a seek "
+        "fetches at most 1.25x what it shows, at the smallest file), 1s, 0.5, or 30f (frames)",
     )
     p.add_argument(
         "--policy",
         choices=POLICIES,
-        default=DEFAULT_POLICY,
-        help="how Gaussians crossing windows are stored",
+        help="how Gaussians crossing windows are stored (default: chosen with the window)",
     )
     p.add_argument(
         "--max-pixels",
@@ -209,7 +215,10 @@ def _segment(
 
     if isinstance(source, FrameSequence) and args.temporal != "off":
         merged = _merged(args, progress, source)
-        if merged is None:
+        why = why_store_frames(source, merged, options) if merged is not None else None
+        if why is not None:
+            print(f"temporal: {why}; stored one per frame (type 0)")
+        if merged is None or why is not None:
             report = segment_sequence(source, args.output, options, on_chunk=on_chunk)
         else:
             report = segment_scene(merged, args.output, options, on_chunk=on_chunk)
@@ -220,10 +229,11 @@ def _segment(
     else:
         report = segment_scene(source, args.output, options, on_chunk=on_chunk)
     progress.done()
-    saving = 100.0 * (1 - report.bytes / input_size) if input_size else 0.0
-    print(f"{report.path}: {report.bytes} bytes, {saving:.1f}% smaller than the input")
-    print(f"  {report.windows} windows of {options.window_s:g} s, {report.chunks} chunks")
-    print(f"  policy {options.policy}: {report.stored} of {report.gaussians} Gaussians stored")
+    print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, input_size)}")
+    if report.layout is not None:
+        _print_layout(report.layout, fps)
+    print(f"  {report.windows} windows, {report.chunks} chunks")
+    print(f"  {report.gaussians} Gaussians, {report.stored} stored copies")
     print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
     for level, size in sorted(report.bytes_per_level.items()):
         print(f"  level {level}: {size} bytes")
@@ -231,6 +241,33 @@ def _segment(
     more = " ..." if len(report.bytes_per_window) > 12 else ""
     print(f"  bytes per window (level 0): {shown}{more}")
     return 0
+
+
+def _size_change(size: int, input_size: int) -> str:
+    """'12 % smaller than the input' or '9 % larger than the input', said plainly."""
+    if not input_size:
+        return "input size unknown"
+    change = 100.0 * (size - input_size) / input_size
+    if abs(change) < 0.05:
+        return "the size of the input"
+    return f"{abs(change):.1f} % {'larger' if change > 0 else 'smaller'} than the input"
+
+
+def _print_layout(choice: Choice, fps: float | None) -> None:
+    """The layout used and why; a warning when a layout given explicitly over-fetches."""
+    chosen = choice.chosen
+    how = "as given" if choice.explicit else "chosen"
+    print(f"  layout ({how}): {chosen.layout.describe(fps)}: {choice.reason}")
+    print(
+        f"  a seek at a random t: about {chosen.seek_mean / 1e3:.0f} kB in {chosen.requests:.1f} "
+        f"requests, opening included, to show {chosen.shown_mean / 1e3:.0f} kB"
+    )
+    if choice.explicit and chosen.overfetch > OVERFETCH_WARNING:
+        warn(
+            f"this layout makes a seek fetch about {chosen.overfetch:.1f}x what it "
+            "shows; --window auto (the default) chooses one that fetches at most "
+            f"{SEEK_TARGET:g}x where the content allows"
+        )
 
 
 def tolerance_option(args: argparse.Namespace) -> Tolerance | None:
@@ -247,6 +284,9 @@ def _merged(args: argparse.Namespace, progress: Progress, seq: FrameSequence) ->
     scene, stats = merge_sequence(seq, args.temporal, tolerance_option(args), progress=progress)
     progress.done()
     seconds = time.monotonic() - started
+    if scene is None and stats.note:
+        print(f"temporal: {stats.note}; stored one per frame (type 0)")
+        return None
     if scene is None:
         print(
             f"temporal: merging would hold over {MAX_HELD} Gaussians in memory after "

@@ -31,6 +31,15 @@ above it (little follows a path), the coefficient images every Gaussian of a chu
 outweigh the Gaussians saved, and ``merge`` is smaller (measured: docs/design/temporal-merge.md)."""
 MAX_HELD: Final = 4_000_000
 """Gaussians a merge may hold in memory (a few GiB) before the sequence is stored per frame."""
+PROBE_FRAMES: Final = 8
+"""Consecutive frames of each probe: enough that a polynomial through them can fail (fewer
+always fit) and that unchanged Gaussians show (out of 8 frames, at best 1 in 8 is kept)."""
+PROBE_SAMPLES: Final = 3
+"""Probes, at the start, middle and end of the sequence."""
+PROBE_GAUSSIANS: Final = 4096
+"""About this many Gaussians of each probed frame are matched: those in a central box."""
+MERGE_PAYS_BELOW: Final = 0.95
+"""``merge`` runs on the whole sequence only when a probe kept at most this share."""
 
 Progress = Callable[[str], None]
 
@@ -80,6 +89,60 @@ def merge_frames(
     return scene, replace(merger.stats)
 
 
+def probe_merge(
+    seq: FrameSequence, mode: TemporalMode, tolerance: Tolerance | None = None
+) -> tuple[TemporalMode | None, str]:
+    """The mode worth running on the whole sequence (None: store it per frame) and why, from
+    merging PROBE_SAMPLES runs of PROBE_FRAMES frames cropped to a central box of about
+    PROBE_GAUSSIANS (the same box in every frame of a run): a second or so whatever the
+    sequence, where merging a whole flipbook that carries nothing over took minutes."""
+    if seq.count < 2:
+        return None, "one frame: nothing to merge"
+    tol = default_tolerance(seq, tolerance)
+    kept = {m: _probe_kept(seq, m, tol) for m in (("fit", "merge") if mode == "fit" else (mode,))}
+    if kept.get("fit", 1.0) <= FIT_PAYS_BELOW:
+        return "fit", ""
+    if kept["merge"] <= MERGE_PAYS_BELOW:
+        if mode == "merge":
+            return "merge", ""
+        return "merge", (
+            f"fitted motion kept {kept['fit']:.0%} of the Gaussians of a probe, too many to pay "
+            "for the coefficient images: merged lifespans only"
+        )
+    shown = ", ".join(f"{m} {k:.0%}" for m, k in kept.items())
+    return None, (
+        f"merging kept {shown} of the Gaussians of {PROBE_SAMPLES} probes of {PROBE_FRAMES} "
+        f"frames (it pays below {MERGE_PAYS_BELOW:.0%}): not merged"
+    )
+
+
+def _probe_kept(seq: FrameSequence, mode: TemporalMode, tol: Tolerance) -> float:
+    """Smallest share of Gaussians kept by merging a probe run of frames, over the probes."""
+    length = min(PROBE_FRAMES, seq.count)
+    starts = sorted({round(k) for k in np.linspace(0, seq.count - length, PROBE_SAMPLES)})
+    kept = []
+    for first in starts:
+        frames = [seq.read(i, i + 1).scene.gaussians for i in range(first, first + length)]
+        lo, hi = _central_box(frames[0].means, PROBE_GAUSSIANS)
+        frames = [g.subset(np.all((g.means >= lo) & (g.means <= hi), axis=1)) for g in frames]
+        if sum(len(g) for g in frames) == 0:
+            continue
+        options = {"fps": seq.fps, "sh_coeffs": seq.sh_coeffs, "tolerance": tol}
+        _, stats = merge_frames(frames, mode=mode, **options)  # type: ignore[arg-type]
+        kept.append(stats.gaussians_out / max(stats.gaussians_in, 1))
+    return min(kept, default=1.0)
+
+
+def _central_box(means: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis quantile bounds of a box around the median holding about ``count`` points."""
+    if len(means) <= count:
+        return np.full(3, -np.inf), np.full(3, np.inf)
+    half = 0.5 * (count / len(means)) ** (1 / 3)
+    finite = means[np.all(np.isfinite(means), axis=1)]
+    lo, hi = np.quantile(finite, [0.5 - half, 0.5 + half], axis=0)
+    return lo, hi
+
+
 def merge_sequence(
     seq: FrameSequence,
     mode: TemporalMode = "merge",
@@ -88,7 +151,11 @@ def merge_sequence(
     progress: Progress | None = None,
     max_held: int | None = MAX_HELD,
 ) -> tuple[Scene | None, MergeStats]:
-    """A frame sequence, read one frame at a time, as one merged scene (see merge_frames)."""
+    """A frame sequence, read one frame at a time, as one merged scene (see merge_frames).
+
+    None (with a note saying why) when a probe of a few frame pairs finds that too few
+    Gaussians carry over to pay for merging, or when merging would hold too much memory.
+    """
 
     def frames() -> Iterator[Gaussians]:
         for k in range(seq.count):
@@ -97,8 +164,13 @@ def merge_sequence(
             yield seq.read(k, k + 1).scene.gaussians
 
     tol = default_tolerance(seq, tolerance)
+    worth, why = probe_merge(seq, mode, tol)
+    if worth is None:
+        return None, MergeStats(gaussians_in=seq.gaussians, note=why)
+    mode = worth
     options = {"fps": seq.fps, "sh_coeffs": seq.sh_coeffs, "tolerance": tol, "max_held": max_held}
     scene, stats = merge_frames(frames(), mode=mode, **options)  # type: ignore[arg-type]
+    stats.note = stats.note or why
     if scene is None or mode != "fit" or stats.gaussians_out <= FIT_PAYS_BELOW * stats.gaussians_in:
         return scene, stats
     merged, merged_stats = merge_frames(frames(), mode="merge", **options)  # type: ignore[arg-type]

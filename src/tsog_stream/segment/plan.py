@@ -70,7 +70,7 @@ def window_count(start_s: float, end_s: float, window_s: float) -> int:
     return max(1, math.ceil((end_s - start_s) / window_s - WINDOW_EPSILON))
 
 
-def _window_span(
+def window_span(
     start: F64, end: F64, t0: float, window_s: float, windows: int
 ) -> tuple[Ints, Ints]:
     """First and last window index each lifespan [start, end) touches, clipped to the scene."""
@@ -80,7 +80,17 @@ def _window_span(
     return np.clip(first, 0, windows - 1), np.clip(last, 0, windows - 1)
 
 
-def _tree_level(first: Ints, last: Ints) -> Ints:
+def stored_in_windows(copies: Ints, policy: Policy, max_copies: int) -> npt.NDArray[np.bool_]:
+    """Which Gaussians (touching ``copies`` windows each) get a copy in every window they
+    touch; the others go to one node of the time tree."""
+    if policy == "duplicate":
+        return np.ones(copies.size, bool)
+    if policy == "hierarchy":
+        return np.asarray(copies == 1)
+    return np.asarray(copies <= max_copies)
+
+
+def tree_level(first: Ints, last: Ints) -> Ints:
     """Smallest level whose node holds windows first..last: bit length of first XOR last."""
     x = np.bitwise_xor(first, last)
     level = np.zeros_like(x)
@@ -119,18 +129,13 @@ def make_plan(
     windows = window_count(scene_start, scene_end, window_s)
     alive = (end > scene_start) & (start <= scene_end)
     ids = np.flatnonzero(alive).astype(np.int64)
-    first, last = _window_span(start[ids], end[ids], scene_start, window_s, windows)
+    first, last = window_span(start[ids], end[ids], scene_start, window_s, windows)
     copies = last - first + 1
-    if policy == "duplicate":
-        dup = np.ones(ids.size, bool)
-    elif policy == "hierarchy":
-        dup = copies == 1
-    else:
-        dup = copies <= max_copies
+    dup = stored_in_windows(copies, policy, max_copies)
     counts = copies[dup]
     rep = np.repeat(np.flatnonzero(dup), counts)  # positions in ids, one per stored copy
     win = first[rep] + np.arange(rep.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    level_tree = _tree_level(first[~dup], last[~dup])
+    level_tree = tree_level(first[~dup], last[~dup])
     node_tree = first[~dup] >> level_tree
     levels = np.concatenate([np.zeros(rep.size, np.int64), level_tree])
     nodes = np.concatenate([win.astype(np.int64), node_tree])

@@ -13,7 +13,7 @@ import signal
 from collections import deque
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -39,10 +39,11 @@ from ..morton import morton_order
 from ..schemas.manifest import Box, ChunkEntry, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan
+from .layout import Choice, Lifespans, choose_layout, measure_costs, why_not_merged
+from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan, window_count
 
-DEFAULT_WINDOW_S = 1.0
 DEFAULT_POLICY: Policy = "hybrid"
+"""The policy of frame sequences stored per frame (nothing crosses a window: any would do)."""
 MIN_PIXELS = 16
 BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
@@ -52,10 +53,11 @@ ChunkProgress = Callable[[int, int], None]
 
 @dataclass(frozen=True)
 class SegmentOptions:
-    """How to segment; defaults are the measured choices of docs/design/segmenter.md."""
+    """How to segment; defaults are the measured choices of docs/design/segmenter.md. A window
+    or policy left None is chosen for the scene by the cost model (segment/layout.py)."""
 
-    window_s: float = DEFAULT_WINDOW_S
-    policy: Policy = DEFAULT_POLICY
+    window_s: float | None = None
+    policy: Policy | None = None
     max_pixels: int = DEFAULT_MAX_PIXELS
     max_copies: int = DEFAULT_MAX_COPIES
     workers: int = 1
@@ -84,6 +86,8 @@ class SegmentReport:
     bytes_per_level: dict[int, int] = field(default_factory=dict)
     bytes_per_window: list[int] = field(default_factory=list)
     """Bytes of the window chunks (level 0) of each window, in time order."""
+    layout: Choice | None = None
+    """The layout used, its estimates, the others tried and why it was chosen."""
 
 
 def palette_pixels(count: int, sh_bands: int) -> int:
@@ -124,9 +128,11 @@ def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
 
 
 def plan_scene(scene: Scene, options: SegmentOptions) -> Plan:
-    """The time plan of a dynamic scene under the options' policy and window."""
+    """The time plan of a dynamic scene under the options' policy and window (both set)."""
     if scene.timeline is None:
         raise InputError("segmenting needs a 4D scene (this input has no timeline)")
+    if options.window_s is None or options.policy is None:
+        raise InputError("the plan needs a window and a policy: choose them with scene_layout")
     start, end = lifespans(scene.timeline)
     first, last = time_range(scene.timeline)
     return make_plan(
@@ -138,6 +144,24 @@ def plan_scene(scene: Scene, options: SegmentOptions) -> Plan:
         policy=options.policy,
         max_copies=options.max_copies,
     )
+
+
+def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choice:
+    """The layout for a 4D scene: the options' window and policy where set, the cost model's
+    choice for the rest."""
+    if scene.timeline is None:
+        raise InputError("segmenting needs a 4D scene (this input has no timeline)")
+    if options.window_s is not None:
+        window_count(0.0, 1.0, options.window_s)  # refuses a non-positive window at once
+    costs = measure_costs(scene, max_count, options.seed)
+    life = Lifespans.of_scene(scene)
+    return choose_layout(life, costs, window_s=options.window_s, policy=options.policy)
+
+
+def _with_layout(options: SegmentOptions, choice: Choice) -> SegmentOptions:
+    """The options with the chosen window and policy filled in."""
+    layout = choice.chosen.layout
+    return replace(options, window_s=layout.window_s, policy=layout.policy)
 
 
 def chunk_jobs(scene: Scene, plan: Plan, max_count: int) -> list[ChunkJob]:
@@ -396,8 +420,10 @@ def segment_scene(
 ) -> SegmentReport:
     """Segment an in-memory scene into the container at ``path`` (published atomically)."""
     options = options or SegmentOptions()
-    plan = plan_scene(scene, options)
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
+    choice = scene_layout(scene, options, max_count)
+    options = _with_layout(options, choice)
+    plan = plan_scene(scene, options)
     jobs = chunk_jobs(scene, plan, max_count)
     parts = (Part(job.key, scene.subset(job.indices)) for job in jobs)
     tl = scene.timeline
@@ -409,7 +435,7 @@ def segment_scene(
         "temporal": {a: int(c.shape[1]) for a, c in scene.temporal.items()},
         "sh_bands": scene.gaussians.sh_bands,
     }
-    return _write_container(
+    report = _write_container(
         path,
         parts,
         total=len(jobs),
@@ -418,6 +444,7 @@ def segment_scene(
         options=options,
         on_chunk=on_chunk,
     )
+    return replace(report, layout=choice)
 
 
 def _sequence_parts(seq: FrameSequence, per_window: int, max_count: int) -> Iterator[Part]:
@@ -438,13 +465,16 @@ def segment_sequence(
 ) -> SegmentReport:
     """Segment a frame sequence window by window: memory depends on the window, not the length.
 
-    Windows are whole frames (``window_s`` rounded to frames); a frame's Gaussians live in that
-    frame only, so every policy stores each Gaussian once and the policy does not matter.
+    Windows are whole frames (``window_s`` rounded to frames; by default the cost model's
+    choice, one frame for most flipbooks); a frame's Gaussians live in that frame only, so
+    every policy stores each Gaussian once and the policy does not matter.
     """
     options = options or SegmentOptions()
-    per_window = max(1, round(options.window_s * seq.fps))
-    window_s = per_window / seq.fps
     max_count = max_gaussians_per_chunk(options.max_pixels, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
+    choice = sequence_layout(seq, options, max_count)
+    per_window = max(1, round(choice.chosen.layout.window_s * seq.fps))
+    window_s = per_window / seq.fps
+    options = replace(options, window_s=window_s, policy=choice.chosen.layout.policy)
     windows = -(-seq.count // per_window)
     counts = [
         sum(c for c, _ in seq.shapes[i : i + per_window]) for i in range(0, seq.count, per_window)
@@ -460,7 +490,7 @@ def segment_sequence(
         "sh_bands": SH_BANDS_BY_COEFFS[seq.sh_coeffs],
     }
     parts = _sequence_parts(seq, per_window, max_count)
-    return _write_container(
+    report = _write_container(
         path,
         parts,
         total=total,
@@ -469,6 +499,29 @@ def segment_sequence(
         options=options,
         on_chunk=on_chunk,
     )
+    return replace(report, layout=choice)
+
+
+def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Choice:
+    """Frames per chunk for a frame sequence: the options' window rounded to frames, else the
+    cost model's choice (costs measured on the first frame)."""
+    window_s = options.window_s
+    if window_s is not None:
+        window_count(0.0, 1.0, window_s)
+        window_s = max(1, round(window_s * seq.fps)) / seq.fps
+    if seq.count == 0:
+        raise InputError("the sequence has no frames")
+    costs = measure_costs(seq.read(0, 1).scene, max_count, options.seed)
+    life = Lifespans.of_frames([c for c, _ in seq.shapes], seq.fps)
+    return choose_layout(life, costs, window_s=window_s, policy=options.policy or DEFAULT_POLICY)
+
+
+def why_store_frames(seq: FrameSequence, merged: Scene, options: SegmentOptions) -> str | None:
+    """Why the sequence should be segmented frame by frame rather than as ``merged`` (its
+    merge), or None when the merged scene is smaller and seeks it as cheaply (layout.py)."""
+    max_count = max_gaussians_per_chunk(options.max_pixels, merged.gaussians.sh_bands)
+    per_frame = sequence_layout(seq, options, max_count)
+    return why_not_merged(per_frame, scene_layout(merged, options, max_count))
 
 
 def _nodes(plan: Plan, keys: Sequence[NodeKey]) -> list[Node]:
