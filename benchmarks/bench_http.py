@@ -4,7 +4,8 @@
 
 Measures, in one run: time to first frame at random t through our client (requests, bytes,
 ms) against both origins; range throughput and latency for 64 KiB and 1 MiB ranges at 1, 16
-and 64 concurrent connections (bounded loops: a fixed time per cell); client overhead versus
+and 64 concurrent connections with wrk (a fixed time per cell), both origins with the same
+number of worker processes (default: the core count); client overhead versus
 raw aiohttp GETs of the same byte ranges; and the server's RSS before and after the load.
 Writes benchmarks/results/http.json and the "http" section of docs/benchmarks.md.
 """
@@ -27,7 +28,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 
-from common import segmented_clip, write_section
+from common import WRK_DONE, run_wrk, segmented_clip, write_section
 from tsog_stream.client.http_source import HttpSource
 from tsog_stream.client.stream import StreamClient
 from tsog_stream.container.ranges import ByteRange
@@ -45,6 +46,14 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def children(pid: int) -> list[int]:
+    """Direct children of ``pid`` (worker processes)."""
+    out = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out += [int(x) for x in (task / "children").read_text().split()]
+    return out
+
+
 def rss_mib(pid: int) -> float:
     """Resident memory of a process, from /proc."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -53,12 +62,13 @@ def rss_mib(pid: int) -> float:
     return 0.0
 
 
-def start_nginx(root: Path, port: int, work: Path) -> subprocess.Popen[bytes]:
-    """nginx in the foreground on 127.0.0.1:port serving ``root`` (stopped by the caller)."""
+def start_nginx(root: Path, port: int, work: Path, workers: int = 1) -> subprocess.Popen[bytes]:
+    """nginx in the foreground on 127.0.0.1:port serving ``root`` with ``workers`` worker
+    processes (stopped by the caller)."""
     conf = work / "nginx.conf"
     (work / "logs").mkdir(exist_ok=True)
     conf.write_text(
-        f"""daemon off; worker_processes 1; pid {work}/nginx.pid; error_log {work}/logs/error.log;
+        f"""daemon off; worker_processes {workers}; pid {work}/nginx.pid; error_log {work}/logs/error.log;
 events {{ worker_connections 1024; }}
 http {{ access_log off; sendfile on; default_type application/octet-stream;
   client_body_temp_path {work}/tmp; proxy_temp_path {work}/tmp; fastcgi_temp_path {work}/tmp;
@@ -102,30 +112,23 @@ async def first_frames(url: str, times: list[float]) -> dict[str, float]:
     }
 
 
-async def load(url: str, size: int, span: int, conns: int, seconds: float) -> dict[str, float]:
-    """Range GETs of ``span`` bytes from ``conns`` connections for ``seconds``: MB/s and p50 ms."""
-    latencies: list[float] = []
-    done = 0
-    deadline = time.monotonic() + seconds
-    rng = np.random.default_rng(conns)
-    connector = aiohttp.TCPConnector(limit=conns)
-    async with aiohttp.ClientSession(connector=connector) as session:
+RANDOM_RANGES = """
+math.randomseed(%d)
+function request()
+  local a = math.random(0, %d)
+  return wrk.format("GET", wrk.path, {["Range"] = "bytes=" .. a .. "-" .. (a + %d)})
+end
+"""
 
-        async def worker() -> None:
-            nonlocal done
-            while time.monotonic() < deadline:
-                a = int(rng.integers(0, max(1, size - span)))
-                t0 = time.monotonic()
-                headers = {"Range": f"bytes={a}-{a + span - 1}", "Accept-Encoding": "identity"}
-                async with session.get(url, headers=headers) as r:
-                    body = await r.read()
-                latencies.append(time.monotonic() - t0)
-                done += len(body)
 
-        start = time.monotonic()
-        await asyncio.gather(*(worker() for _ in range(conns)))
-        elapsed = time.monotonic() - start
-    return {"mb_s": done / elapsed / 1e6, "p50_ms": 1000 * float(np.median(latencies))}
+def load(
+    url: str, size: int, span: int, conns: int, *, seconds: float, work: Path
+) -> dict[str, Any]:
+    """wrk: Range GETs of ``span`` bytes at random offsets from ``conns`` keep-alive
+    connections for ``seconds``: MB/s, requests/s, p50 ms and errors."""
+    script = work / f"ranges-{span}-{conns}.lua"
+    script.write_text(RANDOM_RANGES % (conns, max(0, size - span), span - 1) + WRK_DONE)
+    return run_wrk(url, script, conns, seconds, threads=min(2, conns))
 
 
 async def client_overhead(url: str, ranges: list[tuple[int, int]]) -> dict[str, float]:
@@ -149,21 +152,23 @@ async def client_overhead(url: str, ranges: list[tuple[int, int]]) -> dict[str, 
 
 
 async def measure(
-    path: Path, ours: str, nginx: str, server_pid: int, seconds: float
+    path: Path, ours: str, nginx: str, server_pids: list[int], *, seconds: float, work: Path
 ) -> dict[str, Any]:
     """Every figure for both origins."""
     size = path.stat().st_size
     times = [float(t) for t in np.random.default_rng(3).uniform(0, 8, 5)]
-    out: dict[str, Any] = {"file_bytes": size, "rss_before_mib": rss_mib(server_pid)}
+    rss_before = sum(rss_mib(p) for p in server_pids)
+    out: dict[str, Any] = {"file_bytes": size, "rss_before_mib": rss_before}
     for name, url in (("ours", ours), ("nginx", nginx)):
         out[f"first_frame_{name}"] = await first_frames(url, times)
         for span in (64 * 1024, 1024 * 1024):
             for conns in (1, 16, 64):
-                out[f"load_{name}_{span}_{conns}"] = await load(url, size, span, conns, seconds)
+                cell = load(url, size, span, conns, seconds=seconds, work=work)
+                out[f"load_{name}_{span}_{conns}"] = cell
     rng = np.random.default_rng(5)
     starts = rng.integers(0, size - 65536, 200)
     out["client_overhead"] = await client_overhead(ours, [(int(a), int(a) + 65536) for a in starts])
-    out["rss_after_mib"] = rss_mib(server_pid)
+    out["rss_after_mib"] = round(sum(rss_mib(p) for p in server_pids), 1)
     return out
 
 
@@ -174,8 +179,10 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
         "## HTTP: our server and client versus nginx, on loopback",
         "",
         f"Run {stamp} (`benchmarks/bench_http.py`), one {r['file_bytes'] / 1e6:.1f} MB `.tsogs` "
-        "file served by `tsog serve` and by nginx 1.22 (Debian, sendfile on, 1 worker) in the "
-        "same run; load cells last a fixed time each.",
+        f"file served by `tsog serve --workers {r['workers']}` and by nginx 1.22 (Debian, "
+        f"sendfile on, worker_processes {r['workers']}) in the same run, on 2 cores shared with "
+        "the load tool: wrk 4.1 (Debian, up to 2 threads, a Lua script picking random ranges; "
+        "every cell a fixed time, 0 errors unless said).",
         "",
         "Time to first frame at random t (fresh client each time, mean of 5):",
         "",
@@ -186,15 +193,16 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
         "",
         "Range GETs (throughput MB/s and median latency ms; ratio = ours / nginx throughput):",
         "",
-        "| range | connections | ours MB/s | nginx MB/s | ratio | ours p50 ms | nginx p50 ms |",
-        "|---:|---:|---:|---:|---:|---:|---:|",
+        "| range | connections | ours MB/s | nginx MB/s | ratio | ours p50 ms | nginx p50 ms | errors |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for span in (64 * 1024, 1024 * 1024):
         for conns in (1, 16, 64):
             o, n = r[f"load_ours_{span}_{conns}"], r[f"load_nginx_{span}_{conns}"]
             lines.append(
                 f"| {span // 1024} KiB | {conns} | {o['mb_s']:.0f} | {n['mb_s']:.0f} | "
-                f"{o['mb_s'] / n['mb_s']:.2f} | {o['p50_ms']:.2f} | {n['p50_ms']:.2f} |"
+                f"{o['mb_s'] / n['mb_s']:.2f} | {o['p50_ms']:.2f} | {n['p50_ms']:.2f} | "
+                f"{o['errors'] + n['errors']} |"
             )
     c = r["client_overhead"]
     lines += [
@@ -213,6 +221,12 @@ def main() -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--seconds", type=float, default=3.0, help="duration of each load cell")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=len(os.sched_getaffinity(0)),
+        help="processes of each origin (default: the core count, both origins' default)",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="tsog-http-") as tmp:
         root = Path(tmp) / "www"
@@ -221,14 +235,19 @@ def main() -> int:
             root / "clip.tsogs", background=150000, objects=30, per_object=5000, seed=2
         )
         p1, p2 = free_port(), free_port()
-        ours = subprocess.Popen([str(TSOG), "serve", str(root), "--port", str(p1), "-q"])
-        nginx = start_nginx(root, p2, Path(tmp))
+        serve = [str(TSOG), "serve", str(root), "--port", str(p1), "-q"]
+        ours = subprocess.Popen([*serve, "--workers", str(args.workers)])
+        nginx = start_nginx(root, p2, Path(tmp), workers=args.workers)
         try:
             url1 = f"http://127.0.0.1:{p1}/files/clip.tsogs"
             url2 = f"http://127.0.0.1:{p2}/clip.tsogs"
             asyncio.run(wait_up(url1))
             asyncio.run(wait_up(url2))
-            result = asyncio.run(measure(path, url1, url2, ours.pid, args.seconds))
+            pids = [ours.pid, *children(ours.pid)]
+            result = asyncio.run(
+                measure(path, url1, url2, pids, seconds=args.seconds, work=Path(tmp))
+            )
+            result["workers"] = args.workers
         finally:
             for proc in (ours, nginx):
                 proc.terminate()

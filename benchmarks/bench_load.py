@@ -31,8 +31,8 @@ from typing import Any
 
 import aiohttp
 
-from bench_http import free_port, start_nginx, wait_up
-from common import segmented_clip, write_section
+from bench_http import children, free_port, start_nginx, wait_up
+from common import WRK_DONE, run_wrk, segmented_clip, write_section
 from tsog_stream.container.sources import FileSource, read_index
 
 REPO = Path(__file__).resolve().parents[1]
@@ -54,14 +54,6 @@ function request()
   local r = queue[pos]
   pos = pos + 1
   return wrk.format("GET", wrk.path, {["Range"] = r})
-end
-function done(summary, latency, requests)
-  io.write(string.format(
-    '{"requests": %%d, "duration_us": %%d, "bytes": %%d, "p50_us": %%d, "p99_us": %%d, '
-    .. '"max_us": %%d, "connect": %%d, "read": %%d, "write": %%d, "status": %%d, "timeout": %%d}\\n',
-    summary.requests, summary.duration, summary.bytes, latency:percentile(50),
-    latency:percentile(99), latency.max, summary.errors.connect, summary.errors.read,
-    summary.errors.write, summary.errors.status, summary.errors.timeout))
 end
 """
 
@@ -88,7 +80,7 @@ def plays(path: Path, count: int, seed: int = 1) -> list[list[tuple[int, int]]]:
 def lua_script(play_list: list[list[tuple[int, int]]]) -> str:
     """The wrk script: each request the next range of a play, then a new random play."""
     rows = ("{" + ",".join(f'"bytes={a}-{a + n - 1}"' for a, n in play) + "}" for play in play_list)
-    return LUA % ",\n".join(rows)
+    return LUA % ",\n".join(rows) + WRK_DONE
 
 
 def proc_stats(pids: list[int]) -> tuple[float, float]:
@@ -101,15 +93,6 @@ def proc_stats(pids: list[int]) -> tuple[float, float]:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         cpu += (int(fields[11]) + int(fields[12])) / TICK
     return rss, cpu
-
-
-def children(pid: int) -> list[int]:
-    """Direct children of ``pid`` (nginx workers)."""
-    found = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        text = (task / "children").read_text().split()
-        found += [int(x) for x in text]
-    return found
 
 
 class Sampler:
@@ -131,29 +114,6 @@ class Sampler:
     def __exit__(self, *exc: object) -> None:
         self.stop.set()
         self.thread.join(5)
-
-
-def run_wrk(url: str, script: Path, clients: int, seconds: float) -> dict[str, Any]:
-    """wrk -t2 -c CLIENTS -d SECONDS with the play script; its JSON summary."""
-    cmd = ["wrk", "-t2", f"-c{clients}", f"-d{seconds:g}s", "--timeout", "10s", "-s"]
-    out = subprocess.run(
-        [*cmd, str(script), url], check=False, capture_output=True, text=True, timeout=seconds + 60
-    )
-    line = [x for x in out.stdout.splitlines() if x.startswith('{"requests"')]
-    if out.returncode != 0 or not line:
-        raise SystemExit(f"wrk failed: {out.stdout[-500:]} {out.stderr[-500:]}")
-    raw = json.loads(line[0])
-    errors = sum(raw[k] for k in ("connect", "read", "write", "status", "timeout"))
-    return {
-        "requests": raw["requests"],
-        "rps": raw["requests"] / (raw["duration_us"] / 1e6),
-        "mb_s": raw["bytes"] / (raw["duration_us"] / 1e6) / 1e6,
-        "p50_ms": raw["p50_us"] / 1000,
-        "p99_ms": raw["p99_us"] / 1000,
-        "max_ms": raw["max_us"] / 1000,
-        "errors": errors,
-        "error_kinds": {k: raw[k] for k in ("connect", "read", "write", "status", "timeout")},
-    }
 
 
 async def _python_load(url: str, play_file: Path, clients: int, seconds: float) -> dict[str, Any]:
@@ -325,6 +285,13 @@ def main() -> int:
     parser.add_argument("--clients", type=int, default=200, help="concurrent players")
     parser.add_argument("--seconds", type=float, default=30.0, help="measured run per origin")
     parser.add_argument("--python", action="store_true", help="use the Python load generator")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=len(os.sched_getaffinity(0)),
+        help="processes of each origin (tsog serve --workers, nginx worker_processes; "
+        "default: the core count, both origins' default)",
+    )
     parser.add_argument("--no-write", action="store_true", help="do not update the docs")
     parser.add_argument("--worker", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -361,14 +328,17 @@ def main() -> int:
         # every simulated player connects from 127.0.0.1: raise the per-address limit to the
         # client count, as for a server behind a proxy (docs/reliability.md)
         serve = [str(TSOG), "serve", str(root), "--port", str(p1), "-q"]
-        ours = subprocess.Popen([*serve, "--max-per-client", str(args.clients)])
+        serve += ["--workers", str(args.workers), "--max-per-client", str(args.clients)]
+        ours = subprocess.Popen(serve)
         try:
             url = f"http://127.0.0.1:{p1}/files/clip.tsogs"
-            results["ours"] = origin_run("ours", (url, [ours.pid]), load, args)
+            asyncio.run(wait_up(url))
+            pids = [ours.pid, *children(ours.pid)]
+            results["ours"] = origin_run("ours", (url, pids), load, args)
         finally:
             ours.terminate()
             ours.wait(timeout=15)
-        nginx = start_nginx(root, p2, work)
+        nginx = start_nginx(root, p2, work, workers=args.workers)
         try:
             url = f"http://127.0.0.1:{p2}/clip.tsogs"
             asyncio.run(wait_up(url))
@@ -379,6 +349,7 @@ def main() -> int:
             nginx.wait(timeout=15)
         sizes = [n for play in play_list for _, n in play]
         results.update(
+            workers=args.workers,
             clients=args.clients,
             seconds=args.seconds,
             tool=tool,

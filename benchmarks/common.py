@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import tempfile
@@ -91,3 +92,42 @@ def segmented_clip(
     )
     segment_scene(generate_scene(spec), path, SegmentOptions(window_s=1.0, workers=2))
     return path
+
+
+WRK_DONE = """
+function done(summary, latency, requests)
+  io.write(string.format(
+    '{"requests": %d, "duration_us": %d, "bytes": %d, "p50_us": %d, "p99_us": %d, '
+    .. '"max_us": %d, "connect": %d, "read": %d, "write": %d, "status": %d, "timeout": %d}\\n',
+    summary.requests, summary.duration, summary.bytes, latency:percentile(50),
+    latency:percentile(99), latency.max, summary.errors.connect, summary.errors.read,
+    summary.errors.write, summary.errors.status, summary.errors.timeout))
+end
+"""
+"""The end of every wrk script: its summary as one JSON line (read by run_wrk)."""
+
+
+def run_wrk(
+    url: str, script: Path, clients: int, seconds: float, threads: int = 2
+) -> dict[str, Any]:
+    """wrk -tTHREADS -cCLIENTS -dSECONDS with ``script`` (ending in WRK_DONE): requests/s,
+    MB/s, latency percentiles and errors by kind."""
+    cmd = ["wrk", f"-t{threads}", f"-c{clients}", f"-d{seconds:g}s", "--timeout", "10s", "-s"]
+    out = subprocess.run(
+        [*cmd, str(script), url], check=False, capture_output=True, text=True, timeout=seconds + 60
+    )
+    line = [x for x in out.stdout.splitlines() if x.startswith('{"requests"')]
+    if out.returncode != 0 or not line:
+        raise SystemExit(f"wrk failed: {out.stdout[-500:]} {out.stderr[-500:]}")
+    raw = json.loads(line[0])
+    kinds = ("connect", "read", "write", "status", "timeout")
+    return {
+        "requests": raw["requests"],
+        "rps": raw["requests"] / (raw["duration_us"] / 1e6),
+        "mb_s": raw["bytes"] / (raw["duration_us"] / 1e6) / 1e6,
+        "p50_ms": raw["p50_us"] / 1000,
+        "p99_ms": raw["p99_us"] / 1000,
+        "max_ms": raw["max_us"] / 1000,
+        "errors": sum(raw[k] for k in kinds),
+        "error_kinds": {k: raw[k] for k in kinds},
+    }

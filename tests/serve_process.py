@@ -55,7 +55,8 @@ def tsog_serve(root: Path, *options: str, nofile: int | None = None) -> Iterator
     """Run ``tsog serve ROOT -q OPTIONS`` on a free loopback port (with at most ``nofile`` open
     files if given); always stops it."""
     port = free_port()
-    cmd = [str(TSOG), "serve", str(root), "--port", str(port), "-q", *options]
+    workers = [] if "--workers" in options else ["--workers", "1"]  # measured: one process
+    cmd = [str(TSOG), "serve", str(root), "--port", str(port), "-q", *workers, *options]
     with tempfile.TemporaryDirectory(prefix="tsog-serve-") as tmp:
         log = Path(tmp) / "stderr.txt"
         with open(log, "wb") as err:

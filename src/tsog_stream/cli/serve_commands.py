@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ..server import Limits, Privacy, run_server
+from ..server import Limits, Privacy, Site, default_workers, run_server, run_workers
 from ..signing import load_secret, parse_ttl, sign_url
 from .common import Integer, Subparsers
 from .progress import Progress
@@ -63,6 +63,13 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
         type=float,
         default=10.0,
         help="drop a client that takes no bytes for this long, s (default 10)",
+    )
+    p.add_argument(
+        "--workers",
+        type=Integer(1, 256),
+        default=default_workers(),
+        help=f"processes sharing the port, each with its own limits and caches (default: "
+        f"the core count, {default_workers()} here; 1 = one process)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no access log on stderr")
     p.set_defaults(func=cmd_serve)
@@ -124,7 +131,10 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
         stall_timeout_s=args.stall_timeout,
         keepalive_s=args.keepalive,
     )
-    run_server(root, host=args.host, port=args.port, limits=limits, privacy=privacy)
+    if args.workers > 1:
+        run_workers(Site(root, args.host, args.port, limits, privacy), args.workers)
+    else:
+        run_server(root, host=args.host, port=args.port, limits=limits, privacy=privacy)
     return 0
 
 

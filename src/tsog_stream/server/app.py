@@ -286,9 +286,10 @@ def make_app(
 
 
 async def start_server(
-    app: web.Application, host: str = "127.0.0.1", port: int = 0
+    app: web.Application, host: str = "127.0.0.1", port: int = 0, *, reuse_port: bool = False
 ) -> tuple[web.AppRunner, int]:
-    """Start ``app`` on host:port (0 = any free port); returns the runner and the port."""
+    """Start ``app`` on host:port (0 = any free port); returns the runner and the port.
+    ``reuse_port``: share the port with other processes (SO_REUSEPORT, server/workers.py)."""
     limits = app[LIMITS]
     quiet_client_errors()
     runner = web.AppRunner(
@@ -298,7 +299,7 @@ async def start_server(
         shutdown_timeout=limits.shutdown_timeout_s,
     )
     await runner.setup()
-    site = web.TCPSite(runner, host, port)
+    site = web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
     try:
         await site.start()
     except OSError as exc:
@@ -330,7 +331,7 @@ def run_server(
     limits: Limits | None = None,
     privacy: Privacy | None = None,
 ) -> None:
-    """Blocking: serve ``root`` until interrupted."""
+    """Blocking: serve ``root`` until interrupted (one process; server/workers.py for more)."""
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(serve_forever(root, host, port, limits, privacy))
 
