@@ -386,9 +386,12 @@ def spied(tree: Path) -> Iterator[tuple[ThreadedServer, SendfileSpy]]:
 
 
 def test_sendfile_for_large_single_span(
-    spied: tuple[ThreadedServer, SendfileSpy], caplog: pytest.LogCaptureFixture
+    spied: tuple[ThreadedServer, SendfileSpy],
+    caplog: pytest.LogCaptureFixture,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     server, spy = spied
+    monkeypatch.setattr(respond, "SENDFILE_MIN", 64 * 1024)  # DATA is 100 kB
     with caplog.at_level(logging.INFO, logger="aiohttp.access"):
         r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=100-90099"})
         assert r.status == 206 and r.body == DATA[100:90100]

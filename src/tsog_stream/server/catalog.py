@@ -15,6 +15,7 @@ import asyncio
 import errno
 import hashlib
 import os
+import stat
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -119,14 +120,20 @@ def servable(name: str) -> bool:
     return not any(c < " " or c == "\x7f" or "\ud800" <= c <= "\udfff" for c in name)
 
 
-def safe_path(root: Path, rel: str) -> Path:
-    """The resolved path of ``rel`` under ``root``; refuses anything that could escape it."""
+def check_relative(rel: str) -> None:
+    """Refuse a path that is not plainly relative (NUL, backslash, empty, '.' or '..'
+    segments) or names what is never served (see :func:`servable`)."""
     if "\x00" in rel or "\\" in rel:
         raise InputError("NUL bytes and backslashes are not allowed in paths", where=rel[:80])
     if rel.startswith("/") or any(p in ("", ".", "..") for p in rel.split("/")):
         raise InputError("paths must be relative, without empty, '.' or '..' segments")
     if not servable(rel):
         raise NotFoundError("no such file", where=repr(rel[:80]))
+
+
+def safe_path(root: Path, rel: str) -> Path:
+    """The resolved path of ``rel`` under ``root``; refuses anything that could escape it."""
+    check_relative(rel)
     base = root.resolve()
     try:
         resolved = (base / rel).resolve(strict=True)
@@ -153,9 +160,33 @@ def _signature(path: Path) -> FileVersion:
         st = path.stat()
     except OSError as exc:
         raise NotFoundError("no such file", where=path.name) from exc
-    if not path.is_file():
-        raise NotFoundError("not a regular file", where=path.name)
+    return _version(st, path.name)
+
+
+def _version(st: os.stat_result, name: str) -> FileVersion:
+    """The version of a regular file from its stat, NotFoundError for anything else."""
+    if not stat.S_ISREG(st.st_mode):
+        raise NotFoundError("not a regular file", where=name)
     return FileVersion(st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns)
+
+
+def locate(root: Path, rel: str) -> tuple[Path, FileVersion]:
+    """The resolved path of the regular file ``rel`` under the resolved ``root``, and its
+    version: :func:`safe_path` and :func:`_signature` in one, with one ``lstat`` per
+    component of ``rel`` when none is a symlink (the common case on every request; resolving
+    from ``/`` cost a quarter of a small range's time), else the full resolution."""
+    check_relative(rel)
+    path = root
+    for part in rel.split("/"):
+        path = path / part
+        try:
+            st = os.lstat(path)
+        except OSError as exc:
+            raise NotFoundError("no such file", where=rel[:80]) from exc
+        if stat.S_ISLNK(st.st_mode):
+            resolved = safe_path(root, rel)
+            return resolved, _signature(resolved)
+    return path, _version(st, path.name)
 
 
 def _content_etag(root: Path, path: Path) -> str:
@@ -198,8 +229,7 @@ class Catalog:
     async def file(self, rel: str) -> Representation:
         """The whole file at ``rel`` (relative to the root)."""
         self._check_only(rel)
-        path = safe_path(self.root, rel)
-        version = _signature(path)
+        path, version = locate(self.root, rel)
         cached = self._etags.get(path)
         if cached is None or cached[0] != version:
             cached = (version, await self._hash_once(path, version))
@@ -235,13 +265,11 @@ class Catalog:
         """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
         self._check_only(scene_id + CONTAINER_SUFFIX)
         try:
-            path = safe_path(self.root, scene_id + CONTAINER_SUFFIX)
-            packed = path.is_file()
+            path, version = locate(self.root, scene_id + CONTAINER_SUFFIX)
+            packed = True
         except NotFoundError:
+            path, version = locate(self.root, f"{scene_id}/{MANIFEST}")
             packed = False
-        if not packed:
-            path = safe_path(self.root, f"{scene_id}/{MANIFEST}")
-        version = _signature(path)
         cached = self._scenes.get(path)
         if cached is None or cached[0] != version:
             scene = await self._once(
@@ -306,8 +334,7 @@ class Catalog:
             return Representation(
                 scene.path, entry.offset, entry.length, etag, scene.mtime, SOG_TYPE
             )
-        path = safe_path(scene.path.parent, entry.file)
-        version = _signature(path)
+        path, version = locate(scene.path.parent, entry.file)
         mtime = version.mtime_ns / 1e9
         return Representation(path, 0, version.size, etag, mtime, SOG_TYPE, self.root)
 
