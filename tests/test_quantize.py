@@ -12,7 +12,14 @@ import pytest
 from tsog_stream import quantize
 from tsog_stream.constants import CODEBOOK_SIZE
 from tsog_stream.errors import InputError
-from tsog_stream.quantize import assign_codebook, build_codebook, codebook_mse, dp_codebook
+from tsog_stream.quantize import (
+    SHORT_CODEBOOK_STEPS,
+    assign_codebook,
+    build_codebook,
+    codebook_mse,
+    dp_codebook,
+    short_codebook,
+)
 
 F64 = npt.NDArray[np.float64]
 
@@ -213,3 +220,19 @@ def test_bad_arguments() -> None:
         assign_codebook([1.0], np.zeros(257))
     with pytest.raises(InputError):
         build_codebook(np.array(["a", "b"]))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_short_codebook_moves_entries_within_its_grid_and_halves_the_digits(seed: int) -> None:
+    """Entries move by at most span / 65536, stay ascending (sentinels included), and are
+    written with far fewer digits."""
+    rng = np.random.default_rng(seed)
+    samples = np.concatenate([rng.normal(-4, 1.5, 5000), [-np.inf]]).astype(np.float32)
+    codebook = build_codebook(samples)
+    short = short_codebook(codebook)
+    span = float(codebook.max()) - float(codebook.min())
+    assert short.dtype == np.float32 and short.shape == codebook.shape
+    assert np.all(np.diff(short) >= 0)
+    assert np.abs(short.astype(np.float64) - codebook).max() <= span / SHORT_CODEBOOK_STEPS
+    digits = sum(len(str(v)) for v in short)
+    assert digits < 0.75 * sum(len(str(v)) for v in codebook)

@@ -218,11 +218,14 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., tuple[Path,
         policy: Policy,
         window_s: float = WINDOW_S,
         max_pixels: int = SMALL_CHUNKS,
+        slice_s: float | None = None,
     ) -> tuple[Path, SegmentReport]:
-        key = (kind, policy, window_s, max_pixels)
+        key = (kind, policy, window_s, max_pixels, slice_s)
         if key not in cache:
-            path = folder / f"{kind.name}-{policy}-{window_s}-{max_pixels}.tsogs"
-            options = SegmentOptions(window_s=window_s, policy=policy, max_pixels=max_pixels)
+            path = folder / f"{kind.name}-{policy}-{window_s}-{max_pixels}-{slice_s}.tsogs"
+            options = SegmentOptions(
+                window_s=window_s, policy=policy, max_pixels=max_pixels, slice_s=slice_s
+            )
             cache[key] = (path, segment_scene(scenes(kind), path, options))
         return cache[key]
 
@@ -259,6 +262,39 @@ def test_frames_equal_the_unsegmented_scene(
                 assert len(frame) == 0, f"t={t} is outside the scene but shows {len(frame)}"
                 continue
             assert_frame_matches(src, frame, t, steps)
+
+
+@pytest.mark.parametrize("policy", ["hierarchy", "hybrid"])
+@pytest.mark.parametrize("kind", KINDS)
+def test_time_slices_keep_every_frame_and_narrow_each_chunk(
+    kind: TimelineType, policy: Policy, built: Callable[..., tuple[Path, SegmentReport]]
+) -> None:
+    """Chunks cut by start time (layout.py's slices): every frame is still the unsegmented
+    scene's, and no chunk's own interval is longer than its node's."""
+    slice_s = WINDOW_S / 4
+    path, _ = built(kind, policy, slice_s=slice_s)
+    plain, _ = built(kind, policy)
+    src = scenes(kind)
+    with open_stream(path) as reader, open_stream(plain) as whole:
+        steps = container_steps(reader)
+        for t in probe_times(src, WINDOW_S):
+            if _in_range(reader, t):
+                assert_frame_matches(src, reader.frame_at(t), t, steps)
+        manifest = reader.index.manifest
+        assert len(manifest.chunks) > len(whole.index.manifest.chunks)
+        span = manifest.window_s
+        for chunk in manifest.chunks:  # the starts of a chunk's Gaussians share one slice
+            node_start = manifest.scene.start_s + chunk.node * span * (1 << chunk.level)
+            assert chunk.start_s >= node_start - 1e-9
+            starts = lifespans(_timeline(reader.chunk_scene(chunk.id)))[0]
+            inside = starts[starts >= node_start + 1e-3]
+            if inside.size:
+                assert np.ptp(inside) <= slice_s + 1e-3, chunk.id
+
+
+def _timeline(scene: Scene) -> Timeline:
+    assert scene.timeline is not None
+    return scene.timeline
 
 
 @pytest.mark.parametrize("policy", ["duplicate", "hierarchy"])

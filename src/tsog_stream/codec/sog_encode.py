@@ -16,7 +16,7 @@ import numpy.typing as npt
 from .. import constants as C
 from ..model import Gaussians
 from ..opacity import logit_to_alpha
-from ..quantize import assign_codebook, build_codebook
+from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
 from .positions import encode_means, split_u16
@@ -53,8 +53,9 @@ def opacity_bytes(logits: npt.NDArray[np.float32]) -> U8:
 def _codebook_texels(
     columns: npt.NDArray[np.float32], alpha: npt.ArrayLike = 255
 ) -> tuple[U8, list[float]]:
-    """One shared 256-entry codebook over (N, 3) columns; texels of the per-column indices."""
-    codebook = build_codebook(columns)
+    """One shared 256-entry codebook over (N, 3) columns (entries short to write, see
+    short_codebook); texels of the per-column indices."""
+    codebook = short_codebook(build_codebook(columns))
     labels = assign_codebook(columns, codebook).reshape(columns.shape)
     return texels(labels[:, 0], labels[:, 1], labels[:, 2], alpha=alpha), _floats(codebook)
 
@@ -78,7 +79,7 @@ def _encode_sh_palette(
         progress=lambda f: note(f"SH palette {100 * f:3.0f}%"),
     )
     count = centroids.shape[0]
-    codebook = build_codebook(centroids)
+    codebook = short_codebook(build_codebook(centroids))
     cbytes = assign_codebook(centroids, codebook).reshape(count, 3, coeffs)
     rows = -(-count // C.SH_CENTROIDS_PER_ROW)
     cells = np.zeros((rows * C.SH_CENTROIDS_PER_ROW, coeffs, 4), np.uint8)

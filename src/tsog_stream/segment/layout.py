@@ -53,6 +53,9 @@ INDEX_BYTES_PER_CHUNK: Final = 120
 """Compressed index bytes per chunk (zstd of its JSON entry: the SHA-256 is most of it)."""
 SAMPLE_GAUSSIANS: Final = 8192
 """Gaussians of the larger sample encoded to measure bytes per Gaussian."""
+SLICES: Final = (2, 4, 8)
+"""Time slices per window tried for the policies that keep long-lived Gaussians in tree
+nodes (hierarchy, hybrid): a node's chunks cut by start time into window / k slices."""
 FRAME_WINDOWS: Final = (1, 2, 3, 5, 10, 15, 30, 60, 120)
 """Candidate windows, in frames, of content with a frame rate."""
 SECOND_WINDOWS: Final = (1 / 30, 1 / 15, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
@@ -123,18 +126,26 @@ class Lifespans:
 
 @dataclass(frozen=True)
 class Layout:
-    """How time is cut (window length) and where crossing Gaussians go (policy)."""
+    """How time is cut (window length), where crossing Gaussians go (policy), and whether a
+    node's Gaussians are cut further by when they start (``slice_s``: each chunk then holds
+    those starting within one slice, so its own visible interval is short and a seek skips
+    it when it shows nothing at t; None: Morton runs only)."""
 
     window_s: float
     policy: Policy
+    slice_s: float | None = None
 
     def describe(self, fps: float | None) -> str:
-        """'window 1 frame, hybrid' or 'window 0.5 s, hierarchy'."""
+        """'window 1 frame, hybrid' or 'window 0.5 s, hierarchy, slices of 0.125 s'."""
         frames = self.window_s * fps if fps else 0.0
         if fps and abs(frames - round(frames)) < 1e-6:
             n = round(frames)
-            return f"window {n} frame{'s' if n != 1 else ''} ({self.window_s:.3g} s), {self.policy}"
-        return f"window {self.window_s:.3g} s, {self.policy}"
+            text = f"window {n} frame{'s' if n != 1 else ''} ({self.window_s:.3g} s), {self.policy}"
+        else:
+            text = f"window {self.window_s:.3g} s, {self.policy}"
+        if self.slice_s is not None:
+            text += f", chunks cut by start time in slices of {self.slice_s:.3g} s"
+        return text
 
 
 @dataclass(frozen=True)
@@ -192,7 +203,8 @@ def measure_costs(scene: Scene, max_count: int, seed: int = 0) -> Costs:
 
 @dataclass(frozen=True)
 class _Nodes:
-    """The nodes a layout fills: key (level << 40 | index), Gaussians, visible interval."""
+    """The units a layout fills, one per (node, time slice): node key (level << 40 | index),
+    Gaussians, and visible interval clipped to the node."""
 
     key: Ints
     count: F64
@@ -201,7 +213,7 @@ class _Nodes:
 
 
 def _fill(life: Lifespans, layout: Layout, windows: int) -> _Nodes | None:
-    """Gaussians per node under the layout (None when it would store too many copies)."""
+    """Gaussians per unit under the layout (None when it would store too many copies)."""
     alive = (life.end > life.scene_start) & (life.start <= life.scene_end)
     start, end, weight = life.start[alive], life.end[alive], life.weight[alive]
     first, last = window_span(start, end, life.scene_start, layout.window_s, windows)
@@ -217,18 +229,27 @@ def _fill(life: Lifespans, layout: Layout, windows: int) -> _Nodes | None:
     keys = np.concatenate([win, (first[~dup] >> level) | (level << _LEVEL_SHIFT)])
     if keys.size == 0:
         return _Nodes(keys, np.zeros(0), np.zeros(0), np.zeros(0))
-    order = np.argsort(keys, kind="stable")
-    keys, members = keys[order], members[order]
-    cut = np.flatnonzero(np.diff(keys)) + 1
+    node_lo, node_hi = _node_span(keys, life.scene_start, life.scene_end, layout.window_s)
+    slices = time_slices(start[members], node_lo, layout.slice_s)
+    order = np.lexsort((slices, keys))
+    keys, slices, members = keys[order], slices[order], members[order]
+    node_lo, node_hi = node_lo[order], node_hi[order]
+    cut = np.flatnonzero((np.diff(keys) != 0) | (np.diff(slices) != 0)) + 1
     heads = np.concatenate(([0], cut))
-    key = keys[heads]
-    node_lo, node_hi = _node_span(key, life.scene_start, life.scene_end, layout.window_s)
     return _Nodes(
-        key,
+        keys[heads],
         np.add.reduceat(weight[members], heads),
-        np.maximum(np.minimum.reduceat(start[members], heads), node_lo),
-        np.minimum(np.maximum.reduceat(end[members], heads), node_hi),
+        np.maximum(np.minimum.reduceat(start[members], heads), node_lo[heads]),
+        np.minimum(np.maximum.reduceat(end[members], heads), node_hi[heads]),
     )
+
+
+def time_slices(start: F64, node_start: F64, slice_s: float | None) -> Ints:
+    """The time slice of each Gaussian in its node: whole slices of ``slice_s`` from the
+    node's start to the Gaussian's (0 for one starting before the node, or without slices)."""
+    if slice_s is None:
+        return np.zeros(start.size, np.int64)
+    return np.maximum(np.floor((start - node_start) / slice_s), 0).astype(np.int64)
 
 
 def _node_span(key: Ints, t0: float, t1: float, window_s: float) -> tuple[F64, F64]:
@@ -257,7 +278,7 @@ def estimate(life: Lifespans, layout: Layout, costs: Costs) -> Estimate | None:
     index_bytes = INDEX_BYTES_PER_CHUNK * float(chunks.sum())
     opening = PREFIX_SIZE + (index_bytes if index_bytes > PREFIX_SIZE - HEADER_SIZE else 0.0)
     times = sample_times(life)
-    fetched, requests = _seeks(life, layout, nodes, node_bytes, times)
+    fetched, requests = _seeks(nodes, node_bytes, times)
     shown = life.visible(times) * costs.per_gaussian + costs.per_chunk
     return Estimate(
         layout=layout,
@@ -277,50 +298,65 @@ def _window_count(life: Lifespans, window_s: float) -> int:
     return max(1, math.ceil(span / window_s - WINDOW_EPSILON))
 
 
-def _seeks(
-    life: Lifespans, layout: Layout, nodes: _Nodes, node_bytes: F64, times: F64
-) -> tuple[F64, F64]:
-    """Bytes and requests (one per node: its chunks are adjacent) to show each time."""
-    windows = _window_count(life, layout.window_s)
-    x = (times - life.scene_start) / layout.window_s + WINDOW_EPSILON
-    window = np.minimum(np.floor(np.clip(x, 0.0, windows)), windows - 1).astype(np.int64)
+def _seeks(nodes: _Nodes, node_bytes: F64, times: F64) -> tuple[F64, F64]:
+    """Bytes and requests to show each time: every unit whose interval holds it (units are
+    clipped to their node, so that is the node covering t at each level); one request per
+    node hit (its chunks are adjacent in the file)."""
     fetched = np.zeros(times.size)
     requests = np.zeros(times.size)
-    for level in np.unique(nodes.key >> _LEVEL_SHIFT):
-        wanted = (window >> level) | (level << _LEVEL_SHIFT)
-        at = np.clip(np.searchsorted(nodes.key, wanted), 0, max(nodes.key.size - 1, 0))
-        hit = (nodes.key[at] == wanted) & (nodes.start[at] <= times) & (nodes.end[at] >= times)
-        fetched += np.where(hit, node_bytes[at], 0.0)
-        requests += hit
+    if nodes.key.size == 0:
+        return fetched, requests
+    heads = np.concatenate(([0], np.flatnonzero(np.diff(nodes.key)) + 1))
+    for lo in range(0, times.size, 16):  # 16 times at once bounds the units x times matrix
+        t = times[lo : lo + 16]
+        hit = (nodes.start[:, None] <= t) & (nodes.end[:, None] >= t)
+        fetched[lo : lo + 16] = node_bytes @ hit
+        requests[lo : lo + 16] = np.logical_or.reduceat(hit, heads, axis=0).sum(axis=0)
     return fetched, requests
 
 
-def candidates(life: Lifespans, window_s: float | None, policy: Policy | None) -> list[Layout]:
-    """Layouts to estimate: the given window and policy, or every candidate for those unset."""
+def candidates(
+    life: Lifespans, window_s: float | None, policy: Policy | None, slice_s: float | None = None
+) -> list[Layout]:
+    """Layouts to estimate: the given window (with ``slice_s``) and policy, or every candidate
+    for those unset."""
     if policy is not None and policy not in POLICIES:
         raise InputError(
             f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)}", where="--policy"
         )
     policies: tuple[Policy, ...] = (policy,) if policy else POLICIES
     if window_s is not None:
-        return [Layout(window_s, p) for p in policies]
+        return [Layout(window_s, p, slice_s) for p in policies]
     span = max(life.scene_end - life.scene_start, 1e-9)
     lengths = [k / life.fps for k in FRAME_WINDOWS] if life.fps else list(SECOND_WINDOWS)
     fitting = [w for w in lengths if span / w <= MAX_WINDOWS and w < 2 * span]
     if not fitting:
         fitting = [max(lengths)] if span / max(lengths) <= MAX_WINDOWS else [span / MAX_WINDOWS]
     if not life.carries_over:
-        policies = (policy or "hybrid",)  # nothing crosses a window: every policy is the same
-    return [Layout(w, p) for w in fitting for p in policies]
+        return [Layout(w, policy or "hybrid") for w in fitting]  # every policy is the same
+    sliced = [
+        Layout(w, p, w / k)
+        for w in fitting
+        for p in policies
+        if p != "duplicate"
+        for k in SLICES
+        if not life.fps or w / k >= 1 / life.fps - 1e-9
+    ]
+    return [Layout(w, p) for w in fitting for p in policies] + sliced
 
 
 def choose_layout(
-    life: Lifespans, costs: Costs, *, window_s: float | None = None, policy: Policy | None = None
+    life: Lifespans,
+    costs: Costs,
+    *,
+    window_s: float | None = None,
+    policy: Policy | None = None,
+    slice_s: float | None = None,
 ) -> Choice:
     """The layout to use: the given one (estimated, for the summary and its warning), or, among
     layouts whose file is within FILE_SLACK of the smallest, the smallest file meeting the
     seek target, else the one over-fetching least (ties: see _smallest_then_simplest)."""
-    layouts = candidates(life, window_s, policy)
+    layouts = candidates(life, window_s, policy, slice_s)
     tried = [e for layout in layouts if (e := estimate(life, layout, costs)) is not None]
     if not tried:  # every candidate stores too many copies: take the first anyway
         tried = [_unbounded(life, layouts[0], costs)]
@@ -335,10 +371,11 @@ def choose_layout(
     return Choice(best, tuple(tried), _reason(life, best, meeting, len(tried), explicit), explicit)
 
 
-def _smallest_then_simplest(e: Estimate) -> tuple[float, float, int, float]:
+def _smallest_then_simplest(e: Estimate) -> tuple[float, float, bool, int, float]:
     """Order of preference among layouts meeting the target: smaller file, fewer requests,
-    the policy order hybrid, hierarchy, duplicate, then longer windows (fewer index nodes)."""
-    return (e.file_bytes, e.requests, _PREFERRED[e.layout.policy], -e.layout.window_s)
+    no time slices, the policy order hybrid, hierarchy, duplicate, then longer windows."""
+    sliced = e.layout.slice_s is not None
+    return (e.file_bytes, e.requests, sliced, _PREFERRED[e.layout.policy], -e.layout.window_s)
 
 
 def _unbounded(life: Lifespans, layout: Layout, costs: Costs) -> Estimate:

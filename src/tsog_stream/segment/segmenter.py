@@ -39,7 +39,14 @@ from ..morton import morton_order
 from ..schemas.manifest import Box, ChunkEntry, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .layout import Choice, Lifespans, choose_layout, measure_costs, why_not_merged
+from .layout import (
+    Choice,
+    Lifespans,
+    choose_layout,
+    measure_costs,
+    time_slices,
+    why_not_merged,
+)
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan, window_count
 
 DEFAULT_POLICY: Policy = "hybrid"
@@ -62,6 +69,9 @@ class SegmentOptions:
     max_copies: int = DEFAULT_MAX_COPIES
     workers: int = 1
     seed: int = 0
+    slice_s: float | None = None
+    """Chunks of a node cut by start time into slices this long: chosen with the layout, or
+    used as given with an explicit window (none unless given)."""
 
 
 @dataclass(frozen=True)
@@ -155,29 +165,48 @@ def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choic
         window_count(0.0, 1.0, options.window_s)  # refuses a non-positive window at once
     costs = measure_costs(scene, max_count, options.seed)
     life = Lifespans.of_scene(scene)
-    return choose_layout(life, costs, window_s=options.window_s, policy=options.policy)
+    return choose_layout(
+        life, costs, window_s=options.window_s, policy=options.policy, slice_s=options.slice_s
+    )
 
 
 def _with_layout(options: SegmentOptions, choice: Choice) -> SegmentOptions:
     """The options with the chosen window and policy filled in."""
     layout = choice.chosen.layout
-    return replace(options, window_s=layout.window_s, policy=layout.policy)
+    return replace(options, window_s=layout.window_s, policy=layout.policy, slice_s=layout.slice_s)
 
 
-def chunk_jobs(scene: Scene, plan: Plan, max_count: int) -> list[ChunkJob]:
-    """Split every node's Gaussians into contiguous Morton runs of at most ``max_count``.
+def chunk_jobs(
+    scene: Scene, plan: Plan, max_count: int, slice_s: float | None = None
+) -> list[ChunkJob]:
+    """Split every node's Gaussians into contiguous Morton runs of at most ``max_count``,
+    first by start time into slices of ``slice_s`` when given (layout.py), so each chunk's
+    own visible interval is short.
 
-    Jobs are ordered by node start time, coarser levels first, so the chunks one seek needs
-    sit close together in the file.
+    Jobs are ordered by node start time, coarser levels first, then by slice, so the chunks
+    one seek needs sit close together in the file.
     """
     jobs: list[ChunkJob] = []
+    start = lifespans(scene.timeline)[0] if scene.timeline is not None else None
     keys = sorted(plan.buckets, key=lambda k: (plan.node_interval(k)[0], -k.level, k.index))
     for key in keys:
-        members = plan.buckets[key]
-        ordered = members[morton_order(scene.gaussians.means[members])]
-        parts = -(-ordered.size // max_count)
-        jobs.extend(ChunkJob(key, run) for run in np.array_split(ordered, parts))
+        for members in _by_slice(plan.buckets[key], start, plan.node_interval(key)[0], slice_s):
+            ordered = members[morton_order(scene.gaussians.means[members])]
+            parts = -(-ordered.size // max_count)
+            jobs.extend(ChunkJob(key, run) for run in np.array_split(ordered, parts))
     return jobs
+
+
+def _by_slice(
+    members: np.ndarray, start: np.ndarray | None, node_start: float, slice_s: float | None
+) -> list[np.ndarray]:
+    """A node's members grouped by time slice, in slice order (one group without slices)."""
+    if start is None or slice_s is None:
+        return [members]
+    slices = time_slices(start[members], np.full(members.size, node_start), slice_s)
+    order = np.argsort(slices, kind="stable")
+    cut = np.flatnonzero(np.diff(slices[order])) + 1
+    return np.split(members[order], cut)
 
 
 def encode_job_payload(scene: Scene, seed: int) -> bytes:
@@ -424,7 +453,7 @@ def segment_scene(
     choice = scene_layout(scene, options, max_count)
     options = _with_layout(options, choice)
     plan = plan_scene(scene, options)
-    jobs = chunk_jobs(scene, plan, max_count)
+    jobs = chunk_jobs(scene, plan, max_count, options.slice_s)
     parts = (Part(job.key, scene.subset(job.indices)) for job in jobs)
     tl = scene.timeline
     fields: dict[str, Any] = {
