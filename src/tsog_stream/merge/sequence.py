@@ -93,13 +93,22 @@ def probe_merge(
     seq: FrameSequence, mode: TemporalMode, tolerance: Tolerance | None = None
 ) -> tuple[TemporalMode | None, str]:
     """The mode worth running on the whole sequence (None: store it per frame) and why, from
-    merging PROBE_SAMPLES runs of PROBE_FRAMES frames cropped to a central box of about
-    PROBE_GAUSSIANS (the same box in every frame of a run): a second or so whatever the
-    sequence, where merging a whole flipbook that carries nothing over took minutes."""
+    merging up to PROBE_SAMPLES runs of PROBE_FRAMES frames (runs never overlap: a short
+    sequence gets fewer) cropped to a central box of about PROBE_GAUSSIANS (the same box in
+    every frame of a run), each run read once for every mode tried: a second or so whatever
+    the sequence, where merging a whole flipbook that carries nothing over took minutes."""
     if seq.count < 2:
         return None, "one frame: nothing to merge"
     tol = default_tolerance(seq, tolerance)
-    kept = {m: _probe_kept(seq, m, tol) for m in (("fit", "merge") if mode == "fit" else (mode,))}
+    modes: tuple[TemporalMode, ...] = ("fit", "merge") if mode == "fit" else (mode,)
+    kept = dict.fromkeys(modes, 1.0)
+    options = {"fps": seq.fps, "sh_coeffs": seq.sh_coeffs, "tolerance": tol}
+    runs = 0
+    for frames in _probe_runs(seq):
+        runs += 1
+        for m in modes:
+            _, stats = merge_frames(frames, mode=m, **options)  # type: ignore[arg-type]
+            kept[m] = min(kept[m], stats.gaussians_out / max(stats.gaussians_in, 1))
     if kept.get("fit", 1.0) <= FIT_PAYS_BELOW:
         return "fit", ""
     if kept["merge"] <= MERGE_PAYS_BELOW:
@@ -111,26 +120,22 @@ def probe_merge(
         )
     shown = ", ".join(f"{m} {k:.0%}" for m, k in kept.items())
     return None, (
-        f"merging kept {shown} of the Gaussians of {PROBE_SAMPLES} probes of {PROBE_FRAMES} "
-        f"frames (it pays below {MERGE_PAYS_BELOW:.0%}): not merged"
+        f"merging kept {shown} of the Gaussians of {runs} probe{'s' if runs != 1 else ''} of "
+        f"{min(PROBE_FRAMES, seq.count)} frames (it pays below {MERGE_PAYS_BELOW:.0%}): "
+        "not merged"
     )
 
 
-def _probe_kept(seq: FrameSequence, mode: TemporalMode, tol: Tolerance) -> float:
-    """Smallest share of Gaussians kept by merging a probe run of frames, over the probes."""
+def _probe_runs(seq: FrameSequence) -> Iterator[list[Gaussians]]:
+    """The probe runs of consecutive frames, each cropped to its first frame's central box."""
     length = min(PROBE_FRAMES, seq.count)
-    starts = sorted({round(k) for k in np.linspace(0, seq.count - length, PROBE_SAMPLES)})
-    kept = []
-    for first in starts:
+    count = max(1, min(PROBE_SAMPLES, seq.count // length))
+    for first in sorted({round(k) for k in np.linspace(0, seq.count - length, count)}):
         frames = [seq.read(i, i + 1).scene.gaussians for i in range(first, first + length)]
         lo, hi = _central_box(frames[0].means, PROBE_GAUSSIANS)
         frames = [g.subset(np.all((g.means >= lo) & (g.means <= hi), axis=1)) for g in frames]
-        if sum(len(g) for g in frames) == 0:
-            continue
-        options = {"fps": seq.fps, "sh_coeffs": seq.sh_coeffs, "tolerance": tol}
-        _, stats = merge_frames(frames, mode=mode, **options)  # type: ignore[arg-type]
-        kept.append(stats.gaussians_out / max(stats.gaussians_in, 1))
-    return min(kept, default=1.0)
+        if any(len(g) for g in frames):
+            yield frames
 
 
 def _central_box(means: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
