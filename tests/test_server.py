@@ -10,7 +10,7 @@ import hashlib
 import json
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -22,6 +22,7 @@ from tsog_stream.cli.main import main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.cli.serve_commands import add_serve_command, cmd_serve
 from tsog_stream.client import open_stream
+from tsog_stream.container.ranges import ByteRange
 from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -374,8 +375,12 @@ class SendfileSpy:
 
 
 @pytest.fixture
-def spied(tree: Path) -> Iterator[tuple[ThreadedServer, SendfileSpy]]:
-    """A server on the tree whose loop's sendfile is spied on."""
+def spied(
+    tree: Path, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[tuple[ThreadedServer, SendfileSpy]]:
+    """A server on the tree whose loop's sendfile is spied on (the direct first attempt is
+    off here: test_a_body_goes_out_directly_and_the_rest_by_the_loop covers it)."""
+    monkeypatch.setattr(respond, "_sendfile_now", lambda *_: 0)
     server = ThreadedServer(make_app(tree))
     spy = SendfileSpy(server.loop)
     server.loop.sendfile = spy  # type: ignore[method-assign]
@@ -386,12 +391,9 @@ def spied(tree: Path) -> Iterator[tuple[ThreadedServer, SendfileSpy]]:
 
 
 def test_sendfile_for_large_single_span(
-    spied: tuple[ThreadedServer, SendfileSpy],
-    caplog: pytest.LogCaptureFixture,
-    monkeypatch: pytest.MonkeyPatch,
+    spied: tuple[ThreadedServer, SendfileSpy], caplog: pytest.LogCaptureFixture
 ) -> None:
     server, spy = spied
-    monkeypatch.setattr(respond, "SENDFILE_MIN", 64 * 1024)  # DATA is 100 kB
     with caplog.at_level(logging.INFO, logger="aiohttp.access"):
         r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=100-90099"})
         assert r.status == 206 and r.body == DATA[100:90100]
@@ -407,6 +409,46 @@ def test_sendfile_for_large_single_span(
     logged = [rec.getMessage() for rec in caplog.records if rec.name == "aiohttp.access"]
     sizes = [int(line.split('" ')[1].split()[1]) for line in logged[:2]]
     assert sizes[0] >= 90000 and sizes[1] >= len(DATA)  # %b counts sendfile bytes too
+
+
+def settled(done: Callable[[], bool], seconds: float = 5.0) -> None:
+    """Wait (bounded) until ``done()``: a server thread may still be returning from the call
+    that sent the bytes the client already read."""
+    deadline = time.monotonic() + seconds
+    while not done() and time.monotonic() < deadline:
+        time.sleep(0.005)
+
+
+def test_a_body_goes_out_directly_and_the_rest_by_the_loop(
+    tree: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One non-blocking os.sendfile sends what fits at once; what it leaves (here it may send
+    only 1000 bytes) goes through loop.sendfile; the body is exact either way."""
+    real = respond._sendfile_now
+    direct: list[tuple[int, int]] = []
+
+    def limited(transport: Any, file: Any, span: ByteRange) -> int:
+        sent = real(transport, file, ByteRange.sized(span.start, min(span.length, limit[0])))
+        direct.append((span.start, sent))
+        return sent
+
+    limit = [1 << 30]
+    monkeypatch.setattr(respond, "_sendfile_now", limited)
+    server = ThreadedServer(make_app(tree))
+    spy = SendfileSpy(server.loop)
+    server.loop.sendfile = spy  # type: ignore[method-assign]
+    try:
+        r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=100-90099"})
+        assert r.status == 206 and r.body == DATA[100:90100]
+        settled(lambda: len(direct) == 1)  # the server thread records after the bytes left
+        assert direct == [(100, 90000)] and spy.calls == []  # all of it at once
+        limit[0] = 1000
+        r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=50-"})
+        assert r.status == 206 and r.body == DATA[50:]
+        settled(lambda: len(direct) == 2 and len(spy.calls) == 1)
+        assert direct[-1] == (50, 1000) and spy.calls == [(1050, len(DATA) - 1050)]
+    finally:
+        server.stop()
 
 
 def test_sendfile_chunk_slices_and_switch(

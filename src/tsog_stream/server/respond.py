@@ -26,10 +26,11 @@ from .ranges import Ignore, Serve, Unsatisfiable, content_range, parse_range, un
 
 READ_BLOCK = 256 * 1024
 """Bytes read and written at a time when a body is copied (not sent with sendfile)."""
-SENDFILE_MIN = 128 * 1024
-"""A single span at least this long goes out with sendfile; shorter ones are read and written
-in the event loop, which is faster for them (measured with wrk on loopback: 64 KiB ranges
-4450 requests/s copied against 3890 with sendfile, 256 KiB 3250 with sendfile against 3090)."""
+SENDFILE_MIN = 16 * 1024
+"""A single span at least this long goes out with sendfile (tried at once, see
+_sendfile_now); shorter ones are read and written in the event loop. Measured with wrk on
+loopback, one process: 16 KiB ranges 4790 requests/s with sendfile against 4290 copied, 64 KiB
+4480-4920 against 3900-3990."""
 SENDFILE_SLICE = 4 << 20
 """Bytes handed to one ``loop.sendfile`` call: each slice must go out within the stall timeout."""
 REVALIDATE = "public, max-age=0, must-revalidate"
@@ -88,7 +89,8 @@ async def _progress(step: Awaitable[_T], stall_s: float) -> _T:
 async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange, stall_s: float) -> None:
     """Write ``span`` of the open file ``fd`` in READ_BLOCK pieces, each within ``stall_s``.
     A span under SENDFILE_MIN is read in the event loop (a thread hop cost more than the
-    read); longer ones in a worker thread, so a cold disk never stalls the loop for long."""
+    read); longer ones (multipart, TLS) in a worker thread, so a cold disk never stalls the
+    loop for long."""
     pos = span.start
     small = span.length < SENDFILE_MIN
     while pos < span.end:
@@ -122,24 +124,52 @@ async def _sendfile(
     if transport.get_extra_info("sslcontext") is not None:
         return False
     loop = asyncio.get_running_loop()
-    for start in range(span.start, span.end, SENDFILE_SLICE):
+    now = _sendfile_now(transport, file, span)
+    _count_sent(writer, now)
+    for start in range(span.start + now, span.end, SENDFILE_SLICE):
         count = min(SENDFILE_SLICE, span.end - start)
         try:
             sent = await _progress(
                 loop.sendfile(transport, file, start, count, fallback=False), stall_s
             )
-        except (NotImplementedError, asyncio.SendfileNotAvailableError):
+        except (NotImplementedError, asyncio.SendfileNotAvailableError) as exc:
             if start == span.start:
                 return False
-            raise
+            # part of the body went out already: sendfile failing now means the socket did
+            # (the client left), which asyncio reports as "not available" on its first call
+            raise ConnectionResetError("connection lost") from exc
         except RuntimeError as exc:  # "Transport is closing": the client went away
             raise ConnectionResetError("connection lost") from exc
-        writer.output_size += sent
-        if writer.length is not None:
-            writer.length = max(0, writer.length - sent)
+        _count_sent(writer, sent)
         if sent < count:
             raise ConnectionAbortedError("file shrank while being sent")
     return True
+
+
+def _sendfile_now(transport: asyncio.BaseTransport, file: BinaryIO, span: ByteRange) -> int:
+    """Bytes of ``span`` sent at once by one non-blocking ``os.sendfile`` when the headers
+    already left the transport (0 when the socket is full or the transport holds bytes):
+    most bodies fit the socket buffer, and this skips the futures and the writability wait
+    of ``loop.sendfile`` (1 MiB ranges: 0.75 ms a request, of which about 0.3 above nginx)."""
+    sock = transport.get_extra_info("socket")
+    if sock is None or not isinstance(transport, asyncio.WriteTransport):
+        return 0
+    if transport.get_write_buffer_size() or transport.is_closing():
+        return 0
+    try:
+        return os.sendfile(sock.fileno(), file.fileno(), span.start, span.length)
+    except (BlockingIOError, InterruptedError):
+        return 0
+    except OSError as exc:  # EPIPE, ECONNRESET: the client went away
+        raise ConnectionResetError("connection lost") from exc
+
+
+def _count_sent(writer: AbstractStreamWriter, sent: int) -> None:
+    """Add ``sent`` body bytes to the writer's ``output_size`` and take them off ``length``,
+    as its own ``write`` would (the access log's ``%b``)."""
+    writer.output_size += sent
+    if writer.length is not None:
+        writer.length = max(0, writer.length - sent)
 
 
 def _parts(
