@@ -27,11 +27,12 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from browser import COVERED, VIEWPORT, chromium
-from common import write_section
+from common import sample, write_section
 from helpers import ThreadedServer
 from tsog_stream.client import open_stream
+from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
@@ -61,14 +62,14 @@ def make_clip(root: Path, gaussians: int) -> int:
 
 
 def first_frames(
-    browser: Any, base: str, size: int, expected: dict[float, int]
+    browser: Any, base: str, size: int, expected: dict[float, int], scene: str = "clip"
 ) -> list[dict[str, float]]:
-    """Open the clip paused at each time: seconds until t is covered, bytes fetched."""
+    """Open the scene paused at each time: seconds until t is covered, bytes fetched."""
     rows = []
     for t, needed in expected.items():
         page = browser.new_page(viewport=VIEWPORT)
         start = time.monotonic()
-        page.goto(f"{base}/play/clip?t={t}&paused")
+        page.goto(f"{base}/play/{scene}?t={t}&paused")
         page.wait_for_function(COVERED, timeout=120_000)
         seconds = time.monotonic() - start
         fetched = page.evaluate("window.tsogPlayer.stream.stats().bytes")
@@ -114,6 +115,69 @@ def cpu_per_frame(browser: Any, url: str, seconds: float, play: bool) -> dict[st
     return row
 
 
+WATCH_PLAYBACK = """(() => {
+    const w = window.__pb = { frames: 0, buffering: 0, played: 0, last: null };
+    (function tick() {
+        const p = window.tsogPlayer.playback;
+        w.frames++;
+        if (p.buffering) w.buffering++;
+        if (w.last !== null) {
+            let d = p.t - w.last;
+            if (d < 0) d += p.end - p.start;  // looped
+            w.played += d;
+        }
+        w.last = p.t;
+        requestAnimationFrame(tick);
+    })();
+})()"""
+
+
+def flipbook_playback(browser: Any, base: str, seconds: float) -> dict[str, float]:
+    """Play the flipbook (one chunk per frame) from its start on a fresh page for ``seconds``:
+    the share of drawn frames spent buffering, and media seconds played per wall second."""
+    page = browser.new_page(viewport=VIEWPORT)
+    page.goto(f"{base}/play/flipbook?t=0")
+    page.wait_for_function("window.tsogPlayer?.playback !== undefined", timeout=120_000)
+    page.evaluate(WATCH_PLAYBACK)
+    time.sleep(seconds)
+    w = page.evaluate("window.__pb")
+    stats = page.evaluate("window.tsogPlayer.stream.stats()")
+    page.close()
+    return {
+        "frames": w["frames"],
+        "buffering_share": w["buffering"] / max(w["frames"], 1),
+        "rate": w["played"] / seconds,
+        "chunks_loaded": stats["ready"],
+        "bytes": stats["bytes"],
+    }
+
+
+def flipbook_section(
+    chunks: int, size: int, firsts: list[dict[str, float]], play: dict[str, float], seconds: float
+) -> list[str]:
+    """Markdown lines for the flipbook part."""
+    lines = [
+        "",
+        f"Many small chunks: the PlayCanvas monkey flipbook (50 SOG frames at 30 fps) segmented "
+        f"with the defaults, one chunk per frame ({chunks} chunks, {size} bytes). First frame "
+        "at a random t:",
+        "",
+        "| t (s) | seconds | bytes fetched | Python chunks_for(t) bytes |",
+        "| ---: | ---: | ---: | ---: |",
+    ]
+    lines += [
+        f"| {r['t']:.2f} | {r['seconds']:.2f} | {r['bytes']} | {r['needed']} |" for r in firsts
+    ]
+    lines += [
+        "",
+        f"Playing from its start on a fresh page for {seconds:g} s (30 chunks a second to fetch "
+        f"and upload): {play['frames']} frames drawn, {play['buffering_share']:.0%} of them "
+        f"waiting for chunks, {play['rate']:.2f} media seconds per wall second (1.00 = no "
+        f"stall), {play['chunks_loaded']} chunks loaded, {play['bytes']:,} bytes.",
+    ]
+    return lines
+
+
 def report(
     count: int,
     size: int,
@@ -128,7 +192,7 @@ def report(
         f"Run {when} (`benchmarks/bench_player.py --gaussians {count} --seconds {seconds:g}`), "
         "Debian chromium headless on SwiftShader (WebGL2 emulated on the CPU), 2 cores shared by browser, "
         f"GPU process and server. Clip: {count} Gaussians over {DURATION:g} s (a fifth static background, "
-        "60 moving objects), type 2, moving means, 1 s windows (hybrid policy), "
+        "60 moving objects), type 2, moving means, 1 s windows (policy chosen by the cost model), "
         f"{size} bytes, served by our server on loopback. Page 640x480.\n",
         "First frame at a random t (new page, paused; until every chunk t needs is loaded):\n",
         "| t (s) | seconds | bytes fetched | Python chunks_for(t) bytes | share of the file |",
@@ -179,6 +243,12 @@ def main() -> int:
         root = Path(tmp)
         count = make_clip(root, args.gaussians)
         size = (root / "clip.tsogs").stat().st_size
+        segment_sequence(
+            open_sequence(sample("4d/pc_flipbook_monkey", in_tree=False), fps=30.0, kind="sog"),
+            root / "flipbook.tsogs",
+            SegmentOptions(workers=2),
+        )
+        flip_size = (root / "flipbook.tsogs").stat().st_size
         rng = random.Random(1)
         times = [round(rng.uniform(0, DURATION), 2) for _ in range(args.runs)]
         with open_stream(root / "clip.tsogs") as reader:  # before playwright's event loop
@@ -186,11 +256,22 @@ def main() -> int:
                 f"clip: {len(reader.index.manifest.chunks)} chunks, {size} bytes", file=sys.stderr
             )
             expected = {t: sum(c.length for c in reader.index.chunks_for(t)) for t in times}
+        with open_stream(root / "flipbook.tsogs") as reader:
+            flip_chunks = len(reader.index.manifest.chunks)
+            end = reader.index.manifest.scene.end_s
+            flip_times = [round(rng.uniform(0, end), 3) for _ in range(args.runs)]
+            flip_expected = {
+                t: sum(c.length for c in reader.index.chunks_for(t)) for t in flip_times
+            }
         server = ThreadedServer(make_app(root))
         base = f"http://127.0.0.1:{server.port}"
         try:
             with chromium() as browser:
                 firsts = first_frames(browser, base, size, expected)
+                flip_firsts = first_frames(
+                    browser, base, flip_size, flip_expected, scene="flipbook"
+                )
+                flip_play = flipbook_playback(browser, base, args.seconds)
                 cpu = {
                     "paused": cpu_per_frame(
                         browser, f"{base}/play/clip?t=15&paused", args.seconds, False
@@ -203,6 +284,8 @@ def main() -> int:
             server.stop()
     assert cpu["playing"]["playing"], "the clip must be playing while measured"
     body = report(count, size, firsts, cpu, args.seconds)
+    flip = flipbook_section(flip_chunks, flip_size, flip_firsts, flip_play, args.seconds)
+    body = body.rstrip("\n") + "\n" + "\n".join(flip) + "\n"
     write_section("player", body, "bench_player.py")
     print(body)
     return 0

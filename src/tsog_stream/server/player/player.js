@@ -160,7 +160,7 @@ async function main() {
     let sinceShown = 1;
     app.on('update', (dt) => {
         playback.advance(dt);
-        stream.update(playback.t, playback.playing);
+        stream.update(playback.t, playback.playing, playback.loop);
         playback.buffering = !stream.covered(playback.t);
         orbit.update();
         fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;

@@ -7,6 +7,11 @@ import { readZip } from './zip.js';
 import { chunkUniforms, createTextures, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
 
 const MAX_LOADING = 4;
+/** Media seconds fetched ahead while playing, at least (as the Python client's play()): two
+ * windows alone were 67 ms with one chunk per frame, and playback waited on every chunk. */
+const MIN_HORIZON_S = 1.0;
+/** Bytes fetched ahead of t at most (in time order), so a horizon of large chunks stays bounded. */
+const AHEAD_BYTES = 64 * 1024 * 1024;
 
 /** Hex SHA-256 of an ArrayBuffer, or null where the browser offers no digest (not secure). */
 async function sha256(buffer) {
@@ -31,7 +36,7 @@ export class ChunkStream {
         this.index = new SceneIndex(manifest);
         this.chunkUrl = chunkUrl;
         this.fetchLog = fetchLog;
-        this.horizon = 2 * manifest.window_s;
+        this.horizon = Math.max(2 * manifest.window_s, MIN_HORIZON_S);
         this.root = new pc.Entity('tsog-chunks');
         parent.addChild(this.root);
         this.chunks = new Map(); // id -> {info, state, entity, layout, textures, abort}
@@ -44,20 +49,42 @@ export class ChunkStream {
     }
 
     /** Called every frame: plan for t when it changed, start loads, drop, show, set time. */
-    update(t, playing) {
-        if (!this.planned || this.planned[0] !== t || this.planned[1] !== playing) {
-            this.plan(t, playing);
+    update(t, playing, loop = false) {
+        if (!this.planned || this.planned[0] !== t || this.planned[1] !== playing || this.planned[2] !== loop) {
+            this.plan(t, playing, loop);
         }
         this.loadWanted();
         this.show(t);
     }
 
-    /** What t needs, then (playing) what [t, t + horizon] needs; drop what is far from both. */
-    plan(t, playing) {
-        this.planned = [t, playing];
+    /** The intervals of media time the horizon covers from t: [t, t + horizon] clipped to the
+     * scene, and, looping, its continuation from the scene's start. */
+    aheadIntervals(t, loop) {
+        const { start_s: start, end_s: end } = this.index.manifest.scene;
+        const out = [[t, Math.min(t + this.horizon, end)]];
+        const over = t + this.horizon - end;
+        if (loop && over > 0) out.push([start, Math.min(start + over, t)]);
+        return out;
+    }
+
+    /** What t needs, then (playing) what the horizon needs, in time order and within
+     * AHEAD_BYTES; drop what is far from both. */
+    plan(t, playing, loop = false) {
+        this.planned = [t, playing, loop];
         const needed = this.index.chunksFor(t);
-        const ahead = playing ? this.index.chunksForInterval(t, t + this.horizon) : [];
-        ahead.sort((a, b) => a.start_s - b.start_s);
+        const intervals = this.aheadIntervals(t, loop);
+        const ahead = [];
+        if (playing) {
+            let bytes = 0;
+            for (const [a, b] of intervals) {
+                const part = this.index.chunksForInterval(a, b).sort((x, y) => x.start_s - y.start_s);
+                for (const c of part) {
+                    bytes += c.length;
+                    if (bytes > AHEAD_BYTES) break;
+                    ahead.push(c);
+                }
+            }
+        }
         this.wanted = [...new Set([...needed, ...ahead].map((c) => c.id))];
         this.shown = new Set(needed.map((c) => c.id));
         for (const id of this.wanted) {
@@ -65,7 +92,7 @@ export class ChunkStream {
         }
         const keep = new Set(this.wanted);
         for (const [id, c] of this.chunks) {
-            const near = c.info.end_s >= t && c.info.start_s <= t + this.horizon;
+            const near = intervals.some(([a, b]) => c.info.end_s >= a && c.info.start_s <= b);
             if (!keep.has(id) && !near) {
                 this.unload(c);
                 this.chunks.delete(id);
