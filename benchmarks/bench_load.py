@@ -225,11 +225,13 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
         f"player needs for [t, t+1 s] at a random t, then another t ({r['plays']} distinct t, "
         f"{r['requests_per_play']:.1f} chunks and {r['bytes_per_request'] / 1e3:.0f} kB per "
         f"request on average) from one {r['file_bytes'] / 1e6:.1f} MB `.tsogs` file. "
-        f"Load tool: {r['tool']}. Ours: `tsog serve -q --max-per-client {r['clients']}` (every "
-        "player connects from 127.0.0.1, as behind a proxy; one process, one event loop, "
-        "sendfile); nginx 1.22 (Debian nginx-light, 1 worker, sendfile on, access log off). "
-        "Each origin gets a 2 s warm-up, then the measured run; RSS is sampled from "
-        "/proc/PID/status every 0.1 s (nginx: master plus worker), CPU from /proc/PID/stat. "
+        f"Load tool: {r['tool']}. Ours: `tsog serve -q --workers {r['workers']} "
+        f"--max-per-client {r['clients']}` (every player connects from 127.0.0.1, as behind a "
+        "proxy; worker processes sharing the port, sendfile); nginx 1.22 (Debian nginx-light, "
+        f"worker_processes {r['workers']}, sendfile on, access log off): each origin's default "
+        "worker count on this machine. Each origin gets a 2 s warm-up, then the measured run; "
+        "RSS is sampled from /proc/PID/status every 0.1 s and CPU read from /proc/PID/stat, "
+        "summed over the parent and its workers. "
         f"The machine's 1-minute load average just before each measured run (other work on "
         f"the host included): {o['loadavg_before']:.2f} (ours), {n['loadavg_before']:.2f} "
         "(nginx).",
@@ -250,10 +252,10 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
     lines += [
         "",
         f"Average CPU use over the run: ours {o['cpu_s'] / r['seconds']:.2f} cores, nginx "
-        f"{n['cpu_s'] / r['seconds']:.2f}: our server is bound by its single event loop (one "
-        "core; Python per request: parsing, routing, the catalog lookup and the headers); "
-        "nginx is far from CPU-bound, and is limited by the load tool sharing the 2 cores "
-        "(wrk receives and copies every body).",
+        f"{n['cpu_s'] / r['seconds']:.2f}: ours spends its CPU in Python per request (parsing, "
+        "routing, the catalog lookup, the headers: docs/http.md, 'The per-request path'), "
+        "nginx is far from CPU-bound and limited by the load tool sharing the 2 cores (wrk "
+        "receives and copies every body).",
         f"Goals: 0 errors (ours: {o['errors']}), RSS growth under 50 MB "
         f"(ours: {o['rss_growth_mib']:.1f} MiB). "
         "`tests/test_server_load.py` runs a short version (50 clients, byte-checked bodies).",
