@@ -105,8 +105,9 @@ def add_stream_commands(sub: Subparsers) -> None:
     p.add_argument(
         "--window",
         default="auto",
-        help="time window: auto (default: chosen per scene by a cost model so that a seek "
-        "fetches at most 1.25x what it shows, at the smallest file), 1s, 0.5, or 30f (frames)",
+        help="time window: auto (default: window, policy and time slices chosen per scene by a "
+        "cost model, the smallest file whose seeks read at most 1.25x what they show where the "
+        "content allows; the summary says why), 1s, 0.5, or 30f (frames)",
     )
     p.add_argument(
         "--policy",
@@ -129,7 +130,9 @@ def add_stream_commands(sub: Subparsers) -> None:
         default=DEFAULT_TEMPORAL,
         help="frame sequences only: off = one Gaussian per frame (type 0, as in the paper); "
         "merge = a Gaussian unchanged over frames is stored once with its lifespan; fit = a "
-        f"smoothly moving one also gets polynomial motion (default {DEFAULT_TEMPORAL})",
+        f"smoothly moving one also gets polynomial motion (default {DEFAULT_TEMPORAL}); a "
+        "probe of a few frames decides first whether merging can pay, and a merge whose seeks "
+        "would read more than a frame's own chunk is not kept",
     )
     p.add_argument(
         "--tolerance",
