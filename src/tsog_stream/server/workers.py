@@ -40,8 +40,10 @@ log = logging.getLogger("tsog.serve")
 
 
 def default_workers() -> int:
-    """The cores this process may run on (one worker per core)."""
-    return max(1, len(os.sched_getaffinity(0)))
+    """The cores this process may run on (one worker per core; the core count where the
+    system cannot say which, as on macOS)."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    return max(1, len(affinity(0)) if affinity is not None else os.cpu_count() or 1)
 
 
 @dataclass(frozen=True)
