@@ -43,7 +43,7 @@ OVERFETCH_WARNING: Final = 2.0
 """An explicit layout whose seeks fetch more than this many times what they show is warned."""
 SAMPLE_TIMES: Final = 64
 """Times at which a layout's seek is estimated (stratified over the scene)."""
-MAX_ENTRIES: Final = 400_000
+MAX_ENTRIES: Final = 100_000
 """Lifespans the model looks at; more are sampled (weights scaled), so choosing stays fast."""
 MAX_STORED_FACTOR: Final = 8
 """A layout storing more than this many copies per Gaussian is not worth estimating."""
