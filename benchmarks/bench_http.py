@@ -22,6 +22,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -112,6 +113,8 @@ async def first_frames(url: str, times: list[float]) -> dict[str, float]:
     }
 
 
+CELLS = [(span, conns) for span in (64 * 1024, 1024 * 1024) for conns in (1, 16, 64)]
+"""Load cells: range size x concurrent connections."""
 RANDOM_RANGES = """
 math.randomseed(%d)
 function request()
@@ -191,17 +194,27 @@ async def measure(
     out: dict[str, Any] = {"file_bytes": size, "rss_before_mib": rss_before}
     for name, url in (("ours", ours), ("nginx", nginx)):
         out[f"first_frame_{name}"] = await first_frames(url, times)
-        for span in (64 * 1024, 1024 * 1024):
-            for conns in (1, 16, 64):
-                cell = load(url, size, span, conns, seconds=seconds, work=work)
-                out[f"load_{name}_{span}_{conns}"] = cell
-                py = await python_load(url, size, span, conns, seconds)
-                out[f"pyload_{name}_{span}_{conns}"] = py
+        for span, conns in CELLS:
+            cell = load(url, size, span, conns, seconds=seconds, work=work)
+            out[f"load_{name}_{span}_{conns}"] = cell
+            py = await python_load(url, size, span, conns, seconds)
+            out[f"pyload_{name}_{span}_{conns}"] = py
     rng = np.random.default_rng(5)
     starts = rng.integers(0, size - 65536, 200)
     out["client_overhead"] = await client_overhead(ours, [(int(a), int(a) + 65536) for a in starts])
     out["rss_after_mib"] = round(sum(rss_mib(p) for p in server_pids), 1)
     return out
+
+
+def _pairs(r: dict[str, Any], kind: str) -> Iterator[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """Per load cell: its table row up to the ratio column, ours and nginx's figures."""
+    for span, conns in CELLS:
+        o, n = r[f"{kind}_ours_{span}_{conns}"], r[f"{kind}_nginx_{span}_{conns}"]
+        row = (
+            f"| {span // 1024} KiB | {conns} | {o['mb_s']:.0f} | {n['mb_s']:.0f} | "
+            f"{o['mb_s'] / n['mb_s']:.2f}"
+        )
+        yield row, o, n
 
 
 def markdown(r: dict[str, Any], stamp: str) -> str:
@@ -228,14 +241,10 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
         "| range | connections | ours MB/s | nginx MB/s | ratio | ours p50 ms | nginx p50 ms | errors |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for span in (64 * 1024, 1024 * 1024):
-        for conns in (1, 16, 64):
-            o, n = r[f"load_ours_{span}_{conns}"], r[f"load_nginx_{span}_{conns}"]
-            lines.append(
-                f"| {span // 1024} KiB | {conns} | {o['mb_s']:.0f} | {n['mb_s']:.0f} | "
-                f"{o['mb_s'] / n['mb_s']:.2f} | {o['p50_ms']:.2f} | {n['p50_ms']:.2f} | "
-                f"{o['errors'] + n['errors']} |"
-            )
+    for cell, o, n in _pairs(r, "load"):
+        lines.append(
+            f"{cell} | {o['p50_ms']:.2f} | {n['p50_ms']:.2f} | {o['errors'] + n['errors']} |"
+        )
     lines += [
         "",
         "The same cells with the Python aiohttp client in the benchmark's process (the load tool "
@@ -245,13 +254,7 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
         "| range | connections | ours MB/s | nginx MB/s | ratio |",
         "|---:|---:|---:|---:|---:|",
     ]
-    for span in (64 * 1024, 1024 * 1024):
-        for conns in (1, 16, 64):
-            o, n = r[f"pyload_ours_{span}_{conns}"], r[f"pyload_nginx_{span}_{conns}"]
-            lines.append(
-                f"| {span // 1024} KiB | {conns} | {o['mb_s']:.0f} | {n['mb_s']:.0f} | "
-                f"{o['mb_s'] / n['mb_s']:.2f} |"
-            )
+    lines += [f"{cell} |" for cell, _, _ in _pairs(r, "pyload")]
     c = r["client_overhead"]
     lines += [
         "",

@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from helpers import free_port
+from helpers import free_port, proc_stat
 
 TSOG = Path(sys.executable).with_name("tsog")
 TICK = os.sysconf("SC_CLK_TCK")
@@ -42,7 +42,8 @@ class Served:
 
     def cpu_s(self) -> float:
         """User plus system CPU seconds so far."""
-        fields = Path(f"/proc/{self.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        fields = proc_stat(self.pid)
+        assert fields is not None, "tsog serve is gone"
         return (int(fields[11]) + int(fields[12])) / TICK
 
     def open_fds(self) -> int:

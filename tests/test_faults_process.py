@@ -23,7 +23,7 @@ import aiohttp
 import numpy as np
 import pytest
 
-from helpers import free_port
+from helpers import free_port, live_processes, wait_until
 from tsog_stream.cli.main import main
 from tsog_stream.client import StreamClient, open_stream
 from tsog_stream.client.http_source import HttpOptions, HttpSource
@@ -42,15 +42,6 @@ NAMES = ("means", "scales", "quats", "opacities", "sh0", "shN")
 
 def same(a: Gaussians, b: Gaussians) -> bool:
     return all(np.array_equal(getattr(a, n), getattr(b, n)) for n in NAMES)
-
-
-def wait_until(check: Any, timeout: float, what: str) -> None:
-    """Poll ``check()`` every 10 ms until true; fail after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while not check():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out waiting for {what}")
-        time.sleep(0.01)
 
 
 def listening(port: int) -> bool:
@@ -226,16 +217,7 @@ def segment_cmd(src: Path, out: Path) -> list[str]:
 def session_members(sid: int) -> set[int]:
     """Live (non-zombie) processes of session ``sid`` (Linux /proc): after the segmenter
     exits, any left is an orphaned worker."""
-    found = set()
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[3]) == sid and fields[0] != "Z":
-                found.add(int(entry.name))
-    return found
+    return live_processes(lambda fields: int(fields[3]) == sid)
 
 
 @pytest.fixture(scope="module")

@@ -10,14 +10,14 @@ import hashlib
 import json
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 import pytest
 
-from helpers import Resp, ThreadedServer, fetch, nginx_origin
+from helpers import Resp, ThreadedServer, fetch, nginx_origin, wait_until
 from tsog_stream.cli.main import main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.cli.serve_commands import add_serve_command, cmd_serve
@@ -411,14 +411,6 @@ def test_sendfile_for_large_single_span(
     assert sizes[0] >= 90000 and sizes[1] >= len(DATA)  # %b counts sendfile bytes too
 
 
-def settled(done: Callable[[], bool], seconds: float = 5.0) -> None:
-    """Wait (bounded) until ``done()``: a server thread may still be returning from the call
-    that sent the bytes the client already read."""
-    deadline = time.monotonic() + seconds
-    while not done() and time.monotonic() < deadline:
-        time.sleep(0.005)
-
-
 def test_a_body_goes_out_directly_and_the_rest_by_the_loop(
     tree: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -440,12 +432,13 @@ def test_a_body_goes_out_directly_and_the_rest_by_the_loop(
     try:
         r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=100-90099"})
         assert r.status == 206 and r.body == DATA[100:90100]
-        settled(lambda: len(direct) == 1)  # the server thread records after the bytes left
+        # the server thread records the send after the client has the bytes
+        wait_until(lambda: len(direct) == 1, 5, "the direct send to be recorded")
         assert direct == [(100, 90000)] and spy.calls == []  # all of it at once
         limit[0] = 1000
         r = fetch(server.port, "/files/data.bin", headers={"Range": "bytes=50-"})
         assert r.status == 206 and r.body == DATA[50:]
-        settled(lambda: len(direct) == 2 and len(spy.calls) == 1)
+        wait_until(lambda: len(direct) == 2 and len(spy.calls) == 1, 5, "both sends to be recorded")
         assert direct[-1] == (50, 1000) and spy.calls == [(1050, len(DATA) - 1050)]
     finally:
         server.stop()

@@ -8,46 +8,25 @@ import os
 import re
 import signal
 import subprocess
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from helpers import live_processes, proc_stat, wait_until
 from serve_process import TSOG
 
 BODY = bytes(range(256)) * 1024
 
 
 def children(pid: int) -> set[int]:
-    """Live child processes of ``pid`` (Linux /proc)."""
-    found = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.add(int(entry.name))
-    return found
+    """Live child processes of ``pid``."""
+    return live_processes(lambda fields: int(fields[1]) == pid)
 
 
 def alive(pid: int) -> bool:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return False
-    return fields[0] != "Z"
-
-
-def wait_until(check: Callable[[], bool], seconds: float, what: str) -> None:
-    deadline = time.monotonic() + seconds
-    while not check():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
+    fields = proc_stat(pid)
+    return fields is not None and fields[0] != "Z"
 
 
 def get_range(port: int, start: int, end: int) -> tuple[int, bytes]:
@@ -97,7 +76,8 @@ def test_workers_share_the_port_and_every_answer_is_exact(
 
 
 def _cpu_ticks(pid: int) -> int:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    fields = proc_stat(pid)
+    assert fields is not None, f"worker {pid} is gone"
     return int(fields[11]) + int(fields[12])
 
 

@@ -64,12 +64,13 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
         default=10.0,
         help="drop a client that takes no bytes for this long, s (default 10)",
     )
+    cores = default_workers()
     p.add_argument(
         "--workers",
         type=Integer(1, 256),
-        default=default_workers(),
+        default=cores,
         help=f"processes sharing the port, each with its own limits and caches (default: "
-        f"the core count, {default_workers()} here; 1 = one process)",
+        f"the core count, {cores} here; 1 = one process)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no access log on stderr")
     p.set_defaults(func=cmd_serve)

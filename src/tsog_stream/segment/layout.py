@@ -12,7 +12,6 @@ does, the one of those that over-fetches least (docs/design/segmenter.md).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Final
 
@@ -22,13 +21,19 @@ import numpy.typing as npt
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..container.header import HEADER_SIZE, PREFIX_SIZE
-from ..container.stream_index import WINDOW_EPSILON
 from ..errors import InputError
 from ..model import Scene
 from ..morton import morton_order
 from ..schemas.manifest import Policy
 from ..temporal import lifespans, time_range
-from .plan import DEFAULT_MAX_COPIES, POLICIES, stored_in_windows, tree_level, window_span
+from .plan import (
+    DEFAULT_MAX_COPIES,
+    POLICIES,
+    stored_in_windows,
+    tree_level,
+    window_count,
+    window_span,
+)
 
 F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
@@ -269,7 +274,7 @@ def sample_times(life: Lifespans) -> F64:
 
 def estimate(life: Lifespans, layout: Layout, costs: Costs) -> Estimate | None:
     """The layout's file and seek estimates (None when it stores too many copies)."""
-    windows = _window_count(life, layout.window_s)
+    windows = window_count(life.scene_start, life.scene_end, layout.window_s)
     nodes = _fill(life, layout, windows)
     if nodes is None:
         return None
@@ -290,12 +295,6 @@ def estimate(life: Lifespans, layout: Layout, costs: Costs) -> Estimate | None:
         requests=1.0 + float(requests.mean()),
         opening=opening,
     )
-
-
-def _window_count(life: Lifespans, window_s: float) -> int:
-    """Windows covering the scene (at least one), as the plan counts them."""
-    span = life.scene_end - life.scene_start
-    return max(1, math.ceil(span / window_s - WINDOW_EPSILON))
 
 
 def _seeks(nodes: _Nodes, node_bytes: F64, times: F64) -> tuple[F64, F64]:
@@ -380,7 +379,7 @@ def _smallest_then_simplest(e: Estimate) -> tuple[float, float, bool, int, float
 
 def _unbounded(life: Lifespans, layout: Layout, costs: Costs) -> Estimate:
     """An estimate without the copy bound (a layout given explicitly is estimated anyway)."""
-    windows = _window_count(life, layout.window_s)
+    windows = window_count(life.scene_start, life.scene_end, layout.window_s)
     copies = window_span(life.start, life.end, life.scene_start, layout.window_s, windows)
     stored = float(((copies[1] - copies[0] + 1) * life.weight).sum())
     size = stored * costs.per_gaussian

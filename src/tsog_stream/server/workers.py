@@ -18,7 +18,7 @@ import signal
 import socket
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Final
 
@@ -169,7 +169,7 @@ def _stopping_signals() -> Iterator[list[bool]]:
 def run_workers(site: Site, workers: int) -> None:
     """Serve ``site`` with ``workers`` processes until SIGINT or SIGTERM (blocking)."""
     holder = reserve_port(site.host, site.port)
-    site = Site(site.root, site.host, holder.getsockname()[1], site.limits, site.privacy)
+    site = replace(site, port=holder.getsockname()[1])
     read_end, write_end = os.pipe()
     pids: set[int] = set()
     with holder, _stopping_signals() as stopping:
