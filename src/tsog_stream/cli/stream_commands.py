@@ -33,9 +33,9 @@ from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
     SegmentOptions,
+    merge_or_frames,
     segment_scene,
     segment_sequence,
-    why_store_frames,
 )
 from .common import (
     SEED,
@@ -218,13 +218,17 @@ def _segment(
 
     if isinstance(source, FrameSequence) and args.temporal != "off":
         merged = _merged(args, progress, source)
-        why = why_store_frames(source, merged, options) if merged is not None else None
+        why, layout = (
+            merge_or_frames(source, merged, options) if merged is not None else (None, None)
+        )
         if why is not None:
             print(f"temporal: {why}; stored one per frame (type 0)")
         if merged is None or why is not None:
-            report = segment_sequence(source, args.output, options, on_chunk=on_chunk)
+            report = segment_sequence(
+                source, args.output, options, on_chunk=on_chunk, layout=layout
+            )
         else:
-            report = segment_scene(merged, args.output, options, on_chunk=on_chunk)
+            report = segment_scene(merged, args.output, options, on_chunk=on_chunk, layout=layout)
             progress.done()
             _report_frame_errors(source, args.output)
     elif isinstance(source, FrameSequence):

@@ -446,11 +446,13 @@ def segment_scene(
     options: SegmentOptions | None = None,
     *,
     on_chunk: ChunkProgress | None = None,
+    layout: Choice | None = None,
 ) -> SegmentReport:
-    """Segment an in-memory scene into the container at ``path`` (published atomically)."""
+    """Segment an in-memory scene into the container at ``path`` (published atomically), in
+    ``layout`` when already chosen for these options (see :func:`merge_or_frames`)."""
     options = options or SegmentOptions()
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
-    choice = scene_layout(scene, options, max_count)
+    choice = layout or scene_layout(scene, options, max_count)
     options = _with_layout(options, choice)
     plan = plan_scene(scene, options)
     jobs = chunk_jobs(scene, plan, max_count, options.slice_s)
@@ -491,8 +493,10 @@ def segment_sequence(
     options: SegmentOptions | None = None,
     *,
     on_chunk: ChunkProgress | None = None,
+    layout: Choice | None = None,
 ) -> SegmentReport:
     """Segment a frame sequence window by window: memory depends on the window, not the length.
+    ``layout``: the frames per chunk when already chosen (see :func:`merge_or_frames`).
 
     Windows are whole frames (``window_s`` rounded to frames; by default the cost model's
     choice, one frame for most flipbooks); a frame's Gaussians live in that frame only, so
@@ -500,7 +504,7 @@ def segment_sequence(
     """
     options = options or SegmentOptions()
     max_count = max_gaussians_per_chunk(options.max_pixels, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
-    choice = sequence_layout(seq, options, max_count)
+    choice = layout or sequence_layout(seq, options, max_count)
     per_window = max(1, round(choice.chosen.layout.window_s * seq.fps))
     window_s = per_window / seq.fps
     options = replace(options, window_s=window_s, policy=choice.chosen.layout.policy)
@@ -545,12 +549,17 @@ def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int)
     return choose_layout(life, costs, window_s=window_s, policy=options.policy or DEFAULT_POLICY)
 
 
-def why_store_frames(seq: FrameSequence, merged: Scene, options: SegmentOptions) -> str | None:
-    """Why the sequence should be segmented frame by frame rather than as ``merged`` (its
-    merge), or None when the merged scene is smaller and seeks it as cheaply (layout.py)."""
+def merge_or_frames(
+    seq: FrameSequence, merged: Scene, options: SegmentOptions
+) -> tuple[str | None, Choice]:
+    """Whether to segment the sequence as ``merged`` (its merge) or frame by frame: why frame
+    by frame (None: the merged scene is smaller and seeks as cheaply, layout.py), and the
+    layout of the form chosen, to pass to segment_scene or segment_sequence."""
     max_count = max_gaussians_per_chunk(options.max_pixels, merged.gaussians.sh_bands)
     per_frame = sequence_layout(seq, options, max_count)
-    return why_not_merged(per_frame, scene_layout(merged, options, max_count))
+    whole = scene_layout(merged, options, max_count)
+    why = why_not_merged(per_frame, whole)
+    return why, (whole if why is None else per_frame)
 
 
 def _nodes(plan: Plan, keys: Sequence[NodeKey]) -> list[Node]:
