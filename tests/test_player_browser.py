@@ -7,6 +7,7 @@ of the 640x480 page with the controls hidden.
 
 from __future__ import annotations
 
+import base64
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ from browser import VIEWPORT, PlayerPage, chromium, image_difference, near
 from helpers import ThreadedServer, nginx_origin
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
+from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.model import Scene, TimelineType
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
@@ -293,5 +295,47 @@ def test_a_missing_manifest_is_a_clear_error_on_the_page(base: str, browser: Any
         assert page.is_visible("#error")
         message = page.text_content("#error")
         assert message is not None and "manifest: HTTP 404" in message and "/nothing/" in message
+    finally:
+        page.close()
+
+
+READ_ZIP = """async ([data]) => {
+    const { readZip } = await import('/player/zip.js');
+    const bytes = Uint8Array.from(atob(data), (c) => c.charCodeAt(0));
+    try {
+        const files = await readZip(bytes.buffer);
+        return { files: Object.fromEntries([...files].map(([k, v]) => [k, [...v]])) };
+    } catch (err) {
+        return { error: err.message };
+    }
+}"""
+
+
+def _with_meta_size(zipped: bytes, size: int) -> bytes:
+    """``zipped`` with the uncompressed size of meta.json (its last central record) replaced."""
+    at = zipped.rindex(b"PK\x01\x02") + 24
+    return zipped[:at] + size.to_bytes(4, "little") + zipped[at + 4 :]
+
+
+def test_the_page_inflates_meta_json_within_its_declared_size(base: str, browser: Any) -> None:
+    """Spec 0.4's deflated meta.json is read exactly; a size that deflate cannot reach is
+    refused before anything is allocated, and one smaller than the data stops inflating at
+    that size: hostile chunks cannot make the page hold more than the record says."""
+    meta = b'{"codebook": [' + b"0.125, " * 2000 + b"1]}"
+    zipped = bundle_bytes({"means_l.webp": b"RIFF....", "meta.json": meta})
+    page = browser.new_page(viewport=VIEWPORT)
+    try:
+        page.goto(f"{base}/play/")
+
+        def read(data: bytes) -> dict[str, Any]:
+            return page.evaluate(READ_ZIP, [base64.b64encode(data).decode()])  # type: ignore[no-any-return]
+
+        got = read(zipped)
+        assert bytes(got["files"]["meta.json"]) == meta
+        assert bytes(got["files"]["means_l.webp"]) == b"RIFF...."
+        assert "declares 4000000000 bytes" in read(_with_meta_size(zipped, 4_000_000_000))["error"]
+        assert "inflates to more than 100 bytes" in read(_with_meta_size(zipped, 100))["error"]
+        short = read(_with_meta_size(zipped, len(meta) + 5))["error"]
+        assert f"inflates to {len(meta)} bytes, not {len(meta) + 5}" in short
     finally:
         page.close()

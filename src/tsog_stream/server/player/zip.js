@@ -10,11 +10,30 @@ const EOCD_SIZE = 22;
 const STORED = 0;
 const DEFLATED = 8;
 
-/** The inflated bytes of a raw-deflate entry, checked against the size its record declares. */
+/** Deflate's own ceiling on expansion (as codec/bundle.py): a larger declared size is a lie. */
+const MAX_DEFLATE_RATIO = 1032;
+
+/** The inflated bytes of a raw-deflate entry, exactly the size its record declares: that size
+ * is checked against deflate's ceiling before anything is allocated, and inflating stops as
+ * soon as it would pass it, so a hostile chunk cannot make the page hold more. */
 async function inflate(bytes, size, name) {
-    const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream('deflate-raw'));
-    const out = new Uint8Array(await new Response(stream).arrayBuffer());
-    if (out.byteLength !== size) throw new Error(`chunk entry ${name} inflates to ${out.byteLength} bytes, not ${size}`);
+    if (size > MAX_DEFLATE_RATIO * bytes.byteLength + 1024) {
+        throw new Error(`chunk entry ${name} declares ${size} bytes from ${bytes.byteLength}`);
+    }
+    const reader = new Blob([bytes]).stream().pipeThrough(new DecompressionStream('deflate-raw')).getReader();
+    const out = new Uint8Array(size);
+    let at = 0;
+    for (;;) {
+        const { done, value } = await reader.read();
+        if (done) break;
+        if (at + value.byteLength > size) {
+            await reader.cancel();
+            throw new Error(`chunk entry ${name} inflates to more than ${size} bytes`);
+        }
+        out.set(value, at);
+        at += value.byteLength;
+    }
+    if (at !== size) throw new Error(`chunk entry ${name} inflates to ${at} bytes, not ${size}`);
     return out;
 }
 
