@@ -27,11 +27,14 @@ from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app, respond
-from tsog_stream.server.app import GATE, LOAD
+from tsog_stream.server.respond import LOAD
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
 DATA = bytes(range(256)) * 400 + b"tail"  # 102 404 bytes
+FULL_PATH = Limits(lean=False)
+"""Every request through the full aiohttp handler (tests of its sending; test_lean.py covers
+the lean path)."""
 
 
 @pytest.fixture(scope="module")
@@ -293,12 +296,14 @@ def test_api_errors(port: int) -> None:
 def test_concurrency_cap(tree: Path) -> None:
     server = ThreadedServer(make_app(tree, limits=Limits(max_concurrent=1)))
     try:
-        gate = server.runner.app[GATE]
-        asyncio.run_coroutine_threadsafe(gate.acquire(), server.loop).result(5)
+        load = server.runner.app[LOAD]
+        server.loop.call_soon_threadsafe(load.enter, "127.0.0.9")  # one request in flight
+        time.sleep(0.1)
         r = fetch(server.port, "/files/sub/note.txt")
         assert r.status == 503 and r.headers["Retry-After"] == "1"
         assert fetch(server.port, "/healthz").status == 200  # answered whatever the load
-        server.loop.call_soon_threadsafe(gate.release)
+        server.loop.call_soon_threadsafe(load.leave, "127.0.0.9")
+        time.sleep(0.1)
         assert fetch(server.port, "/files/sub/note.txt").status == 200
     finally:
         server.stop()
@@ -380,8 +385,8 @@ def spied(
 ) -> Iterator[tuple[ThreadedServer, SendfileSpy]]:
     """A server on the tree whose loop's sendfile is spied on (the direct first attempt is
     off here: test_a_body_goes_out_directly_and_the_rest_by_the_loop covers it)."""
-    monkeypatch.setattr(respond, "_sendfile_now", lambda *_: 0)
-    server = ThreadedServer(make_app(tree))
+    monkeypatch.setattr(respond, "sendfile_now", lambda *_: 0)
+    server = ThreadedServer(make_app(tree, limits=FULL_PATH))
     spy = SendfileSpy(server.loop)
     server.loop.sendfile = spy  # type: ignore[method-assign]
     try:
@@ -416,7 +421,7 @@ def test_a_body_goes_out_directly_and_the_rest_by_the_loop(
 ) -> None:
     """One non-blocking os.sendfile sends what fits at once; what it leaves (here it may send
     only 1000 bytes) goes through loop.sendfile; the body is exact either way."""
-    real = respond._sendfile_now
+    real = respond.sendfile_now
     direct: list[tuple[int, int]] = []
 
     def limited(transport: Any, file: Any, span: ByteRange) -> int:
@@ -425,8 +430,8 @@ def test_a_body_goes_out_directly_and_the_rest_by_the_loop(
         return sent
 
     limit = [1 << 30]
-    monkeypatch.setattr(respond, "_sendfile_now", limited)
-    server = ThreadedServer(make_app(tree))
+    monkeypatch.setattr(respond, "sendfile_now", limited)
+    server = ThreadedServer(make_app(tree, limits=FULL_PATH))
     spy = SendfileSpy(server.loop)
     server.loop.sendfile = spy  # type: ignore[method-assign]
     try:

@@ -13,7 +13,6 @@ import contextlib
 import errno
 import math
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
@@ -23,6 +22,7 @@ from aiohttp import HttpVersion10, HttpVersion11, web
 from ..errors import AccessError, InputError
 from .catalog import BusyError, Catalog, NotFoundError, SceneEntry
 from .conditional import Outcome, evaluate, http_date
+from .lean import LeanSite
 from .logs import log_out_of_fds, quiet_client_errors
 from .player import add_player_routes
 from .private import (
@@ -33,13 +33,9 @@ from .private import (
     mark_private_responses,
     signed_suffix,
 )
-from .respond import IMMUTABLE, LIMITS, REVALIDATE, Limits, send_representation
+from .respond import CORS, IMMUTABLE, LIMITS, LOAD, REVALIDATE, Limits, Load, send_representation
 from .scenes import CATALOG, find_scene, public_scenes
 
-CORS = {
-    "Access-Control-Allow-Origin": "*",
-    "Access-Control-Expose-Headers": "Content-Range, ETag, Accept-Ranges, Content-Length",
-}
 PREFLIGHT = {
     "Access-Control-Allow-Methods": "GET, HEAD, OPTIONS",
     "Access-Control-Allow-Headers": "Range, If-Match, If-None-Match, If-Range, "
@@ -50,36 +46,6 @@ HTTP_VERSIONS = (HttpVersion10, HttpVersion11)
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
-GATE = web.AppKey("gate", asyncio.Semaphore)
-
-
-@dataclass
-class Load:
-    """Requests being handled: in all and by client address."""
-
-    total: int = 0
-    by_client: dict[str, int] = field(default_factory=dict)
-
-    def hogged_by(self, client: str, limits: Limits) -> bool:
-        """Whether ``client`` holds its share while the server is at least half busy: alone it
-        may use every slot (a proxy in front, a load test), under contention it may not."""
-        mine = self.by_client.get(client, 0)
-        return mine >= limits.max_per_client and 2 * self.total >= limits.max_concurrent
-
-    def enter(self, client: str) -> None:
-        """Count one more request of ``client``."""
-        self.total += 1
-        self.by_client[client] = self.by_client.get(client, 0) + 1
-
-    def leave(self, client: str) -> None:
-        """Count one request of ``client`` done."""
-        self.total -= 1
-        self.by_client[client] -= 1
-        if not self.by_client[client]:
-            del self.by_client[client]
-
-
-LOAD = web.AppKey("load", Load)
 HEALTHZ = "/healthz"
 
 
@@ -106,16 +72,14 @@ async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
         return resp
     if request.path == HEALTHZ:
         return await handler(request)
-    gate, load = request.app[GATE], request.app[LOAD]
+    load = request.app[LOAD]
     client = request.remote or ""
-    if load.hogged_by(client, request.app[LIMITS]):
-        return _busy("too many concurrent requests from this client")
-    if gate.locked():
-        return _busy("too many concurrent requests")
+    refusal = load.refuses(client, request.app[LIMITS])
+    if refusal is not None:
+        return _busy(refusal)
     load.enter(client)
     try:
-        async with gate:
-            return await _answer(request, handler)
+        return await _answer(request, handler)
     finally:
         load.leave(client)
 
@@ -268,7 +232,6 @@ def make_app(
     app = web.Application(middlewares=[_guard])
     app[CATALOG] = Catalog(root)
     app[LIMITS] = limits or Limits()
-    app[GATE] = asyncio.Semaphore(app[LIMITS].max_concurrent)
     app[LOAD] = Load()
     app[PRIVACY] = privacy or Privacy()
     app.on_response_prepare.append(_add_cors)
@@ -299,7 +262,11 @@ async def start_server(
         shutdown_timeout=limits.shutdown_timeout_s,
     )
     await runner.setup()
-    site = web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
+    site = (
+        LeanSite(runner, host, port, reuse_port=reuse_port)
+        if limits.lean and limits.sendfile and CATALOG in app  # an app from make_app
+        else web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
+    )
     try:
         await site.start()
     except OSError as exc:

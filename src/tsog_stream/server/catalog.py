@@ -37,6 +37,7 @@ MAX_CACHED = 4096
 """Files remembered per cache (ETags, opened scenes): only the current version of each."""
 OUT_OF_FDS = (errno.EMFILE, errno.ENFILE)
 _V = TypeVar("_V")
+_K = TypeVar("_K")
 _T = TypeVar("_T")
 
 
@@ -101,17 +102,22 @@ def open_beneath(root: Path, path: Path) -> BinaryIO:
     the root) is refused here, walking down from the root one ``openat(O_NOFOLLOW)`` at a time:
     the effect of ``openat2(RESOLVE_BENEATH | RESOLVE_NO_SYMLINKS)``, portable to every POSIX.
     """
-    parts = path.relative_to(root).parts
+    return os.fdopen(open_fd_beneath(str(root), path.relative_to(root).as_posix()), "rb")
+
+
+def open_fd_beneath(root: str, rel: str) -> int:
+    """:func:`open_beneath` on strings, returning the descriptor: the lean path's open, without
+    building paths (``rel`` already passed :func:`check_relative`)."""
+    parts = rel.split("/")
     fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
     try:
         for part in parts[:-1]:
             below = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
             os.close(fd)
             fd = below
-        file_fd = os.open(parts[-1], os.O_RDONLY | os.O_NOFOLLOW, dir_fd=fd)
+        return os.open(parts[-1], os.O_RDONLY | os.O_NOFOLLOW, dir_fd=fd)
     finally:
         os.close(fd)
-    return os.fdopen(file_fd, "rb")
 
 
 def servable(name: str) -> bool:
@@ -160,10 +166,10 @@ def _signature(path: Path) -> FileVersion:
         st = path.stat()
     except OSError as exc:
         raise NotFoundError("no such file", where=path.name) from exc
-    return _version(st, path.name)
+    return version_of(st, path.name)
 
 
-def _version(st: os.stat_result, name: str) -> FileVersion:
+def version_of(st: os.stat_result, name: str) -> FileVersion:
     """The version of a regular file from its stat, NotFoundError for anything else."""
     if not stat.S_ISREG(st.st_mode):
         raise NotFoundError("not a regular file", where=name)
@@ -186,7 +192,7 @@ def locate(root: Path, rel: str) -> tuple[Path, FileVersion]:
         if stat.S_ISLNK(st.st_mode):
             resolved = safe_path(root, rel)
             return resolved, _signature(resolved)
-    return path, _version(st, path.name)
+    return path, version_of(st, path.name)
 
 
 def _content_etag(root: Path, path: Path) -> str:
@@ -221,22 +227,35 @@ class Catalog:
         self._scenes: dict[Path, tuple[FileVersion, SceneEntry]] = {}
         self._pending: dict[tuple[str, Path, FileVersion], asyncio.Future[Any]] = {}
 
-    def _check_only(self, rel: str) -> None:
+    def check_only(self, rel: str) -> None:
         """In single-file mode, anything but that file is not found."""
         if self.only is not None and rel != self.only:
             raise NotFoundError("no such file", where=rel[:80])
 
     async def file(self, rel: str) -> Representation:
         """The whole file at ``rel`` (relative to the root)."""
-        self._check_only(rel)
+        self.check_only(rel)
         path, version = locate(self.root, rel)
         cached = self._etags.get(path)
         if cached is None or cached[0] != version:
             cached = (version, await self._hash_once(path, version))
-            _remember(self._etags, path, cached)
+            remember(self._etags, path, cached)
+        return self._whole(path, version, cached[1])
+
+    def file_if_known(self, rel: str) -> Representation | None:
+        """:meth:`file` without waiting: None when the file's current ETag is not known yet
+        (the lean path then lets the full handler compute it). Raises as :meth:`file` does."""
+        self.check_only(rel)
+        path, version = locate(self.root, rel)
+        cached = self._etags.get(path)
+        if cached is None or cached[0] != version:
+            return None
+        return self._whole(path, version, cached[1])
+
+    def _whole(self, path: Path, version: FileVersion, etag: str) -> Representation:
+        """The representation of a whole file under the root."""
         kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else _guess_type(path)
-        mtime = version.mtime_ns / 1e9
-        return Representation(path, 0, version.size, cached[1], mtime, kind, self.root)
+        return Representation(path, 0, version.size, etag, version.mtime_ns / 1e9, kind, self.root)
 
     async def _once(
         self, kind: str, path: Path, version: FileVersion, work: Callable[[], Awaitable[_T]]
@@ -263,13 +282,7 @@ class Catalog:
 
     async def scene(self, scene_id: str) -> SceneEntry:
         """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
-        self._check_only(scene_id + CONTAINER_SUFFIX)
-        try:
-            path, version = locate(self.root, scene_id + CONTAINER_SUFFIX)
-            packed = True
-        except NotFoundError:
-            path, version = locate(self.root, f"{scene_id}/{MANIFEST}")
-            packed = False
+        path, version, packed = self._scene_file(scene_id)
         cached = self._scenes.get(path)
         if cached is None or cached[0] != version:
             scene = await self._once(
@@ -279,9 +292,25 @@ class Catalog:
                 lambda: self._open(scene_id, path, packed, version.size, version.mtime_ns),
             )
             cached = (version, scene)
-            _remember(self._scenes, path, cached)
-        # one entry per file: ids that alias it through symlinks share it, not one entry each
-        return cached[1] if cached[1].id == scene_id else replace(cached[1], id=scene_id)
+            remember(self._scenes, path, cached)
+        return _named(cached[1], scene_id)
+
+    def scene_if_known(self, scene_id: str) -> SceneEntry | None:
+        """:meth:`scene` without waiting: None when the scene is not open at its current
+        version. Raises as :meth:`scene` does."""
+        path, version, _ = self._scene_file(scene_id)
+        cached = self._scenes.get(path)
+        return None if cached is None or cached[0] != version else _named(cached[1], scene_id)
+
+    def _scene_file(self, scene_id: str) -> tuple[Path, FileVersion, bool]:
+        """The container or manifest file of a scene, its version, and whether it is packed."""
+        self.check_only(scene_id + CONTAINER_SUFFIX)
+        try:
+            path, version = locate(self.root, scene_id + CONTAINER_SUFFIX)
+            return path, version, True
+        except NotFoundError:
+            path, version = locate(self.root, f"{scene_id}/{MANIFEST}")
+            return path, version, False
 
     async def _open(
         self, scene_id: str, path: Path, packed: bool, size: int, mtime_ns: int
@@ -352,13 +381,19 @@ def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes]:
     return unpacked_index(manifest_json, where=str(path)), manifest_json
 
 
+def _named(scene: SceneEntry, scene_id: str) -> SceneEntry:
+    """``scene`` under the id it was asked by: ids that alias one file through symlinks share
+    one cache entry, not one entry each."""
+    return scene if scene.id == scene_id else replace(scene, id=scene_id)
+
+
 def _retrieved(task: asyncio.Future[Any]) -> None:
     """Mark a task's exception as seen (its waiters may all have gone)."""
     if not task.cancelled():
         task.exception()
 
 
-def _remember(cache: dict[Path, _V], path: Path, value: _V) -> None:
+def remember(cache: dict[_K, _V], path: _K, value: _V) -> None:
     """Store ``value`` as the only version of ``path``, the oldest entry dropped past the cap."""
     cache.pop(path, None)
     cache[path] = value

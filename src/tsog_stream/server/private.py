@@ -107,27 +107,56 @@ def _clip(value: str | None) -> str:
     return value[:MAX_LOGGED_HEADER].replace('"', "'")
 
 
-class AccessLog(AbstractAccessLogger):
-    """One line per request, signatures redacted:
+@dataclass(frozen=True, slots=True)
+class Served:
+    """What the access log says of one finished request."""
+
+    remote: str | None
+    method: str
+    target: str
+    version: tuple[int, int]
+    status: int
+    body_bytes: int
+    seconds: float
+    range: str | None
+    user_agent: str | None
+
+
+def log_served(logger: logging.Logger, served: Served) -> None:
+    """Write one access-log line (signatures in the target redacted):
     ``addr "METHOD target HTTP/x.y" status bytes bytes seconds s "Range" "User-Agent"``."""
+    logger.info(
+        '%s "%s %s HTTP/%d.%d" %d %d bytes %.6f s "%s" "%s"',
+        served.remote,
+        served.method,
+        _clip(redact_url(served.target)),
+        *served.version,
+        served.status,
+        served.body_bytes,
+        served.seconds,
+        _clip(served.range),
+        _clip(served.user_agent),
+    )
+
+
+class AccessLog(AbstractAccessLogger):
+    """aiohttp's access logger, writing :func:`log_served` lines."""
 
     def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
         """Write the line for one finished request."""
         v = request.version
-        target = _clip(redact_url(request.path_qs))
-        self.logger.info(
-            '%s "%s %s HTTP/%d.%d" %d %d bytes %.6f s "%s" "%s"',
+        served = Served(
             request.remote,
             request.method,
-            target,
-            v.major,
-            v.minor,
+            request.path_qs,
+            (v.major, v.minor),
             response.status,
             response.body_length,
             time,
-            _clip(request.headers.get("Range")),
-            _clip(request.headers.get("User-Agent")),
+            request.headers.get("Range"),
+            request.headers.get("User-Agent"),
         )
+        log_served(self.logger, served)
 
     @property
     def enabled(self) -> bool:
@@ -135,4 +164,13 @@ class AccessLog(AbstractAccessLogger):
         return self.logger.isEnabledFor(logging.INFO)
 
 
-__all__ = ["PRIVACY", "AccessLog", "Privacy", "authorize", "is_signed", "signed_suffix"]
+__all__ = [
+    "PRIVACY",
+    "AccessLog",
+    "Privacy",
+    "Served",
+    "authorize",
+    "is_signed",
+    "log_served",
+    "signed_suffix",
+]

@@ -13,7 +13,7 @@ import asyncio
 import os
 import secrets
 from collections.abc import Awaitable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, BinaryIO, TypeVar
 
 from aiohttp import web
@@ -28,7 +28,7 @@ READ_BLOCK = 256 * 1024
 """Bytes read and written at a time when a body is copied (not sent with sendfile)."""
 SENDFILE_MIN = 16 * 1024
 """A single span at least this long goes out with sendfile (tried at once, see
-_sendfile_now); shorter ones are read and written in the event loop. Measured with wrk on
+sendfile_now); shorter ones are read and written in the event loop. Measured with wrk on
 loopback, one process: 16 KiB ranges 4790 requests/s with sendfile against 4290 copied, 64 KiB
 4480-4920 against 3900-3990."""
 SENDFILE_SLICE = 4 << 20
@@ -57,13 +57,55 @@ class Limits:
     """Grace period for in-flight requests on shutdown."""
     sendfile: bool = True
     """Send large single-span bodies with zero-copy ``loop.sendfile`` when the transport can."""
+    lean: bool = True
+    """Answer plain range GETs of public files and chunks on the lean path (server/lean.py;
+    needs ``sendfile``); False sends every request through the full aiohttp handler."""
 
 
 LIMITS = web.AppKey("limits", Limits)
+CORS = {
+    "Access-Control-Allow-Origin": "*",
+    "Access-Control-Expose-Headers": "Content-Range, ETag, Accept-Ranges, Content-Length",
+}
+"""Headers on every response (added by the app's ``on_response_prepare`` and the lean path)."""
+
+
+@dataclass
+class Load:
+    """Requests being handled: in all and by client address (both paths of a worker)."""
+
+    total: int = 0
+    by_client: dict[str, int] = field(default_factory=dict)
+
+    def refuses(self, client: str, limits: Limits) -> str | None:
+        """Why one more request of ``client`` must wait (503), or None: the server is full, or
+        the client holds its share while the server is at least half busy (alone it may use
+        every slot: a proxy in front, a load test)."""
+        if self.total >= limits.max_concurrent:
+            return "too many concurrent requests"
+        mine = self.by_client.get(client, 0)
+        if mine >= limits.max_per_client and 2 * self.total >= limits.max_concurrent:
+            return "too many concurrent requests from this client"
+        return None
+
+    def enter(self, client: str) -> None:
+        """Count one more request of ``client``."""
+        self.total += 1
+        self.by_client[client] = self.by_client.get(client, 0) + 1
+
+    def leave(self, client: str) -> None:
+        """Count one request of ``client`` done."""
+        self.total -= 1
+        self.by_client[client] -= 1
+        if not self.by_client[client]:
+            del self.by_client[client]
+
+
+LOAD = web.AppKey("load", Load)
 _T = TypeVar("_T")
 
 
-def _validators(rep: Representation, cache_control: str) -> dict[str, str]:
+def validators(rep: Representation, cache_control: str) -> dict[str, str]:
     """ETag, Last-Modified, Accept-Ranges and Cache-Control of a representation."""
     return {
         "ETag": rep.etag,
@@ -77,7 +119,7 @@ class StallError(TimeoutError):
     """The client took no bytes for the stall timeout."""
 
 
-async def _progress(step: Awaitable[_T], stall_s: float) -> _T:
+async def within_stall(step: Awaitable[_T], stall_s: float) -> _T:
     """``step`` (one write or sendfile slice), which must finish within ``stall_s``."""
     try:
         async with asyncio.timeout(stall_s):
@@ -100,7 +142,7 @@ async def _copy(resp: web.StreamResponse, fd: int, span: ByteRange, stall_s: flo
         )
         if not data:
             raise ConnectionAbortedError("file shrank while being sent")
-        await _progress(resp.write(data), stall_s)
+        await within_stall(resp.write(data), stall_s)
         pos += len(data)
 
 
@@ -124,12 +166,12 @@ async def _sendfile(
     if transport.get_extra_info("sslcontext") is not None:
         return False
     loop = asyncio.get_running_loop()
-    now = _sendfile_now(transport, file, span)
+    now = sendfile_now(transport, file.fileno(), span)
     _count_sent(writer, now)
     for start in range(span.start + now, span.end, SENDFILE_SLICE):
         count = min(SENDFILE_SLICE, span.end - start)
         try:
-            sent = await _progress(
+            sent = await within_stall(
                 loop.sendfile(transport, file, start, count, fallback=False), stall_s
             )
         except (NotImplementedError, asyncio.SendfileNotAvailableError) as exc:
@@ -146,7 +188,7 @@ async def _sendfile(
     return True
 
 
-def _sendfile_now(transport: asyncio.BaseTransport, file: BinaryIO, span: ByteRange) -> int:
+def sendfile_now(transport: asyncio.BaseTransport, fd: int, span: ByteRange) -> int:
     """Bytes of ``span`` sent at once by one non-blocking ``os.sendfile`` when the headers
     already left the transport (0 when the socket is full or the transport holds bytes):
     most bodies fit the socket buffer, and this skips the futures and the writability wait
@@ -157,7 +199,7 @@ def _sendfile_now(transport: asyncio.BaseTransport, file: BinaryIO, span: ByteRa
     if transport.get_write_buffer_size() or transport.is_closing():
         return 0
     try:
-        return os.sendfile(sock.fileno(), file.fileno(), span.start, span.length)
+        return os.sendfile(sock.fileno(), fd, span.start, span.length)
     except (BlockingIOError, InterruptedError):
         return 0
     except OSError as exc:  # EPIPE, ECONNRESET: the client went away
@@ -244,8 +286,8 @@ async def _write_body(
                 if isinstance(item, ByteRange):
                     await _copy(resp, file.fileno(), item, stall)
                 else:
-                    await _progress(resp.write(item), stall)
-            await _progress(resp.write_eof(), stall)
+                    await within_stall(resp.write(item), stall)
+            await within_stall(resp.write_eof(), stall)
     except TimeoutError as exc:
         if request.transport is not None:
             request.transport.abort()  # close() would keep waiting to flush to a stalled reader
@@ -260,7 +302,7 @@ async def send_representation(
     request: web.Request, rep: Representation, cache_control: str = REVALIDATE
 ) -> web.StreamResponse:
     """Answer GET/HEAD for ``rep`` with preconditions, ranges, multipart and 416."""
-    headers = _validators(rep, cache_control)
+    headers = validators(rep, cache_control)
     outcome = evaluate(request.method, request.headers, rep.etag, rep.mtime)
     if outcome is not Outcome.PROCEED:
         return web.Response(status=outcome.value, headers=headers)
