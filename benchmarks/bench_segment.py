@@ -304,21 +304,38 @@ def _own_sog_bytes(frame: Path) -> int:
     return len(bundle_bytes(encode_chunk(load_scene(frame).scene)))
 
 
-def _frames_encode_seconds(folder: Path, work: Path) -> tuple[float, float]:
+def _frames_encode_seconds(folder: Path, work: Path) -> tuple[float, float, float]:
     """Seconds to encode each frame of a folder to its own SOG, one after another: with
-    `tsog encode FRAME` per frame (as a user would, each a process), and in one process."""
+    `tsog encode FRAME` per frame (as a user would, each a process), and in one process; and
+    the largest peak RSS (MiB) of those `tsog encode` processes."""
     frames = sorted(folder.iterdir())
     start = time.monotonic()
+    peak = 0.0
     for frame in frames:
         out = work / "frame.sog"
         m = run_measured([str(TSOG), "encode", str(frame), str(out), "-f", "-q"])
         if not m["finished"]:
             raise SystemExit(f"tsog encode {frame} failed: {m.get('error', '')}")
+        peak = max(peak, m["peak_mib"])
     processes = time.monotonic() - start
     start = time.monotonic()
     for frame in frames:
         bundle_bytes(encode_chunk(load_scene(frame).scene))
-    return processes, time.monotonic() - start
+    return processes, time.monotonic() - start, peak
+
+
+def _memory_figures(folder: Path, work: Path) -> dict[str, float]:
+    """What segmenting a frame folder holds beyond a process's fixed cost: the peak RSS of
+    `tsog segment` on one frame of one Gaussian (imports, worker processes), and one frame's
+    decoded arrays (MiB)."""
+    tiny = work / "tiny"
+    tiny.mkdir()
+    (tiny / "frame_000.sog").write_bytes(bundle_bytes(encode_chunk(Scene(static_gaussians(1)))))
+    cmd = [str(TSOG), "segment", str(tiny), "-o", str(work / "tiny.tsogs"), "-f", "-q"]
+    base = run_measured([*cmd, "--workers", "2"])
+    g = load_scene(sorted(folder.iterdir())[0]).scene.gaussians
+    arrays = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
+    return {"baseline_mib": base["peak_mib"], "window_arrays_mib": arrays / 2**20}
 
 
 def content(args: argparse.Namespace) -> None:
@@ -345,9 +362,11 @@ def content(args: argparse.Namespace) -> None:
             if frames is not None:
                 row["own_bytes"] = sum(frames)
             if frames is not None and path.name == "independent":
-                by_process, in_process = _frames_encode_seconds(path, Path(tmp))
+                by_process, in_process, encode_peak = _frames_encode_seconds(path, Path(tmp))
                 row["frames_encode_s"] = round(by_process, 2)
                 row["frames_encode_in_process_s"] = round(in_process, 2)
+                row["frame_encode_peak_mib"] = encode_peak
+                row.update(_memory_figures(path, Path(tmp)))
             if scene is not None:
                 row.update(_fourdgs_figures(scene, args.samples))
             print(json.dumps(row), flush=True)
@@ -417,6 +436,14 @@ def _content_table(stamp: str, rows: list[dict[str, Any]], samples: int) -> str:
             f"{r['frames_encode_in_process_s']:.1f} s to encode them one by one inside one "
             f"process ({r['seconds'] / r['frames_encode_in_process_s']:.2f}x; segmenting "
             "includes its process start, about 0.7 s).",
+            f"Memory: segmenting peaked at {r['peak_mib']:.0f} MiB (the largest of the process "
+            f"and its 2 workers), against {r['baseline_mib']:.0f} MiB for segmenting one frame "
+            f"of one Gaussian the same way (the fixed cost: imports, workers) and "
+            f"{r['frame_encode_peak_mib']:.0f} MiB for `tsog encode` of one frame: above the "
+            f"fixed cost it holds {r['peak_mib'] - r['baseline_mib']:.0f} MiB, "
+            f"{(r['peak_mib'] - r['baseline_mib']) / r['window_arrays_mib']:.1f}x one window's "
+            f"decoded arrays ({r['window_arrays_mib']:.1f} MiB: one frame), the encoder's "
+            "working arrays included.",
         ]
     return "\n".join(lines) + "\n"
 

@@ -226,8 +226,11 @@ def check_buffered(page: PlayerPage, facts: Facts) -> None:
 
 
 def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open_page: Any) -> None:
+    """With nothing kept beyond what t and the horizon want (keepGaussians 0), chunks behind the
+    playhead go; test_a_loop_is_played_from_chunks_kept_loaded covers the default."""
     page = open_page(f"{base}/play/centre?t=0&paused")
     page.js(
+        "tsogPlayer.stream.keepGaussians = 0;"
         "document.getElementById('speed').value = '2';"
         "document.getElementById('speed').dispatchEvent(new Event('change'));"
         "document.getElementById('play').click()"
@@ -258,6 +261,28 @@ def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open
     page.page.wait_for_function(
         "document.getElementById('o-state').textContent === 'paused'", timeout=5000
     )
+
+
+def test_a_loop_is_played_from_chunks_kept_loaded(base: str, open_page: Any) -> None:
+    """Within the default budget, chunks t no longer needs stay loaded: the second pass through
+    a looping clip fetches nothing again."""
+    page = open_page(f"{base}/play/centre?t=0&paused")
+    page.js(
+        "document.getElementById('speed').value = '2';"
+        "document.getElementById('speed').dispatchEvent(new Event('change'));"
+        "document.getElementById('play').click();"
+        "window.__passes = 0; window.__last = 0;"
+        "(function watch() {"
+        "  const t = tsogPlayer.playback.t;"
+        "  if (t < window.__last) window.__passes++;"
+        "  window.__last = t; requestAnimationFrame(watch);"
+        "})()"
+    )
+    page.page.wait_for_function("window.__passes >= 1", timeout=30_000)
+    first = page.js("tsogPlayer.stream.fetchLog.length")
+    page.page.wait_for_function("window.__passes >= 2", timeout=30_000)
+    log = page.js("tsogPlayer.stream.fetchLog")
+    assert len(log) == first and len(set(log)) == len(log), "a loop fetched chunks again"
 
 
 def test_a_static_origin_plays_from_a_manifest_url(

@@ -131,9 +131,13 @@ def _probe_runs(seq: FrameSequence) -> Iterator[list[Gaussians]]:
     length = min(PROBE_FRAMES, seq.count)
     count = max(1, min(PROBE_SAMPLES, seq.count // length))
     for first in sorted({round(k) for k in np.linspace(0, seq.count - length, count)}):
-        frames = [seq.read(i, i + 1).scene.gaussians for i in range(first, first + length)]
-        lo, hi = _central_box(frames[0].means, PROBE_GAUSSIANS)
-        frames = [g.subset(np.all((g.means >= lo) & (g.means <= hi), axis=1)) for g in frames]
+        frames: list[Gaussians] = []
+        for i in range(first, first + length):  # cropped as read: one whole frame held at most
+            g = seq.read(i, i + 1).scene.gaussians
+            if not frames:
+                lo, hi = _central_box(g.means, PROBE_GAUSSIANS)
+            frames.append(g.subset(np.all((g.means >= lo) & (g.means <= hi), axis=1)))
+            del g
         if any(len(g) for g in frames):
             yield frames
 

@@ -12,6 +12,10 @@ const MAX_LOADING = 4;
 const MIN_HORIZON_S = 1.0;
 /** Bytes fetched ahead of t at most (in time order), so a horizon of large chunks stays bounded. */
 const AHEAD_BYTES = 64 * 1024 * 1024;
+/** Gaussians of loaded chunks kept when t no longer needs them (the nearest ahead of t first),
+ * so a short looping clip or a scrub back is not fetched and decoded again: with one chunk per
+ * frame, every loop refetched the whole clip. About what a laptop GPU draws at once. */
+const KEEP_GAUSSIANS = 2_000_000;
 
 /** Hex SHA-256 of an ArrayBuffer, or null where the browser offers no digest (not secure). */
 async function sha256(buffer) {
@@ -37,6 +41,7 @@ export class ChunkStream {
         this.chunkUrl = chunkUrl;
         this.fetchLog = fetchLog;
         this.horizon = Math.max(2 * manifest.window_s, MIN_HORIZON_S);
+        this.keepGaussians = KEEP_GAUSSIANS;
         this.root = new pc.Entity('tsog-chunks');
         parent.addChild(this.root);
         this.chunks = new Map(); // id -> {info, state, entity, layout, textures, abort}
@@ -68,7 +73,7 @@ export class ChunkStream {
     }
 
     /** What t needs, then (playing) what the horizon needs, in time order and within
-     * AHEAD_BYTES; drop what is far from both. */
+     * AHEAD_BYTES; drop the rest (see dropUnwanted). */
     plan(t, playing, loop = false) {
         this.planned = [t, playing, loop];
         const needed = this.index.chunksFor(t);
@@ -90,14 +95,40 @@ export class ChunkStream {
         for (const id of this.wanted) {
             if (!this.chunks.has(id)) this.chunks.set(id, { info: this.index.manifest.chunks[id], state: 'queued' });
         }
-        const keep = new Set(this.wanted);
+        this.dropUnwanted(t, loop);
+    }
+
+    /** Drop what t and the horizon do not want, except chunks loaded or loading within
+     * keepGaussians, kept nearest first (looping, nearest ahead of t; else nearest in time):
+     * a load is aborted only when over that budget. */
+    dropUnwanted(t, loop) {
+        const wanted = new Set(this.wanted);
+        const spare = [];
         for (const [id, c] of this.chunks) {
-            const near = intervals.some(([a, b]) => c.info.end_s >= a && c.info.start_s <= b);
-            if (!keep.has(id) && !near) {
-                this.unload(c);
-                this.chunks.delete(id);
-            }
+            if (wanted.has(id)) continue;
+            if (c.state === 'ready' || c.state === 'loading') spare.push(c);
+            else this.forget(c);
         }
+        let kept = [...wanted].reduce((n, id) => n + (this.chunks.get(id)?.info.count ?? 0), 0);
+        spare.sort((a, b) => this.distance(a, t, loop) - this.distance(b, t, loop));
+        for (const c of spare) {
+            kept += c.info.count;
+            if (kept > this.keepGaussians) this.forget(c);
+        }
+    }
+
+    /** Media seconds from t until the chunk is needed (looping: going forward round the clip). */
+    distance(c, t, loop) {
+        if (c.info.start_s <= t && t <= c.info.end_s) return 0;
+        const { start_s: start, end_s: end } = this.index.manifest.scene;
+        if (loop) return c.info.start_s > t ? c.info.start_s - t : end - t + (c.info.start_s - start);
+        return c.info.start_s > t ? c.info.start_s - t : t - c.info.end_s;
+    }
+
+    /** Unload a chunk and stop tracking it. */
+    forget(c) {
+        this.unload(c);
+        this.chunks.delete(c.info.id);
     }
 
     /** Start loading wanted chunks in priority order, at most MAX_LOADING at a time. */
