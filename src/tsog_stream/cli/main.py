@@ -27,7 +27,16 @@ from ..summary import chunk_summary, scene_summary
 from ..temporal import time_range
 from . import interrupt
 from .client_commands import add_client_commands, cmd_fetch, cmd_play
-from .common import SEED, add_common, add_input, check_time, load_input, note
+from .common import (
+    QUALITY,
+    QUALITY_HELP,
+    SEED,
+    add_common,
+    add_input,
+    check_time,
+    load_input,
+    note,
+)
 from .progress import Progress
 from .render_commands import add_render_commands, cmd_eval, cmd_render
 from .serve_commands import add_serve_command, add_sign_command, cmd_serve, cmd_sign
@@ -74,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
         "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
     )
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fit (default 0)")
+    p.add_argument("--quality", type=QUALITY, default=100, help=QUALITY_HELP)
     p.add_argument(
         "--lossy",
         action="store_true",
@@ -130,7 +140,7 @@ def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
         progress.done()
         print(f"{args.output}: {len(scene)} Gaussians, {args.output.stat().st_size} bytes")
         return 0
-    files = encode_chunk(scene, seed=args.seed, progress=progress)
+    files = encode_chunk(scene, seed=args.seed, progress=progress, quality=args.quality)
     size = write_chunk_files(args.output, files, overwrite=True)
     progress.done()
     print(f"{args.output}: {len(scene)} Gaussians, {size} bytes")

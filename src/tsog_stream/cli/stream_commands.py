@@ -38,6 +38,8 @@ from ..segment.segmenter import (
     segment_sequence,
 )
 from .common import (
+    QUALITY,
+    QUALITY_HELP,
     SEED,
     Integer,
     Subparsers,
@@ -124,6 +126,7 @@ def add_stream_commands(sub: Subparsers) -> None:
         "--workers", type=Integer(1, 256), default=2, help="encoder processes (default 2)"
     )
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
+    p.add_argument("--quality", type=QUALITY, default=100, help=QUALITY_HELP)
     p.add_argument(
         "--temporal",
         choices=TEMPORAL_MODES,
@@ -206,6 +209,7 @@ def _segment(
         max_pixels=args.max_pixels,
         workers=max(1, args.workers),
         seed=args.seed,
+        quality=args.quality,
     )
     for stale in remove_stale_temp_files(args.output):
         note(f"removed {stale}, left by an interrupted run")

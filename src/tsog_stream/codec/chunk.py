@@ -20,6 +20,7 @@ from ..morton import morton_order
 from ..schemas import ChunkMeta, check_image_sizes, dump_meta, listed_files, parse_meta
 from .bundle import read_bundle
 from .layout import image_size
+from .precision import QUALITY_MAX, Budgets
 from .sog_decode import decode_sog
 from .sog_encode import encode_sog
 from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
@@ -40,9 +41,12 @@ def encode_chunk(
     order: npt.NDArray[np.intp] | None = None,
     seed: int = 0,
     progress: Progress | None = None,
+    quality: int = QUALITY_MAX,
 ) -> dict[str, bytes]:
     """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
 
+    ``quality`` 0..100 sets the error budgets of positions, timeline and motion
+    (codec/precision.py; 100 keeps every 16-bit code as computed).
     ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
     Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
     lossless WebP has at least one pixel, so SOG cannot hold it.
@@ -59,16 +63,26 @@ def encode_chunk(
     note("ordering")
     ordered = scene.subset(texel_order(scene) if order is None else order)
     width, height = image_size(len(ordered))
-    sog = encode_sog(ordered.gaussians, width, height, seed=seed, progress=note)
+    budgets = Budgets.of(ordered, quality)
+    sog = encode_sog(
+        ordered.gaussians,
+        width,
+        height,
+        seed=seed,
+        progress=note,
+        position_budget=budgets.base_position() if budgets is not None else None,
+    )
     images = dict(sog.images)
     meta: dict[str, Any] = dict(sog.meta)
     meta["asset"] = {"generator": f"{C.GENERATOR} {__version__}"}
     if ordered.timeline is not None:
-        timeline_images, meta["timeline"] = encode_timeline(ordered.timeline, width, height)
+        timeline_images, meta["timeline"] = encode_timeline(
+            ordered.timeline, width, height, budgets.time if budgets is not None else None
+        )
         images.update(timeline_images)
     if ordered.temporal:
         temporal_images, meta["temporal"] = encode_temporal(
-            ordered.temporal, ordered.gaussians.quats, width, height
+            ordered.temporal, ordered.gaussians.quats, width, height, budgets
         )
         images.update(temporal_images)
     parsed = parse_meta(meta, where="encoder output")

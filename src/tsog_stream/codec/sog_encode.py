@@ -20,6 +20,7 @@ from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
 from .positions import encode_means, split_u16
+from .precision import coarsen_positions
 from .rotations import encode_quats
 
 U8 = npt.NDArray[np.uint8]
@@ -108,11 +109,17 @@ def encode_sog(
     *,
     seed: int = 0,
     progress: Progress | None = None,
+    position_budget: npt.NDArray[np.float64] | None = None,
 ) -> SogParts:
-    """Encode Gaussians already in texel order into SOG v2 images and meta keys."""
+    """Encode Gaussians already in texel order into SOG v2 images and meta keys; with a
+    ``position_budget`` (scene units per Gaussian, codec/precision.py) positions keep only the
+    bits it needs."""
     note = progress or (lambda _msg: None)
     note("positions")
     mins, maxs, codes = encode_means(gaussians.means)
+    if position_budget is not None:
+        means = gaussians.means.astype(np.float64)
+        codes = coarsen_positions(codes, mins, maxs, means, position_budget)
     low, high = split_u16(codes)
     images = {
         C.MEANS_L: to_image(texels(low[:, 0], low[:, 1], low[:, 2]), width, height),

@@ -18,6 +18,7 @@ from ..errors import InputError
 from ..model import Timeline, TimelineType
 from .layout import from_image, to_image
 from .positions import dequantize_u16, join_u16, quantize_u16, split_u16
+from .precision import Budgets, coarsen_motion, coarsen_timeline
 from .rotations import canonical_factor
 
 U8 = npt.NDArray[np.uint8]
@@ -81,15 +82,18 @@ def _whole_frames(timeline: Timeline, mins: F64, maxs: F64) -> bool:
 
 
 def encode_timeline(
-    timeline: Timeline, width: int, height: int
+    timeline: Timeline, width: int, height: int, budget: F64 | None = None
 ) -> tuple[dict[str, U8], dict[str, Any]]:
-    """Timeline images and ``timeline`` meta (R = frame/start/centre, G = duration/scale)."""
+    """Timeline images and ``timeline`` meta (R = frame/start/centre, G = duration/scale);
+    with a ``budget`` (codec/precision.py) codes keep only the bits it needs, except frame ids
+    and whole frames, which stay exact."""
     values = np.stack([timeline.t0, timeline.t1], axis=1)
     if timeline.type is TimelineType.FRAME:
         values[:, 1] = 0.0  # G is unused for frame ids: stored as 0 with range [0, 0]
     if timeline.type is TimelineType.CENTER_SCALE:
         values[:, 1] = np.minimum(values[:, 1], scale_cap(timeline))
     mins, maxs = _ranges(values)
+    exact = timeline.type is TimelineType.FRAME or _whole_frames(timeline, mins, maxs)
     if _whole_frames(timeline, mins, maxs):
         maxs = mins + C.U16_MAX  # a step of exactly one frame: start and duration decode exactly
     if timeline.type is TimelineType.FRAME and maxs[0] - mins[0] > C.U16_MAX:
@@ -98,7 +102,10 @@ def encode_timeline(
             f"{C.U16_MAX + 1} (split the scene with tsog segment)",
             where="timeline",
         )
-    low, high = _u16_texels(quantize_u16(values, mins, maxs))
+    codes = quantize_u16(values, mins, maxs)
+    if budget is not None and not exact:
+        codes = coarsen_timeline(codes, mins, maxs, budget)
+    low, high = _u16_texels(codes)
     images = {
         C.TIMELINE_L: to_image(low, width, height),
         C.TIMELINE_U: to_image(high, width, height),
@@ -143,9 +150,15 @@ def stored_temporal(temporal: Mapping[str, F32]) -> dict[str, F64]:
 
 
 def encode_temporal(
-    temporal: Mapping[str, F32], quats: F32, width: int, height: int
+    temporal: Mapping[str, F32],
+    quats: F32,
+    width: int,
+    height: int,
+    budgets: Budgets | None = None,
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Coefficient images and the ``temporal`` meta object, attributes in TEMPORAL_CHANNELS order.
+    With ``budgets`` (codec/precision.py) the means' motion keeps only the bits its position
+    budget needs over each Gaussian's lifespan; other attributes keep 16 bits.
 
     Quaternion coefficients are scaled by the factor that canonicalises the base quaternion
     (sign and norm), so base + coefficients stay consistent with the stored base rotation.
@@ -163,7 +176,12 @@ def encode_temporal(
         for order in range(1, coeffs.shape[1] + 1):
             values = coeffs[:, order - 1, :]
             mins, maxs = _ranges(values)
-            low, high = _u16_texels(quantize_u16(values, mins, maxs))
+            codes = quantize_u16(values, mins, maxs)
+            if budgets is not None and attr == "means":
+                codes = coarsen_motion(
+                    codes, mins, maxs, order=order, orders=coeffs.shape[1], budgets=budgets
+                )
+            low, high = _u16_texels(codes)
             names = (C.temporal_file(attr, order, "l"), C.temporal_file(attr, order, "u"))
             images[names[0]] = to_image(low, width, height)
             images[names[1]] = to_image(high, width, height)

@@ -189,9 +189,10 @@ class Choice:
     explicit: bool
 
 
-def measure_costs(scene: Scene, max_count: int, seed: int = 0) -> Costs:
+def measure_costs(scene: Scene, max_count: int, seed: int = 0, quality: int = 100) -> Costs:
     """Bytes per Gaussian and per chunk, from encoding two Morton-contiguous samples (the
-    shape of real chunks: neighbours are similar) of SAMPLE_GAUSSIANS and an eighth of it."""
+    shape of real chunks: neighbours are similar) of SAMPLE_GAUSSIANS and an eighth of it, at
+    the ``quality`` the chunks will be written with."""
     n = min(len(scene), SAMPLE_GAUSSIANS)
     if n < 16:
         return Costs(per_gaussian=32.0, per_chunk=2048.0, max_count=max_count)
@@ -199,8 +200,8 @@ def measure_costs(scene: Scene, max_count: int, seed: int = 0) -> Costs:
     middle = (len(order) - n) // 2
     big = order[middle : middle + n]
     small = big[: n // 8]
-    big_bytes = len(bundle_bytes(encode_chunk(scene.subset(big), seed=seed)))
-    small_bytes = len(bundle_bytes(encode_chunk(scene.subset(small), seed=seed)))
+    big_bytes = len(bundle_bytes(encode_chunk(scene.subset(big), seed=seed, quality=quality)))
+    small_bytes = len(bundle_bytes(encode_chunk(scene.subset(small), seed=seed, quality=quality)))
     per_gaussian = max((big_bytes - small_bytes) / (n - small.size), 0.5)
     per_chunk = max(small_bytes - small.size * per_gaussian, 0.0)
     return Costs(per_gaussian, per_chunk, max_count)

@@ -23,6 +23,7 @@ from .._version import __version__
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
+from ..codec.precision import QUALITY_MAX
 from ..constants import (
     DEFAULT_MAX_PIXELS,
     GENERATOR,
@@ -72,6 +73,8 @@ class SegmentOptions:
     slice_s: float | None = None
     """Chunks of a node cut by start time into slices this long: chosen with the layout, or
     used as given with an explicit window (none unless given)."""
+    quality: int = QUALITY_MAX
+    """Error budgets of the chunks' codes, 0..100 (codec/precision.py; 100: full precision)."""
 
 
 @dataclass(frozen=True)
@@ -163,7 +166,7 @@ def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choic
         raise InputError("segmenting needs a 4D scene (this input has no timeline)")
     if options.window_s is not None:
         window_count(0.0, 1.0, options.window_s)  # refuses a non-positive window at once
-    costs = measure_costs(scene, max_count, options.seed)
+    costs = measure_costs(scene, max_count, options.seed, options.quality)
     life = Lifespans.of_scene(scene)
     return choose_layout(
         life, costs, window_s=options.window_s, policy=options.policy, slice_s=options.slice_s
@@ -209,9 +212,9 @@ def _by_slice(
     return np.split(members[order], cut)
 
 
-def encode_job_payload(scene: Scene, seed: int) -> bytes:
+def encode_job_payload(scene: Scene, seed: int, quality: int = QUALITY_MAX) -> bytes:
     """A chunk's standalone .sog bytes (run in worker processes)."""
-    return bundle_bytes(encode_chunk(scene, seed=seed))
+    return bundle_bytes(encode_chunk(scene, seed=seed, quality=quality))
 
 
 def _bounds(scene: Scene, start: float, end: float) -> Box:
@@ -293,7 +296,8 @@ def _encoded(
     """
     if options.workers <= 1:
         for part in parts:
-            yield describe_part(part, plan), encode_job_payload(part.scene, options.seed)
+            payload = encode_job_payload(part.scene, options.seed, options.quality)
+            yield describe_part(part, plan), payload
         return
     context = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(
@@ -304,7 +308,7 @@ def _encoded(
         for part in parts:
             info = describe_part(part, plan)
             with _sigint_blocked():  # a worker started here inherits the block (see below)
-                job = pool.submit(encode_job_payload, part.scene, options.seed)
+                job = pool.submit(encode_job_payload, part.scene, options.seed, options.quality)
             pending.append((info, job))
             del part
             if len(pending) >= options.workers:
@@ -544,7 +548,7 @@ def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int)
         window_s = max(1, round(window_s * seq.fps)) / seq.fps
     if seq.count == 0:
         raise InputError("the sequence has no frames")
-    costs = measure_costs(seq.read(0, 1).scene, max_count, options.seed)
+    costs = measure_costs(seq.read(0, 1).scene, max_count, options.seed, options.quality)
     life = Lifespans.of_frames([c for c, _ in seq.shapes], seq.fps)
     return choose_layout(life, costs, window_s=window_s, policy=options.policy or DEFAULT_POLICY)
 

@@ -1,0 +1,182 @@
+"""Error-budgeted precision (``--quality``): the low bits of a 16-bit code a Gaussian can lose
+while its error stays within a budget set by the quality.
+
+Sans-I/O. A coarsened code is still a 16-bit code over the chunk's ``[min, max]``: its dropped
+bits are zeros, which make the ``_l`` image's planes constant or nearly so (lossless WebP then
+spends almost nothing on them), and every SOG/TSOG reader decodes the chunk unchanged. What a
+quality level guarantees is stated in docs/spec.md §5.1.
+
+Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
+- position: ``f * POSITION_AT_ZERO`` times its size (mean of its three sigmas), at every
+  time it is visible; when it moves, a third each for the base position, the orders of its
+  motion (over its own lifespan) and the shift of its reference time (times its top speed);
+- timeline (type 2 centre and scale, type 1 start and duration): ``f * TIME_AT_ZERO`` times
+  its temporal scale (type 2 scale; type 1 duration), the reference time less when the
+  position budget asks. Frame ids, and lifespans the encoder stores in whole frames, stay
+  exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..constants import U16_MAX
+from ..errors import InputError
+from ..model import Scene, Timeline, TimelineType
+from ..temporal import lifespans, reference_times
+
+F64 = npt.NDArray[np.float64]
+U16 = npt.NDArray[np.uint16]
+
+QUALITY_MAX = 100
+"""Today's precision: every code keeps its 16 bits."""
+POSITION_AT_ZERO = 0.5
+"""At quality 0 a Gaussian's position may move by this fraction of its size."""
+TIME_AT_ZERO = 0.25
+"""At quality 0 a lifespan's centre, start, scale or duration may move by this fraction of the
+Gaussian's temporal scale."""
+
+
+def check_quality(quality: int) -> int:
+    """``quality`` when it is an integer in 0..100 (InputError otherwise)."""
+    if isinstance(quality, bool) or not isinstance(quality, int) or not 0 <= quality <= 100:
+        raise InputError(f"expected an integer from 0 to 100, got {quality!r}", where="quality")
+    return quality
+
+
+def budget_fraction(quality: int) -> float:
+    """``(1 - quality/100)²``: 0 at 100, 1 at 0 (finer steps near the top, where they show)."""
+    return (1.0 - check_quality(quality) / QUALITY_MAX) ** 2
+
+
+def coarsen(codes: U16, tolerance: F64) -> U16:
+    """Each code rounded to the coarsest power-of-two grid whose rounding error is within its
+    ``tolerance`` (in codes; broadcast against ``codes``). A code that would round past 65535
+    keeps its value."""
+    tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(U16_MAX)), codes.shape)
+    bits = np.floor(np.log2(np.maximum(2.0 * tol, 1.0)))
+    grid = np.left_shift(1, np.clip(bits, 0, 15).astype(np.int64))
+    q = codes.astype(np.int64)
+    rounded = (q + grid // 2) // grid * grid
+    return np.where(rounded > U16_MAX, q, rounded).astype(np.uint16)
+
+
+def to_codes(tolerance: F64, mins: F64, maxs: F64) -> F64:
+    """A tolerance in value units as one in 16-bit codes over ``[mins, maxs]`` (per channel;
+    unlimited where the range is empty: every code is 0 there)."""
+    span = np.asarray(maxs, np.float64) - np.asarray(mins, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(span > 0, tolerance * U16_MAX / np.where(span > 0, span, 1.0), np.inf)
+
+
+@dataclass(frozen=True)
+class Budgets:
+    """The error each Gaussian of a chunk may take (in texel order)."""
+
+    position: F64
+    """(N,) scene units a position may move, in all, at any time it is visible."""
+    time: F64
+    """(N, 2) how far its timeline channels may move (R: frame/start/centre, G: duration/
+    scale), in the timeline's units; the reference time's share keeps the moving position
+    within its budget too."""
+    reach: F64
+    """(N,) seconds from its reference time to the far end of its lifespan, with the room a
+    coarsened lifespan may add."""
+    moving: bool
+    """Whether the chunk stores motion of the means: the position budget is then split in
+    three (base, motion, reference time)."""
+
+    @classmethod
+    def of(cls, scene: Scene, quality: int) -> Budgets | None:
+        """The budgets of ``scene`` at ``quality``; None at 100 (nothing is coarsened)."""
+        f = budget_fraction(quality)
+        if f == 0.0:
+            return None
+        size = np.exp(scene.gaussians.scales.astype(np.float64)).mean(axis=1)
+        position = f * POSITION_AT_ZERO * size
+        motion = scene.temporal.get("means")
+        timeline = scene.timeline
+        reach = _reach(timeline) * (1.0 + f * TIME_AT_ZERO)
+        time = _time_budget(timeline, f)
+        if motion is not None and timeline is not None:
+            speed = _top_speed(np.asarray(motion, np.float64), reach)
+            with np.errstate(divide="ignore"):
+                shift = np.where(speed > 0, position / 3 / speed, np.inf)
+            time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
+        return cls(position, time, reach, motion is not None)
+
+    def base_position(self) -> F64:
+        """What the base position may move: a third of the budget when the chunk has motion."""
+        return self.position / 3 if self.moving else self.position
+
+    def motion_share(self, orders: int) -> F64:
+        """What each order of the motion may move the position over the lifespan."""
+        return self.position / (3 * orders)
+
+
+def _top_speed(coeffs: F64, reach: F64) -> F64:
+    """A bound on |d position / dt| over |t - t_ref| <= reach: sum over orders k of
+    k |c_k| reach^(k-1), the largest axis."""
+    k = np.arange(1, coeffs.shape[1] + 1, dtype=np.float64)[None, :, None]
+    terms = k * np.abs(coeffs) * reach[:, None, None] ** (k - 1)
+    return np.asarray(terms.sum(axis=1).max(axis=1))
+
+
+def _time_budget(timeline: Timeline | None, f: float) -> F64:
+    """Per Gaussian and timeline channel, how far it may move: a share of its temporal scale
+    (type 2) or duration (type 1); zeros for frame ids. The timeline encoder keeps whole
+    frames exact whatever this says."""
+    if timeline is None:
+        return np.zeros((0, 2))
+    if timeline.type is TimelineType.FRAME:
+        return np.zeros((len(timeline), 2))
+    share = f * TIME_AT_ZERO * timeline.t1.astype(np.float64)
+    return np.stack([share, share], axis=1)
+
+
+def _reach(timeline: Timeline | None) -> F64:
+    """Seconds from each reference time to the far end of the lifespan."""
+    if timeline is None:
+        return np.zeros(0)
+    start, end = lifespans(timeline)
+    ref = reference_times(timeline)
+    return np.maximum(np.abs(start - ref), np.abs(end - ref))
+
+
+def coarsen_positions(codes: U16, mins: F64, maxs: F64, means: F64, budget: F64) -> U16:
+    """Position codes (SOG's symmetric-log domain) coarsened within ``budget`` scene units per
+    Gaussian: d(log)/dx = 1 / (1 + |x|) turns the budget into a log-domain one per axis."""
+    log_budget = budget[:, None] / (1.0 + np.abs(means))
+    return coarsen(codes, to_codes(log_budget, mins, maxs))
+
+
+def coarsen_timeline(codes: U16, mins: F64, maxs: F64, budget: F64) -> U16:
+    """Timeline codes (R and G) coarsened within ``budget`` ((N, 2), value units)."""
+    return coarsen(codes, to_codes(budget, mins, maxs))
+
+
+def coarsen_motion(
+    codes: U16, mins: F64, maxs: F64, *, order: int, orders: int, budgets: Budgets
+) -> U16:
+    """Codes of order ``order`` of the means' motion coarsened so that, over the Gaussian's own
+    lifespan (``|t - t_ref| <= reach``), it moves the position by at most its share of the
+    budget (a third of it, split evenly over the ``orders``)."""
+    share = budgets.motion_share(orders)
+    with np.errstate(divide="ignore"):
+        value = np.where(budgets.reach > 0, share / budgets.reach**order, np.inf)
+    return coarsen(codes, to_codes(value[:, None], mins, maxs))
+
+
+__all__ = [
+    "QUALITY_MAX",
+    "Budgets",
+    "budget_fraction",
+    "check_quality",
+    "coarsen",
+    "coarsen_motion",
+    "coarsen_positions",
+    "coarsen_timeline",
+]

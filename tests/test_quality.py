@@ -1,0 +1,100 @@
+"""Error-budgeted precision (``--quality``, codec/precision.py): each Gaussian's position,
+at every time it is visible, and its lifespan stay within the budgets docs/spec.md §5.1
+states, against the same chunk at quality 100; files shrink as the quality drops."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tsog_stream.cli.main import main
+from tsog_stream.codec.bundle import bundle_bytes
+from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.codec.precision import POSITION_AT_ZERO, TIME_AT_ZERO, budget_fraction, coarsen
+from tsog_stream.errors import InputError
+from tsog_stream.model import Scene, Timeline, TimelineType
+from tsog_stream.synthetic import freetime_scene, static_gaussians
+from tsog_stream.temporal import lifespans, reference_times
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    """4000 moving Gaussians with type-2 lifespans of 5-50 % of a 10 s clip."""
+    return freetime_scene(static_gaussians(4000, seed=3), duration_s=10.0, lifespan=(0.05, 0.5))
+
+
+def _positions(s: Scene, t: np.ndarray) -> np.ndarray:
+    """Each Gaussian's position at its own time t[i] (base + linear motion)."""
+    assert s.timeline is not None
+    dt = t - reference_times(s.timeline)
+    return s.gaussians.means + s.temporal["means"][:, 0, :] * dt[:, None]
+
+
+def test_quality_100_is_todays_precision(scene: Scene) -> None:
+    assert encode_chunk(scene, quality=100) == encode_chunk(scene)
+
+
+@pytest.mark.parametrize("quality", [90, 50, 0])
+def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality: int) -> None:
+    full = decode_chunk(encode_chunk(scene))
+    cut = decode_chunk(encode_chunk(scene, quality=quality))
+    assert full.timeline is not None and cut.timeline is not None
+    f = budget_fraction(quality)
+    size = np.exp(full.gaussians.scales.astype(np.float64)).mean(axis=1)
+    budget = f * POSITION_AT_ZERO * size
+    start, end = lifespans(full.timeline)
+    worst = np.zeros(len(full))
+    for share in np.linspace(0.0, 1.0, 9):  # across each Gaussian's own visible interval
+        t = start + share * (end - start)
+        moved = np.linalg.norm(_positions(cut, t) - _positions(full, t), axis=1, ord=np.inf)
+        worst = np.maximum(worst, moved)
+    assert np.all(worst <= budget * 1.0001 + 1e-6)
+    span_budget = f * TIME_AT_ZERO * full.timeline.t1
+    assert np.all(np.abs(cut.timeline.t0 - full.timeline.t0) <= span_budget * 1.0001 + 1e-9)
+    assert np.all(np.abs(cut.timeline.t1 - full.timeline.t1) <= span_budget * 1.0001 + 1e-9)
+    assert np.array_equal(cut.gaussians.scales, full.gaussians.scales)  # not coarsened yet
+    if quality <= 50:
+        assert worst.max() > budget.max() / 100  # the budget is used, not ignored
+
+
+def test_lower_quality_writes_fewer_bytes(scene: Scene) -> None:
+    sizes = [len(bundle_bytes(encode_chunk(scene, quality=q))) for q in (100, 75, 50, 0)]
+    assert sizes == sorted(sizes, reverse=True) and sizes[-1] < 0.85 * sizes[0]
+
+
+def test_frame_ids_stay_exact() -> None:
+    frames = static_gaussians(500, seed=1)
+    ids = np.repeat(np.arange(5, dtype=np.float64), 100)
+    timeline = Timeline(TimelineType.FRAME, ids, np.zeros(500), 30.0)
+    back = decode_chunk(encode_chunk(Scene(frames, timeline), quality=0))
+    assert back.timeline is not None
+    assert sorted(back.timeline.t0.tolist()) == sorted(ids.tolist())
+
+
+def test_coarsen_rounds_to_the_coarsest_grid_within_the_tolerance() -> None:
+    codes = np.array([[0, 1000, 65535, 40000]], np.uint16)
+    out = coarsen(codes, np.array([[0.4, 7.9, 300.0, 300.0]]))
+    assert out.tolist() == [[0, 1000, 65535, 39936]]  # grids 1, 8, 512 (65536 too far), 512
+    assert np.all(np.abs(out.astype(int) - codes.astype(int)) <= [[0, 4, 0, 256]])
+
+
+@pytest.mark.parametrize("value", [-1, 101, 50.5, True])
+def test_quality_outside_0_to_100_is_refused(value: object) -> None:
+    with pytest.raises(InputError, match="0 to 100"):
+        encode_chunk(Scene(static_gaussians(10)), quality=value)  # type: ignore[arg-type]
+
+
+def test_the_cli_takes_quality(
+    tmp_path: Path, scene: Scene, capsys: pytest.CaptureFixture[str]
+) -> None:
+    src = tmp_path / "in.sog"  # a 4D chunk is an input like any other
+    src.write_bytes(bundle_bytes(encode_chunk(scene)))
+    assert main(["encode", str(src), str(tmp_path / "a.sog"), "--quality", "40", "-q"]) == 0
+    assert main(["encode", str(src), str(tmp_path / "b.sog"), "-q"]) == 0
+    assert (tmp_path / "a.sog").stat().st_size < (tmp_path / "b.sog").stat().st_size
+    with pytest.raises(SystemExit) as exc:
+        main(["encode", str(src), str(tmp_path / "c.sog"), "--quality", "101"])
+    assert exc.value.code == 2
+    assert "from 0 to 100" in capsys.readouterr().err
