@@ -12,7 +12,13 @@ import pytest
 from tsog_stream.cli.main import main
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
-from tsog_stream.codec.precision import POSITION_AT_ZERO, TIME_AT_ZERO, budget_fraction, coarsen
+from tsog_stream.codec.precision import (
+    MAX_TURN,
+    POSITION_AT_ZERO,
+    TIME_AT_ZERO,
+    budget_fraction,
+    coarsen,
+)
 from tsog_stream.errors import InputError
 from tsog_stream.model import Scene, Timeline, TimelineType
 from tsog_stream.synthetic import freetime_scene, static_gaussians
@@ -32,6 +38,13 @@ def _positions(s: Scene, t: np.ndarray) -> np.ndarray:
     return s.gaussians.means + s.temporal["means"][:, 0, :] * dt[:, None]
 
 
+def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Radians between the rotations of two sets of quaternions."""
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    return np.asarray(2 * np.arccos(np.clip(np.abs(np.sum(a * b, axis=1)), 0.0, 1.0)))
+
+
 def test_quality_100_is_todays_precision(scene: Scene) -> None:
     assert encode_chunk(scene, quality=100) == encode_chunk(scene)
 
@@ -42,8 +55,8 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     cut = decode_chunk(encode_chunk(scene, quality=quality))
     assert full.timeline is not None and cut.timeline is not None
     f = budget_fraction(quality)
-    size = np.exp(full.gaussians.scales.astype(np.float64)).mean(axis=1)
-    budget = f * POSITION_AT_ZERO * size
+    sigmas = np.exp(full.gaussians.scales.astype(np.float64))
+    budget = f * POSITION_AT_ZERO * sigmas.min(axis=1)
     start, end = lifespans(full.timeline)
     worst = np.zeros(len(full))
     for share in np.linspace(0.0, 1.0, 9):  # across each Gaussian's own visible interval
@@ -55,6 +68,9 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     assert np.all(np.abs(cut.timeline.t0 - full.timeline.t0) <= span_budget * 1.0001 + 1e-9)
     assert np.all(np.abs(cut.timeline.t1 - full.timeline.t1) <= span_budget * 1.0001 + 1e-9)
     assert np.array_equal(cut.gaussians.scales, full.gaussians.scales)  # not coarsened yet
+    spread = sigmas.max(axis=1) - sigmas.min(axis=1)
+    turn_budget = np.minimum(budget / np.maximum(spread, 1e-30), MAX_TURN)
+    assert np.all(_turn(cut.gaussians.quats, full.gaussians.quats) <= turn_budget + 1e-3)
     if quality <= 50:
         assert worst.max() > budget.max() / 100  # the budget is used, not ignored
 

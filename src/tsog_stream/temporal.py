@@ -15,7 +15,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from .constants import VISIBILITY_THRESHOLD
+from .constants import SCALE_CAP_SPANS, VISIBILITY_THRESHOLD
 from .errors import InputError
 from .model import Gaussians, Scene, Timeline, TimelineType
 
@@ -34,6 +34,22 @@ def visibility_half_width(threshold: float = VISIBILITY_THRESHOLD) -> float:
 def reference_times(timeline: Timeline) -> F64:
     """t_ref of each Gaussian in seconds: frame time, start or centre."""
     return timeline.t0 * timeline.seconds_per_unit
+
+
+def scale_cap(timeline: Timeline) -> float:
+    """Largest type-2 scale worth storing: SCALE_CAP_SPANS times the scene's span.
+
+    A larger scale changes the temporal opacity factor by less than 0.13 % anywhere in the
+    scene, while an unbounded one (a float16 overflow in .splatv gives 65504) would stretch the
+    linear 16-bit range so far that short lifespans lose all precision.
+    """
+    if timeline.scene_length:
+        span = float(timeline.scene_length)
+    elif len(timeline):
+        span = float(timeline.t0.max() - timeline.t0.min())
+    else:
+        span = 0.0
+    return SCALE_CAP_SPANS * max(span, 1e-3)
 
 
 def lifespans(timeline: Timeline, threshold: float = VISIBILITY_THRESHOLD) -> tuple[F64, F64]:

@@ -47,7 +47,8 @@ QUALITY = Integer(0, 100)
 QUALITY_HELP = (
     "0..100: how much of each position, lifespan and motion code to keep (default 100: all "
     "16 bits). Lower keeps only the bits within an error budget per Gaussian: at 50, positions "
-    "move by at most 1/8 of a Gaussian's size and lifespans by 1/16 of its temporal scale "
+    "move by at most 1/8 of a Gaussian's smallest sigma and lifespans by 1/16 of its temporal "
+    "scale "
     "(docs/spec.md 5.1)"
 )
 

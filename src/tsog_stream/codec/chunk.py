@@ -70,7 +70,7 @@ def encode_chunk(
         height,
         seed=seed,
         progress=note,
-        position_budget=budgets.base_position() if budgets is not None else None,
+        budgets=budgets,
     )
     images = dict(sog.images)
     meta: dict[str, Any] = dict(sog.meta)

@@ -7,18 +7,21 @@ spends almost nothing on them), and every SOG/TSOG reader decodes the chunk unch
 quality level guarantees is stated in docs/spec.md §5.1.
 
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
-- position: ``f * POSITION_AT_ZERO`` times its size (mean of its three sigmas), at every
+- position: ``f * POSITION_AT_ZERO`` times its smallest sigma (so a thin Gaussian never
+  crosses a surface it lies on: the mean sigma cost 10 dB on a .splatv capture), at every
   time it is visible; when it moves, a third each for the base position, the orders of its
   motion (over its own lifespan) and the shift of its reference time (times its top speed);
+- rotation: the turn that moves its ellipsoid's surface by the position budget;
 - timeline (type 2 centre and scale, type 1 start and duration): ``f * TIME_AT_ZERO`` times
-  its temporal scale (type 2 scale; type 1 duration), the reference time less when the
-  position budget asks. Frame ids, and lifespans the encoder stores in whole frames, stay
-  exact.
+  its temporal scale (type 2 scale as stored; type 1 duration), the reference time less when
+  the position budget asks, and not at all when other attributes move (their polynomials
+  share it). Frame ids, and lifespans the encoder stores in whole frames, stay exact.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -26,15 +29,22 @@ import numpy.typing as npt
 from ..constants import U16_MAX
 from ..errors import InputError
 from ..model import Scene, Timeline, TimelineType
-from ..temporal import lifespans, reference_times
+from ..temporal import lifespans, reference_times, scale_cap
 
 F64 = npt.NDArray[np.float64]
+U8 = npt.NDArray[np.uint8]
 U16 = npt.NDArray[np.uint16]
+CodesT = TypeVar("CodesT", npt.NDArray[np.uint8], npt.NDArray[np.uint16])
+MAX_TURN = 0.5
+"""Radians a rotation may turn at most, whatever its budget (within it the small-angle bound of
+:func:`coarsen_rotations` holds)."""
+QUAT_STEP = float(np.sqrt(2.0)) / 255.0
+"""A smallest-three quaternion byte's step in component units (SOG v2 quats.webp)."""
 
 QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits."""
 POSITION_AT_ZERO = 0.5
-"""At quality 0 a Gaussian's position may move by this fraction of its size."""
+"""At quality 0 a Gaussian's position may move by this fraction of its smallest sigma."""
 TIME_AT_ZERO = 0.25
 """At quality 0 a lifespan's centre, start, scale or duration may move by this fraction of the
 Gaussian's temporal scale."""
@@ -52,16 +62,17 @@ def budget_fraction(quality: int) -> float:
     return (1.0 - check_quality(quality) / QUALITY_MAX) ** 2
 
 
-def coarsen(codes: U16, tolerance: F64) -> U16:
-    """Each code rounded to the coarsest power-of-two grid whose rounding error is within its
-    ``tolerance`` (in codes; broadcast against ``codes``). A code that would round past 65535
-    keeps its value."""
-    tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(U16_MAX)), codes.shape)
+def coarsen(codes: CodesT, tolerance: F64) -> CodesT:
+    """Each code (16-bit, or 8-bit) rounded to the coarsest power-of-two grid whose rounding
+    error is within its ``tolerance`` (in codes; broadcast against ``codes``). A code that would
+    round past the largest code keeps its value."""
+    top = int(np.iinfo(codes.dtype).max)
+    tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(top)), codes.shape)
     bits = np.floor(np.log2(np.maximum(2.0 * tol, 1.0)))
-    grid = np.left_shift(1, np.clip(bits, 0, 15).astype(np.int64))
+    grid = np.left_shift(1, np.clip(bits, 0, top.bit_length() - 1).astype(np.int64))
     q = codes.astype(np.int64)
     rounded = (q + grid // 2) // grid * grid
-    return np.where(rounded > U16_MAX, q, rounded).astype(np.uint16)
+    return np.where(rounded > top, q, rounded).astype(codes.dtype)
 
 
 def to_codes(tolerance: F64, mins: F64, maxs: F64) -> F64:
@@ -88,6 +99,9 @@ class Budgets:
     moving: bool
     """Whether the chunk stores motion of the means: the position budget is then split in
     three (base, motion, reference time)."""
+    rotation: F64
+    """(N,) radians its rotation may turn: the position budget over how far the turn moves
+    its ellipsoid's surface (largest minus smallest sigma), at most MAX_TURN."""
 
     @classmethod
     def of(cls, scene: Scene, quality: int) -> Budgets | None:
@@ -95,18 +109,23 @@ class Budgets:
         f = budget_fraction(quality)
         if f == 0.0:
             return None
-        size = np.exp(scene.gaussians.scales.astype(np.float64)).mean(axis=1)
-        position = f * POSITION_AT_ZERO * size
+        sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
+        position = f * POSITION_AT_ZERO * sigmas.min(axis=1)
+        spread = sigmas.max(axis=1) - sigmas.min(axis=1)
+        with np.errstate(divide="ignore"):
+            rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
         timeline = scene.timeline
         reach = _reach(timeline) * (1.0 + f * TIME_AT_ZERO)
         time = _time_budget(timeline, f)
+        if set(scene.temporal) - {"means"}:
+            time[:, 0] = 0.0  # t_ref of rotations, colours or opacities that move: kept exact
         if motion is not None and timeline is not None:
             speed = _top_speed(np.asarray(motion, np.float64), reach)
             with np.errstate(divide="ignore"):
                 shift = np.where(speed > 0, position / 3 / speed, np.inf)
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
-        return cls(position, time, reach, motion is not None)
+        return cls(position, time, reach, motion is not None, rotation)
 
     def base_position(self) -> F64:
         """What the base position may move: a third of the budget when the chunk has motion."""
@@ -133,7 +152,10 @@ def _time_budget(timeline: Timeline | None, f: float) -> F64:
         return np.zeros((0, 2))
     if timeline.type is TimelineType.FRAME:
         return np.zeros((len(timeline), 2))
-    share = f * TIME_AT_ZERO * timeline.t1.astype(np.float64)
+    scale = timeline.t1.astype(np.float64)
+    if timeline.type is TimelineType.CENTER_SCALE:
+        scale = np.minimum(scale, scale_cap(timeline))  # as stored (a .splatv may say 65504)
+    share = f * TIME_AT_ZERO * scale
     return np.stack([share, share], axis=1)
 
 
@@ -151,6 +173,15 @@ def coarsen_positions(codes: U16, mins: F64, maxs: F64, means: F64, budget: F64)
     Gaussian: d(log)/dx = 1 / (1 + |x|) turns the budget into a log-domain one per axis."""
     log_budget = budget[:, None] / (1.0 + np.abs(means))
     return coarsen(codes, to_codes(log_budget, mins, maxs))
+
+
+def coarsen_rotations(texels: U8, budget: F64) -> U8:
+    """Smallest-three rotation texels (R, G, B; the A tag kept) coarsened so each rotation
+    turns by at most ``budget`` radians: a turn is at most 4·√3 times the largest component
+    error (twice the quaternion distance, the fourth component rederived)."""
+    out = texels.copy()
+    out[:, :3] = coarsen(texels[:, :3], (budget / (4 * np.sqrt(3.0)) / QUAT_STEP)[:, None])
+    return out
 
 
 def coarsen_timeline(codes: U16, mins: F64, maxs: F64, budget: F64) -> U16:
@@ -171,6 +202,7 @@ def coarsen_motion(
 
 
 __all__ = [
+    "MAX_TURN",
     "QUALITY_MAX",
     "Budgets",
     "budget_fraction",
@@ -178,5 +210,6 @@ __all__ = [
     "coarsen",
     "coarsen_motion",
     "coarsen_positions",
+    "coarsen_rotations",
     "coarsen_timeline",
 ]

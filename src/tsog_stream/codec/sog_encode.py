@@ -20,7 +20,7 @@ from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
 from .positions import encode_means, split_u16
-from .precision import coarsen_positions
+from .precision import Budgets, coarsen_positions, coarsen_rotations
 from .rotations import encode_quats
 
 U8 = npt.NDArray[np.uint8]
@@ -109,22 +109,23 @@ def encode_sog(
     *,
     seed: int = 0,
     progress: Progress | None = None,
-    position_budget: npt.NDArray[np.float64] | None = None,
+    budgets: Budgets | None = None,
 ) -> SogParts:
-    """Encode Gaussians already in texel order into SOG v2 images and meta keys; with a
-    ``position_budget`` (scene units per Gaussian, codec/precision.py) positions keep only the
-    bits it needs."""
+    """Encode Gaussians already in texel order into SOG v2 images and meta keys; with
+    ``budgets`` (codec/precision.py) positions and rotations keep only the bits they need."""
     note = progress or (lambda _msg: None)
     note("positions")
     mins, maxs, codes = encode_means(gaussians.means)
-    if position_budget is not None:
+    quats = encode_quats(gaussians.quats)
+    if budgets is not None:
         means = gaussians.means.astype(np.float64)
-        codes = coarsen_positions(codes, mins, maxs, means, position_budget)
+        codes = coarsen_positions(codes, mins, maxs, means, budgets.base_position())
+        quats = coarsen_rotations(quats, budgets.rotation)
     low, high = split_u16(codes)
     images = {
         C.MEANS_L: to_image(texels(low[:, 0], low[:, 1], low[:, 2]), width, height),
         C.MEANS_U: to_image(texels(high[:, 0], high[:, 1], high[:, 2]), width, height),
-        C.QUATS: to_image(encode_quats(gaussians.quats), width, height),
+        C.QUATS: to_image(quats, width, height),
     }
     note("scale codebook")
     scale_texels, scale_codebook = _codebook_texels(gaussians.scales)

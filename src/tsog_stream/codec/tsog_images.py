@@ -16,6 +16,7 @@ import numpy.typing as npt
 from .. import constants as C
 from ..errors import InputError
 from ..model import Timeline, TimelineType
+from ..temporal import scale_cap
 from .layout import from_image, to_image
 from .positions import dequantize_u16, join_u16, quantize_u16, split_u16
 from .precision import Budgets, coarsen_motion, coarsen_timeline
@@ -52,22 +53,6 @@ def _ranges(values: F64) -> tuple[F64, F64]:
     if values.shape[0] == 0:
         return np.zeros(values.shape[1]), np.zeros(values.shape[1])
     return values.min(axis=0), values.max(axis=0)
-
-
-def scale_cap(timeline: Timeline) -> float:
-    """Largest type-2 scale worth storing: SCALE_CAP_SPANS times the scene's span.
-
-    A larger scale changes the temporal opacity factor by less than 0.13 % anywhere in the
-    scene, while an unbounded one (a float16 overflow in .splatv gives 65504) would stretch the
-    linear 16-bit range so far that short lifespans lose all precision.
-    """
-    if timeline.scene_length:
-        span = float(timeline.scene_length)
-    elif len(timeline):
-        span = float(timeline.t0.max() - timeline.t0.min())
-    else:
-        span = 0.0
-    return C.SCALE_CAP_SPANS * max(span, 1e-3)
 
 
 def _whole_frames(timeline: Timeline, mins: F64, maxs: F64) -> bool:
