@@ -11,16 +11,21 @@ import pytest
 
 from tsog_stream.cli.main import main
 from tsog_stream.codec.bundle import bundle_bytes
-from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.precision import (
+    ALPHA_AT_ZERO,
+    COLOUR_AT_ZERO,
     MAX_TURN,
     POSITION_AT_ZERO,
+    SCALE_AT_ZERO,
     TIME_AT_ZERO,
     budget_fraction,
     coarsen,
 )
+from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
 from tsog_stream.model import Scene, Timeline, TimelineType
+from tsog_stream.opacity import logit_to_alpha
 from tsog_stream.synthetic import freetime_scene, static_gaussians
 from tsog_stream.temporal import lifespans, reference_times
 
@@ -67,7 +72,13 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     span_budget = f * TIME_AT_ZERO * full.timeline.t1
     assert np.all(np.abs(cut.timeline.t0 - full.timeline.t0) <= span_budget * 1.0001 + 1e-9)
     assert np.all(np.abs(cut.timeline.t1 - full.timeline.t1) <= span_budget * 1.0001 + 1e-9)
-    assert np.array_equal(cut.gaussians.scales, full.gaussians.scales)  # not coarsened yet
+    source = scene.subset(texel_order(scene)).gaussians  # the decoded chunks' order
+    for attr, slack in (("scales", f * SCALE_AT_ZERO), ("sh0", f * COLOUR_AT_ZERO / SH_C0)):
+        was = np.abs(getattr(full.gaussians, attr) - getattr(source, attr))
+        now = np.abs(getattr(cut.gaussians, attr) - getattr(source, attr))
+        assert np.all(now <= was + slack + 1e-5), attr
+    alpha = [logit_to_alpha(g.opacities) for g in (cut.gaussians, full.gaussians)]
+    assert np.all(np.abs(alpha[0] - alpha[1]) <= f * ALPHA_AT_ZERO + 1 / 255 + 1e-6)
     spread = sigmas.max(axis=1) - sigmas.min(axis=1)
     turn_budget = np.minimum(budget / np.maximum(spread, 1e-30), MAX_TURN)
     assert np.all(_turn(cut.gaussians.quats, full.gaussians.quats) <= turn_budget + 1e-3)

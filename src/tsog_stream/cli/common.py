@@ -45,8 +45,9 @@ SEED = Integer(0, 2**32 - 1)
 """Seeds of numpy's generators."""
 QUALITY = Integer(0, 100)
 QUALITY_HELP = (
-    "0..100: how much of each position, lifespan and motion code to keep (default 100: all "
-    "16 bits). Lower keeps only the bits within an error budget per Gaussian: at 50, positions "
+    "0..100: how precisely to keep positions, rotations, scales, colours, opacity, lifespans "
+    "and motion (default 100: as today). Lower keeps only what fits an error budget per "
+    "Gaussian: at 50, positions "
     "move by at most 1/8 of a Gaussian's smallest sigma and lifespans by 1/16 of its temporal "
     "scale "
     "(docs/spec.md 5.1)"

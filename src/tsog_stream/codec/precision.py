@@ -12,6 +12,9 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
   time it is visible; when it moves, a third each for the base position, the orders of its
   motion (over its own lifespan) and the shift of its reference time (times its top speed);
 - rotation: the turn that moves its ellipsoid's surface by the position budget;
+- scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
+  COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
+  entries of the same 256-entry codebook; opacity within ``f * ALPHA_AT_ZERO``;
 - timeline (type 2 centre and scale, type 1 start and duration): ``f * TIME_AT_ZERO`` times
   its temporal scale (type 2 scale as stored; type 1 duration), the reference time less when
   the position budget asks, and not at all when other attributes move (their polynomials
@@ -26,7 +29,7 @@ from typing import TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from ..constants import U16_MAX
+from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
 from ..model import Scene, Timeline, TimelineType
 from ..temporal import lifespans, reference_times, scale_cap
@@ -38,6 +41,12 @@ CodesT = TypeVar("CodesT", npt.NDArray[np.uint8], npt.NDArray[np.uint16])
 MAX_TURN = 0.5
 """Radians a rotation may turn at most, whatever its budget (within it the small-angle bound of
 :func:`coarsen_rotations` holds)."""
+SCALE_AT_ZERO = 0.2
+"""At quality 0 a log-sigma may move this much beyond its codebook error (sigma x 0.82..1.22)."""
+COLOUR_AT_ZERO = 0.1
+"""At quality 0 a base colour (0..1) may move this much beyond its codebook error."""
+ALPHA_AT_ZERO = 0.1
+"""At quality 0 an opacity (alpha, 0..1) may move this much."""
 QUAT_STEP = float(np.sqrt(2.0)) / 255.0
 """A smallest-three quaternion byte's step in component units (SOG v2 quats.webp)."""
 
@@ -102,6 +111,12 @@ class Budgets:
     rotation: F64
     """(N,) radians its rotation may turn: the position budget over how far the turn moves
     its ellipsoid's surface (largest minus smallest sigma), at most MAX_TURN."""
+    scale_slack: float = 0.0
+    """Log-sigma a scale may move beyond its codebook error (every Gaussian)."""
+    colour_slack: float = 0.0
+    """f_dc a base colour may move beyond its codebook error (every Gaussian)."""
+    alpha_slack: float = 0.0
+    """Alpha (0..1) an opacity may move (every Gaussian)."""
 
     @classmethod
     def of(cls, scene: Scene, quality: int) -> Budgets | None:
@@ -125,7 +140,16 @@ class Budgets:
             with np.errstate(divide="ignore"):
                 shift = np.where(speed > 0, position / 3 / speed, np.inf)
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
-        return cls(position, time, reach, motion is not None, rotation)
+        return cls(
+            position,
+            time,
+            reach,
+            motion is not None,
+            rotation,
+            scale_slack=f * SCALE_AT_ZERO,
+            colour_slack=f * COLOUR_AT_ZERO / SH_C0,
+            alpha_slack=f * ALPHA_AT_ZERO,
+        )
 
     def base_position(self) -> F64:
         """What the base position may move: a third of the budget when the chunk has motion."""
@@ -184,6 +208,28 @@ def coarsen_rotations(texels: U8, budget: F64) -> U8:
     return out
 
 
+def thin_labels(labels: U8, codebook: F64, slack: float) -> U8:
+    """Codebook labels moved to fewer distinct entries: entries are kept ascending while more
+    than ``slack`` above the last kept one, and each label goes to the nearest kept entry, at
+    most ``slack`` from its own, so a value's error grows by at most ``slack``."""
+    table = np.asarray(codebook, np.float64)
+    if slack <= 0 or table.size == 0:
+        return labels
+    kept = [0]
+    for i in range(1, table.size):
+        if table[i] - table[kept[-1]] > slack:
+            kept.append(i)
+    kept_values = table[kept]
+    mids = (kept_values[:-1] + kept_values[1:]) / 2
+    nearest = np.asarray(kept)[np.searchsorted(mids, table, side="right")]
+    return nearest.astype(np.uint8)[labels]
+
+
+def coarsen_alpha(alpha: U8, slack: float) -> U8:
+    """Opacity bytes coarsened within ``slack`` (alpha units)."""
+    return coarsen(alpha, np.asarray(slack * 255.0))
+
+
 def coarsen_timeline(codes: U16, mins: F64, maxs: F64, budget: F64) -> U16:
     """Timeline codes (R and G) coarsened within ``budget`` ((N, 2), value units)."""
     return coarsen(codes, to_codes(budget, mins, maxs))
@@ -208,8 +254,10 @@ __all__ = [
     "budget_fraction",
     "check_quality",
     "coarsen",
+    "coarsen_alpha",
     "coarsen_motion",
     "coarsen_positions",
     "coarsen_rotations",
     "coarsen_timeline",
+    "thin_labels",
 ]

@@ -20,7 +20,7 @@ from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
 from .positions import encode_means, split_u16
-from .precision import Budgets, coarsen_positions, coarsen_rotations
+from .precision import Budgets, coarsen_alpha, coarsen_positions, coarsen_rotations, thin_labels
 from .rotations import encode_quats
 
 U8 = npt.NDArray[np.uint8]
@@ -52,12 +52,14 @@ def opacity_bytes(logits: npt.NDArray[np.float32]) -> U8:
 
 
 def _codebook_texels(
-    columns: npt.NDArray[np.float32], alpha: npt.ArrayLike = 255
+    columns: npt.NDArray[np.float32], alpha: npt.ArrayLike = 255, slack: float = 0.0
 ) -> tuple[U8, list[float]]:
     """One shared 256-entry codebook over (N, 3) columns (entries short to write, see
-    short_codebook); texels of the per-column indices."""
+    short_codebook); texels of the per-column indices, moved to fewer distinct entries within
+    ``slack`` (codec/precision.py)."""
     codebook = short_codebook(build_codebook(columns))
     labels = assign_codebook(columns, codebook).reshape(columns.shape)
+    labels = thin_labels(labels, codebook.astype(np.float64), slack)
     return texels(labels[:, 0], labels[:, 1], labels[:, 2], alpha=alpha), _floats(codebook)
 
 
@@ -128,10 +130,16 @@ def encode_sog(
         C.QUATS: to_image(quats, width, height),
     }
     note("scale codebook")
-    scale_texels, scale_codebook = _codebook_texels(gaussians.scales)
+    scale_texels, scale_codebook = _codebook_texels(
+        gaussians.scales, slack=budgets.scale_slack if budgets is not None else 0.0
+    )
     images[C.SCALES] = to_image(scale_texels, width, height)
     note("colour codebook")
-    sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, opacity_bytes(gaussians.opacities))
+    alpha = opacity_bytes(gaussians.opacities)
+    if budgets is not None:
+        alpha = coarsen_alpha(alpha, budgets.alpha_slack)
+    colour_slack = budgets.colour_slack if budgets is not None else 0.0
+    sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, alpha, colour_slack)
     images[C.SH0] = to_image(sh0_texels, width, height)
     meta: dict[str, Any] = {
         "version": C.SOG_VERSION,
