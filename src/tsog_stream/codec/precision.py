@@ -9,8 +9,9 @@ quality level guarantees is stated in docs/spec.md §5.1.
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
 - position: ``f * POSITION_AT_ZERO`` times its smallest sigma (so a thin Gaussian never
   crosses a surface it lies on: the mean sigma cost 10 dB on a .splatv capture), at every
-  time it is visible; when it moves, a third each for the base position, the orders of its
-  motion (over its own lifespan) and the shift of its reference time (times its top speed);
+  time it is visible inside the scene's time range; when it moves, a third each for the
+  base position, the orders of its motion (over that part of its lifespan) and the shift of
+  its reference time (times its top speed);
 - rotation: the turn that moves its ellipsoid's surface by the position budget;
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
   COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
@@ -32,7 +33,7 @@ import numpy.typing as npt
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
 from ..model import Scene, Timeline, TimelineType
-from ..temporal import lifespans, reference_times, scale_cap
+from ..temporal import lifespans, reference_times, scale_cap, time_range
 
 F64 = npt.NDArray[np.float64]
 U8 = npt.NDArray[np.uint8]
@@ -184,12 +185,17 @@ def _time_budget(timeline: Timeline | None, f: float) -> F64:
 
 
 def _reach(timeline: Timeline | None) -> F64:
-    """Seconds from each reference time to the far end of the lifespan."""
+    """Seconds from each reference time to the far end of the part of its lifespan inside the
+    scene's time range (nothing is drawn outside it: a .splatv Gaussian may live for hours
+    in a 1 s clip)."""
     if timeline is None:
         return np.zeros(0)
+    first, last = time_range(timeline)
     start, end = lifespans(timeline)
+    start, end = np.maximum(start, first), np.minimum(end, last)
     ref = reference_times(timeline)
-    return np.maximum(np.abs(start - ref), np.abs(end - ref))
+    reach = np.maximum(np.abs(start - ref), np.abs(end - ref))
+    return np.where(end >= start, reach, 0.0)
 
 
 def coarsen_positions(codes: U16, mins: F64, maxs: F64, means: F64, budget: F64) -> U16:
