@@ -29,7 +29,7 @@ from typing import Any
 import aiohttp
 import numpy as np
 
-from common import WRK_DONE, run_wrk, segmented_clip, write_section
+from common import WRK_DONE, children, run_wrk, segmented_clip, status_kib, write_section
 from tsog_stream.client.http_source import HttpSource
 from tsog_stream.client.stream import StreamClient
 from tsog_stream.container.ranges import ByteRange
@@ -47,20 +47,9 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def children(pid: int) -> list[int]:
-    """Direct children of ``pid`` (worker processes)."""
-    out = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        out += [int(x) for x in (task / "children").read_text().split()]
-    return out
-
-
 def rss_mib(pid: int) -> float:
     """Resident memory of a process, from /proc."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return round(int(line.split()[1]) / 1024, 1)
-    return 0.0
+    return round(status_kib(pid, "VmRSS") / 1024, 1)
 
 
 def start_nginx(root: Path, port: int, work: Path, workers: int = 1) -> subprocess.Popen[bytes]:

@@ -31,8 +31,8 @@ from typing import Any
 
 import aiohttp
 
-from bench_http import children, free_port, start_nginx, wait_up
-from common import WRK_DONE, run_wrk, segmented_clip, write_section
+from bench_http import free_port, start_nginx, wait_up
+from common import WRK_DONE, children, run_wrk, segmented_clip, status_kib, write_section
 from tsog_stream.container.sources import FileSource, read_index
 
 REPO = Path(__file__).resolve().parents[1]
@@ -87,9 +87,7 @@ def proc_stats(pids: list[int]) -> tuple[float, float]:
     """(RSS MiB, CPU seconds) summed over ``pids``, from /proc."""
     rss = cpu = 0.0
     for pid in pids:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                rss += int(line.split()[1]) / 1024
+        rss += status_kib(pid, "VmRSS") / 1024
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         cpu += (int(fields[11]) + int(fields[12])) / TICK
     return rss, cpu

@@ -83,17 +83,30 @@ def run_measured(cmd: list[str], timeout: float = 3600) -> dict[str, Any]:
     return out
 
 
+def children(pid: int) -> list[int]:
+    """Direct children of ``pid`` (worker processes), from /proc."""
+    out = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out += [int(x) for x in (task / "children").read_text().split()]
+    return out
+
+
+def status_kib(pid: int, field: str) -> int:
+    """A kB field of /proc/PID/status (VmRSS, VmHWM), 0 when absent."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(f"{field}:"):
+            return int(line.split()[1])
+    return 0
+
+
 def _sample_hwm(pid: int, peaks: dict[int, int]) -> None:
     """Record the VmHWM (kB) of ``pid`` and every live process below it into ``peaks``."""
     todo = [pid]
     while todo:
         p = todo.pop()
         try:
-            for line in Path(f"/proc/{p}/status").read_text().splitlines():
-                if line.startswith("VmHWM:"):
-                    peaks[p] = max(peaks.get(p, 0), int(line.split()[1]))
-            for task in Path(f"/proc/{p}/task").iterdir():
-                todo += [int(x) for x in (task / "children").read_text().split()]
+            peaks[p] = max(peaks.get(p, 0), status_kib(p, "VmHWM"))
+            todo += children(p)
         except OSError:
             continue  # gone between two looks
 
