@@ -49,12 +49,11 @@ from .respond import (
     LIMITS,
     LOAD,
     REVALIDATE,
-    SENDFILE_SLICE,
     Limits,
     Load,
     sendfile_now,
+    sendfile_slices,
     validators,
-    within_stall,
 )
 from .scenes import CATALOG
 
@@ -441,17 +440,12 @@ class LeanProtocol(asyncio.Protocol):
         """What the socket did not take at once, under the send deadline and stall timeout
         (the connection is dropped when either passes, as on the full path)."""
         assert self.transport is not None
-        loop, limits = asyncio.get_running_loop(), self.lean.limits
+        limits = self.lean.limits
         try:
             async with asyncio.timeout(limits.send_timeout_s):
-                for start in range(rest.start, rest.end, SENDFILE_SLICE):
-                    count = min(SENDFILE_SLICE, rest.end - start)
-                    sent = await within_stall(
-                        loop.sendfile(self.transport, file, start, count), limits.stall_timeout_s
-                    )
-                    if sent < count:
-                        raise ConnectionAbortedError("file shrank while being sent")
-        except (TimeoutError, OSError, RuntimeError):  # stalled, gone, or the file shrank
+                stall = limits.stall_timeout_s
+                await sendfile_slices(self.transport, file, rest, stall, fallback=True)
+        except (TimeoutError, OSError):  # stalled, gone, or the file shrank
             self.transport.abort()
             return
         finally:

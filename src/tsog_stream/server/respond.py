@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import os
 import secrets
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any, BinaryIO, TypeVar
 
@@ -165,24 +165,46 @@ async def _sendfile(
         raise ConnectionResetError("connection lost")
     if transport.get_extra_info("sslcontext") is not None:
         return False
-    loop = asyncio.get_running_loop()
     now = sendfile_now(transport, file.fileno(), span)
     _count_sent(writer, now)
-    for start in range(span.start + now, span.end, SENDFILE_SLICE):
+    rest = ByteRange(span.start + now, span.end)
+    return await sendfile_slices(
+        transport, file, rest, stall_s, counted=lambda n: _count_sent(writer, n), first=now == 0
+    )
+
+
+async def sendfile_slices(
+    transport: asyncio.WriteTransport,
+    file: BinaryIO,
+    span: ByteRange,
+    stall_s: float,
+    *,
+    counted: Callable[[int], None] = lambda _n: None,
+    first: bool = False,
+    fallback: bool = False,
+) -> bool:
+    """Send ``span`` of ``file`` with ``loop.sendfile`` in SENDFILE_SLICE slices, each within
+    ``stall_s``, passing each slice's byte count to ``counted``. False when sendfile is
+    unavailable and ``first`` (no byte of the body sent yet: the caller copies instead);
+    unavailable later, or the transport closing, is the client gone (ConnectionResetError),
+    a short slice a file that shrank (ConnectionAbortedError). ``fallback``: let asyncio read
+    and write when native sendfile is unavailable."""
+    loop = asyncio.get_running_loop()
+    for start in range(span.start, span.end, SENDFILE_SLICE):
         count = min(SENDFILE_SLICE, span.end - start)
         try:
             sent = await within_stall(
-                loop.sendfile(transport, file, start, count, fallback=False), stall_s
+                loop.sendfile(transport, file, start, count, fallback=fallback), stall_s
             )
         except (NotImplementedError, asyncio.SendfileNotAvailableError) as exc:
-            if start == span.start:
+            if first and start == span.start:
                 return False
             # part of the body went out already: sendfile failing now means the socket did
             # (the client left), which asyncio reports as "not available" on its first call
             raise ConnectionResetError("connection lost") from exc
         except RuntimeError as exc:  # "Transport is closing": the client went away
             raise ConnectionResetError("connection lost") from exc
-        _count_sent(writer, sent)
+        counted(sent)
         if sent < count:
             raise ConnectionAbortedError("file shrank while being sent")
     return True
