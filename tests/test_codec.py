@@ -14,9 +14,13 @@ from helpers import check_decoded_at, log_space_error, means_log_step
 from tsog_stream import Scene, SogError, TimelineType, TsogError
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
+from tsog_stream.codec.positions import decode_means
+from tsog_stream.codec.rotations import decode_quats
+from tsog_stream.codec.webp import decode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
-from tsog_stream.synthetic import small_scene
+from tsog_stream.opacity import alpha_to_logit
+from tsog_stream.synthetic import small_scene, static_gaussians
 from tsog_stream.temporal import (
     lifespans,
 )
@@ -148,3 +152,42 @@ def test_bad_chunks_raise_tsog_errors_naming_the_file(sh3_scene: Scene) -> None:
         read_bundle(bundle_bytes(files)[:-30])
     with pytest.raises(SogError):
         read_bundle(b"not a zip at all")
+
+
+def _quats_by_formula(texels: np.ndarray) -> np.ndarray:
+    """Smallest-three decoding written out per Gaussian in float64 (SOG v2, as splat-transform)."""
+    out = np.zeros((len(texels), 4))
+    for i, (a, b, c, tag) in enumerate(texels.astype(np.float64)):
+        largest = int(tag) - 252
+        if not 0 <= largest <= 3:
+            out[i] = (1.0, 0.0, 0.0, 0.0)
+            continue
+        kept = [(v / 255.0 * 2.0 - 1.0) / np.sqrt(2.0) for v in (a, b, c)]
+        rest = np.sqrt(max(0.0, 1.0 - (kept[0] * kept[0] + kept[1] * kept[1] + kept[2] * kept[2])))
+        out[i] = [*kept[:largest], rest, *kept[largest:]]
+    return out.astype(np.float32)
+
+
+def test_table_decoders_equal_the_float64_formulas_bit_for_bit() -> None:
+    """Rotations, positions, colours and opacities decode through lookup tables; each table
+    holds the formula's values, so the result is the formula's, to the bit."""
+    rng = np.random.default_rng(3)
+    texels = rng.integers(0, 256, (4000, 4), dtype=np.uint8)
+    texels[:, 3] = rng.integers(250, 257, 4000).clip(0, 255)  # the four tags and bad ones
+    assert np.array_equal(decode_quats(texels), _quats_by_formula(texels))
+
+    low, high = (rng.integers(0, 256, (4000, 3), dtype=np.uint8) for _ in range(2))
+    mins, maxs = np.array([-2.0, 0.5, 1.0]), np.array([3.0, 0.5, 4.0])  # y: an empty range
+    codes = low.astype(np.float64) + 256.0 * high
+    span = np.where(maxs > mins, maxs - mins, 1.0)
+    logs = mins + span * (codes / 65535.0)
+    expected = (np.sign(logs) * np.expm1(np.abs(logs))).astype(np.float32)
+    assert np.array_equal(decode_means(low, high, mins, maxs), expected)
+
+    files = encode_chunk(Scene(static_gaussians(500, seed=2)))
+    decoded = decode_chunk(files).gaussians
+    meta = json.loads(files["meta.json"])
+    sh0 = decode_webp(files["sh0.webp"], where="sh0").reshape(-1, 4)[:500]
+    colours = np.asarray(meta["sh0"]["codebook"], np.float32)[sh0[:, :3]]
+    assert np.array_equal(decoded.sh0, colours)
+    assert np.array_equal(decoded.opacities, alpha_to_logit(sh0[:, 3] / 255.0))

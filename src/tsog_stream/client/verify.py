@@ -11,7 +11,7 @@ from enum import IntEnum
 import numpy as np
 
 from ..codec.bundle import read_bundle, unnamed_entries
-from ..codec.chunk import decode_chunk, decode_images, read_meta
+from ..codec.chunk import checked_images, decode_chunk, read_meta
 from ..container.header import HEADER_SIZE
 from ..container.ranges import ByteRange
 from ..container.sources import ByteSource
@@ -63,16 +63,14 @@ def check_chunk(
             return [(Check.DECODE, f"entries not named by meta.json (never read): {shown}")]
         files = read_bundle(data, where=where)
         meta = read_meta(files, where=where)
-        images = decode_images(meta, files, where=where)
+        _, sizes = checked_images(meta, files, where=where)
         scene = decode_chunk(files, where=where)
     except TsogError as exc:
         return [(Check.DECODE, str(exc))]
     out: list[tuple[Check, str]] = []
-    for name, img in images.items():
-        if img.shape[0] * img.shape[1] > max_pixels:
-            out.append(
-                (Check.BUDGET, f"{name} is {img.shape[1]}x{img.shape[0]}, over {max_pixels} px")
-            )
+    for name, (width, height) in sizes.items():
+        if width * height > max_pixels:
+            out.append((Check.BUDGET, f"{name} is {width}x{height}, over {max_pixels} px"))
     if meta.count != chunk.count:
         out.append((Check.INDEX, f"holds {meta.count} Gaussians, the index says {chunk.count}"))
     if scene.timeline is not None and len(scene):

@@ -24,7 +24,7 @@ from .precision import QUALITY_MAX, Budgets
 from .sog_decode import decode_sog
 from .sog_encode import encode_sog
 from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
-from .webp import decode_many, encode_many, webp_size
+from .webp import ImageDecoder, encode_many, webp_size
 
 Progress = Callable[[str], None]
 U8 = npt.NDArray[np.uint8]
@@ -99,11 +99,13 @@ def read_meta(files: Mapping[str, bytes], *, where: str) -> ChunkMeta:
     return parse_meta(files[C.META_JSON], where=f"{where}/{C.META_JSON}")
 
 
-def decode_images(meta: ChunkMeta, files: Mapping[str, bytes], *, where: str) -> dict[str, U8]:
-    """Every image the meta lists, decoded and checked against the count and each other.
+def checked_images(
+    meta: ChunkMeta, files: Mapping[str, bytes], *, where: str
+) -> tuple[dict[str, bytes], dict[str, tuple[int, int]]]:
+    """The WebP bytes of every image the meta lists, and their sizes, checked before decoding.
 
-    Sizes are read from the WebP headers and checked first, so nothing is decoded (or
-    allocated) for an image larger than the meta's count allows.
+    Sizes are read from the WebP headers and checked against the count, each other and the
+    read budget, so nothing is decoded (or allocated) for an image larger than they allow.
     """
     needed: dict[str, bytes] = {}
     for field, name in listed_files(meta):
@@ -114,7 +116,7 @@ def decode_images(meta: ChunkMeta, files: Mapping[str, bytes], *, where: str) ->
     sizes = {name: webp_size(data, where=f"{where}/{name}") for name, data in needed.items()}
     check_image_sizes(meta, sizes, where=f"{where}/{C.META_JSON}")
     _check_budget(sizes, where)
-    return decode_many(needed, where=where, sizes=sizes)
+    return needed, sizes
 
 
 def _check_budget(sizes: Mapping[str, tuple[int, int]], where: str) -> None:
@@ -149,14 +151,37 @@ def _check_plausible_count(meta: ChunkMeta, image_bytes: int, where: str) -> Non
 
 
 def decode_chunk(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Scene:
-    """The Scene stored in a chunk's files, Gaussians in texel order."""
+    """The Scene stored in a chunk's files, Gaussians in texel order.
+
+    Each attribute is decoded as soon as its images are (webp.ImageDecoder), on both cores.
+    """
     meta = read_meta(files, where=where)
-    images = decode_images(meta, files, where=where)
+    needed, sizes = checked_images(meta, files, where=where)
     count = int(meta.count)
-    gaussians = decode_sog(meta, images)
-    timeline = decode_timeline(meta.timeline, images, count) if meta.timeline is not None else None
-    temporal = decode_temporal(meta.temporal, images, count) if meta.temporal else {}
-    return Scene(gaussians, timeline, temporal)
+    timeline_meta, temporal_meta = meta.timeline, meta.temporal
+    with ImageDecoder(needed, where=where, sizes=sizes) as decoder:
+        gaussians = decode_sog(meta, decoder)
+        timeline = (
+            decoder.then(
+                timeline_meta.files,
+                lambda images: decode_timeline(timeline_meta, images, count),
+            )
+            if timeline_meta is not None
+            else None
+        )
+        temporal = (
+            decoder.then(
+                [name for entry in temporal_meta.values() for name in entry.files],
+                lambda images: decode_temporal(temporal_meta, images, count),
+            )
+            if temporal_meta
+            else None
+        )
+        return Scene(
+            gaussians(),
+            timeline.result() if timeline is not None else None,
+            temporal.result() if temporal is not None else {},
+        )
 
 
 def decode_chunk_bytes(data: bytes, *, where: str = "<chunk>") -> Scene:

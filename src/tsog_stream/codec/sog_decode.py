@@ -1,4 +1,4 @@
-"""SOG v2 decoder: validated meta + decoded byte images -> static Gaussians in texel order.
+"""SOG v2 decoder: validated meta + WebP images -> static Gaussians in texel order.
 
 Formulas follow splat-transform's reader so both decoders agree to float32 rounding:
 opacity logits are clamped to alpha in [1e-6, 1 - 1e-6]; labels past the palette give zero SH;
@@ -7,7 +7,7 @@ an unknown quaternion tag gives the identity rotation.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -17,16 +17,26 @@ from .. import constants as C
 from ..model import Gaussians
 from ..opacity import alpha_to_logit
 from .layout import from_image
-from .positions import decode_means, join_u16
+from .positions import decode_means
 from .rotations import decode_quats
+from .webp import ImageDecoder
 
 U8 = npt.NDArray[np.uint8]
 F32 = npt.NDArray[np.float32]
 
 
 def _lookup(codebook: list[float], indices: U8) -> F32:
-    """Codebook values of byte indices."""
-    return np.asarray(codebook, dtype=np.float32)[indices]
+    """Codebook values of byte indices (the schema holds every codebook to 256 entries), one
+    gather per channel of the last axis."""
+    table = np.asarray(codebook, dtype=np.float32)
+    out = np.empty(indices.shape, np.float32)
+    for channel in range(indices.shape[-1]):
+        np.take(table, indices[..., channel], out=out[..., channel])
+    return out
+
+
+_LOGIT_OF_BYTE = alpha_to_logit(np.arange(256) / 255.0)
+"""The opacity logit of each stored alpha byte."""
 
 
 def _decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
@@ -44,23 +54,50 @@ def _decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
     return out
 
 
-def decode_sog(meta: Any, images: Mapping[str, U8]) -> Gaussians:
-    """Gaussians (in texel order) from a parsed ChunkMeta and its decoded images."""
+def decode_sog(meta: Any, decoder: ImageDecoder) -> Callable[[], Gaussians]:
+    """Schedule the decoding of each attribute as its images arrive (the costliest first:
+    its images are decoded first); the returned function waits for them and gives the
+    Gaussians (in texel order) of a parsed ChunkMeta."""
     count = int(meta.count)
-    low = from_image(images[meta.means.files[0]], count)[:, :3]
-    high = from_image(images[meta.means.files[1]], count)[:, :3]
-    means = decode_means(
-        join_u16(low, high),
-        np.asarray(meta.means.mins, np.float64),
-        np.asarray(meta.means.maxs, np.float64),
-    )
-    quats = decode_quats(from_image(images[meta.quats.files[0]], count))
-    scales = _lookup(meta.scales.codebook, from_image(images[meta.scales.files[0]], count)[:, :3])
-    sh0_texels = from_image(images[meta.sh0.files[0]], count)
-    sh0 = _lookup(meta.sh0.codebook, sh0_texels[:, :3])
-    opacities = alpha_to_logit(sh0_texels[:, 3] / 255.0)
     shn = meta.shN
     rest = (
-        _decode_sh(shn, images, count) if shn is not None else np.zeros((count, 0, 3), np.float32)
+        decoder.then(shn.files, lambda images: _decode_sh(shn, images, count))
+        if shn is not None
+        else None
     )
-    return Gaussians(means, scales, quats, opacities, sh0, rest)
+    quats = decoder.then(
+        meta.quats.files,
+        lambda images: decode_quats(from_image(images[meta.quats.files[0]], count)),
+    )
+    means = decoder.then(meta.means.files, lambda images: _means(meta.means, images, count))
+    colours = decoder.then(meta.sh0.files, lambda images: _colours(meta.sh0, images, count))
+    scales = decoder.then(
+        meta.scales.files,
+        lambda images: _lookup(
+            meta.scales.codebook, from_image(images[meta.scales.files[0]], count)[:, :3]
+        ),
+    )
+
+    def gaussians() -> Gaussians:
+        sh0, opacities = colours.result()
+        no_rest = np.zeros((count, 0, 3), np.float32)
+        shn_values = rest.result() if rest is not None else no_rest
+        return Gaussians(
+            means.result(), scales.result(), quats.result(), opacities, sh0, shn_values
+        )
+
+    return gaussians
+
+
+def _means(means: Any, images: Mapping[str, U8], count: int) -> F32:
+    """Positions from the low/high byte images over the meta's log-space ranges."""
+    low = from_image(images[means.files[0]], count)[:, :3]
+    high = from_image(images[means.files[1]], count)[:, :3]
+    ranges = np.asarray(means.mins, np.float64), np.asarray(means.maxs, np.float64)
+    return decode_means(low, high, *ranges)
+
+
+def _colours(sh0: Any, images: Mapping[str, U8], count: int) -> tuple[F32, F32]:
+    """(f_dc colours, opacity logits) from the sh0 image: codebook RGB, alpha byte."""
+    texels = from_image(images[sh0.files[0]], count)
+    return _lookup(sh0.codebook, texels[:, :3]), np.take(_LOGIT_OF_BYTE, texels[:, 3])

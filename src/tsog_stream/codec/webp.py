@@ -1,4 +1,4 @@
-"""Lossless WebP planes: exact RGBA in, exact RGBA out, encoded in parallel threads.
+"""Lossless WebP planes: exact RGBA in, exact RGBA out, encoded and decoded in parallel threads.
 
 Pillow releases the GIL while libwebp encodes, so a thread pool uses both cores.
 ``exact=True`` keeps the RGB of texels whose alpha is 0 (sh0 opacity byte 0, padding).
@@ -9,8 +9,9 @@ from __future__ import annotations
 import io
 import os
 import warnings
-from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -21,6 +22,7 @@ from ..errors import SogError
 
 U8 = npt.NDArray[np.uint8]
 Size = tuple[int, int]
+T = TypeVar("T")
 
 WEBP_METHOD = 3
 """libwebp method 0-6 (effort)."""
@@ -95,7 +97,7 @@ def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
         with img:
             if img.size != (width, height):
                 raise SogError(f"header says {width}x{height}, image is {img.size}", where=where)
-            rgba = img.convert("RGBA")
+            rgba = img if img.mode == "RGBA" else img.convert("RGBA")
             arr = np.asarray(rgba, dtype=np.uint8)
     except SogError:
         raise
@@ -111,20 +113,50 @@ def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
     return arr.reshape(height, width, 4)
 
 
-def decode_many(
-    files: Mapping[str, bytes],
-    *,
-    where: str,
-    workers: int | None = None,
-    sizes: Mapping[str, Size] | None = None,
-) -> dict[str, U8]:
-    """Decode several WebP images concurrently (each checked against ``sizes``); errors name
-    the file."""
-    workers = workers or min(len(files), os.cpu_count() or 1) or 1
-    expected = sizes or {}
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = {
-            n: pool.submit(decode_webp, b, where=f"{where}/{n}", expected=expected.get(n))
-            for n, b in files.items()
-        }
-        return {name: fut.result() for name, fut in futures.items()}
+MAX_DECODE_THREADS = 8
+"""Images decoded at once (a chunk has 5-15). More threads than cores measured faster: a
+thread waiting on fresh pages leaves its core to another (docs/design/chunk-codec.md)."""
+
+
+class ImageDecoder:
+    """Decodes WebP images on threads and runs work on them as soon as they are ready.
+
+    Pillow and numpy release the GIL, so one attribute's arithmetic overlaps the next image's
+    decode. Images are decoded in the order work asks for them (declare the heaviest work
+    first); work runs on a pool of its own, so waiting for images never holds up a decode.
+    """
+
+    def __init__(
+        self, files: Mapping[str, bytes], *, where: str, sizes: Mapping[str, Size] | None = None
+    ) -> None:
+        self._files = files
+        self._where = where
+        self._sizes = sizes or {}
+        self._decoding = ThreadPoolExecutor(max_workers=min(len(files), MAX_DECODE_THREADS) or 1)
+        self._working = ThreadPoolExecutor(max_workers=os.cpu_count() or 1)
+        self._images: dict[str, Future[U8]] = {}
+
+    def __enter__(self) -> ImageDecoder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._working.shutdown(wait=True, cancel_futures=True)
+        self._decoding.shutdown(wait=True, cancel_futures=True)
+
+    def then(self, names: Sequence[str], work: Callable[[Mapping[str, U8]], T]) -> Future[T]:
+        """``work`` run on the named images once they are decoded (their errors propagate)."""
+        images = {name: self._decode(name) for name in names}
+        return self._working.submit(
+            lambda: work({name: image.result() for name, image in images.items()})
+        )
+
+    def _decode(self, name: str) -> Future[U8]:
+        """The decoding of one image, started on first request (called from one thread)."""
+        if name not in self._images:
+            self._images[name] = self._decoding.submit(
+                decode_webp,
+                self._files[name],
+                where=f"{self._where}/{name}",
+                expected=self._sizes.get(name),
+            )
+        return self._images[name]
