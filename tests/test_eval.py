@@ -183,7 +183,10 @@ def test_eval_of_a_sog_round_trip_and_of_damaged_positions(
     donut_files: dict[str, Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     src = str(donut_files["source"])
-    sog = _eval_json(capsys, src, str(donut_files["sog"]))["summary"]
+    whole = _eval_json(capsys, src, str(donut_files["sog"]))
+    sizes = [donut_files[name].stat().st_size for name in ("source", "sog")]
+    assert whole["bytes"] == {"reference": sizes[0], "candidate": sizes[1]}
+    sog = whole["summary"]
     bad = _eval_json(capsys, src, str(donut_files["damaged"]))["summary"]
     assert isinstance(sog, dict) and isinstance(bad, dict)
     assert sog["identical"] == 0 and 45.0 < sog["psnr_mean"] < 90.0
@@ -204,7 +207,13 @@ def test_eval_text_table_and_plot(
     rows = [line.split() for line in lines[4:6]]
     assert [r[:2] for r in rows] == [["0", "0"], ["0", "1"]]
     assert all(40.0 < float(r[2]) < 90.0 and 0.99 < float(r[3]) <= 1.0 for r in rows)
-    assert lines[-1] == f"plot: {plot}"
+    assert lines[-2] == f"plot: {plot}"
+    sizes = donut_files["source"].stat().st_size, donut_files["sog"].stat().st_size
+    ratio = sizes[1] / sizes[0]
+    assert (
+        lines[-1]
+        == f"bytes: reference {sizes[0]:,}, candidate {sizes[1]:,} ({ratio:.3g}x the reference)"
+    )
     with Image.open(plot) as image:
         assert image.format == "PNG" and image.size == (800, 420)
         pixels = np.asarray(image.convert("RGB"))

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 from ..constants import EVAL_MAX_TIMES, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
 from ..errors import InputError
 from ..io.files import refuse_existing
-from .common import Integer, Subparsers, add_common, add_input, read_options
+from .common import Integer, Subparsers, add_common, add_input, input_bytes, read_options
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -40,7 +40,9 @@ EVAL_EPILOG = """examples:
 Both inputs are rendered at the same times (centres of --times equal slices of the
 reference's time range; t = 0 for a static scene) from the same cameras (an orbit around the
 reference at each t, or a cameras.json). PSNR is over all pixels and channels of the 8-bit
-images; SSIM uses the 3DGS evaluation's 11x11 Gaussian window, zero-padded (docs/eval.md)."""
+images; SSIM uses the 3DGS evaluation's 11x11 Gaussian window, zero-padded (docs/eval.md).
+Local inputs' sizes are reported too (a folder: its files), so one run gives a point of the
+rate-distortion trade-off: bytes against PSNR."""
 
 
 def _add_views(p: argparse.ArgumentParser, views_help: str) -> None:
@@ -225,13 +227,26 @@ def cmd_eval(args: argparse.Namespace, progress: Progress) -> int:
 
         write_psnr_plot(report, args.plot)
     progress.done()
+    sizes = {"reference": input_bytes(args.reference), "candidate": input_bytes(args.candidate)}
     if args.json:
         out = report.to_dict()
+        out["bytes"] = {name: size or None for name, size in sizes.items()}
         out["plot"] = str(args.plot) if args.plot is not None else None
         print(json.dumps(out, indent=2))
     else:
         print_report(report, args.plot)
+        print(_sizes_line(sizes["reference"], sizes["candidate"]))
     return 0
+
+
+def _sizes_line(reference: int, candidate: int) -> str:
+    """'bytes: reference R, candidate C (0.12x the reference)'; unknown (URLs) said so."""
+
+    def shown(size: int) -> str:
+        return f"{size:,}" if size else "unknown (not a local file)"
+
+    ratio = f" ({candidate / reference:.3g}x the reference)" if reference and candidate else ""
+    return f"bytes: reference {shown(reference)}, candidate {shown(candidate)}{ratio}"
 
 
 def _db(value: float) -> str:
