@@ -1,4 +1,5 @@
-"""A PNG chart of PSNR over time (mean and worst view per time), drawn with Pillow alone."""
+"""PNG line charts drawn with Pillow alone: PSNR over time (``tsog eval --plot``), and any
+labelled series (the benchmarks' rate-distortion curves)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import io
 import math
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 from PIL import Image, ImageDraw, ImageFont
 
@@ -48,64 +50,108 @@ def _y_range(values: Sequence[float]) -> tuple[float, float]:
     return math.floor((low - pad) / step) * step, math.ceil((high + pad) / step) * step
 
 
+@dataclass(frozen=True)
+class Series:
+    """One labelled line of (x, y) points; ``joined=False`` draws dots only (a single peer);
+    ``tags`` are written beside the points (e.g. the quality of each)."""
+
+    label: str
+    colour: tuple[int, int, int]
+    points: Sequence[tuple[float, float]]
+    joined: bool = True
+    tags: Sequence[str] = ()
+
+
 class _Frame:
-    """Maps (t, dB) to pixels inside the plot area."""
+    """Maps (x, y) to pixels inside the plot area."""
 
     def __init__(self, x: tuple[float, float], y: tuple[float, float]) -> None:
         self.x, self.y = x, y
         left, top, right, bottom = MARGIN
         self.box = (left, top, SIZE[0] - right, SIZE[1] - bottom)
 
-    def px(self, t: float, db: float) -> tuple[float, float]:
-        """Pixel of a point; infinite dB sits on the top edge."""
+    def px(self, x: float, y: float) -> tuple[float, float]:
+        """Pixel of a point; an infinite y sits on the top edge."""
         x0, y0, x1, y1 = self.box
-        u = (t - self.x[0]) / (self.x[1] - self.x[0])
-        v = 1.0 if math.isinf(db) else (db - self.y[0]) / (self.y[1] - self.y[0])
+        u = (x - self.x[0]) / (self.x[1] - self.x[0])
+        v = 1.0 if math.isinf(y) else (y - self.y[0]) / (self.y[1] - self.y[0])
         return x0 + u * (x1 - x0), y1 - v * (y1 - y0)
 
 
-def _axes(draw: ImageDraw.ImageDraw, frame: _Frame, font: Font) -> None:
+def _x_range(values: Sequence[float]) -> tuple[float, float]:
+    """The x range shown: the values' span with a little room (one unit around a single x)."""
+    low, high = min(values), max(values)
+    if high <= low:
+        return low - 0.5, high + 0.5
+    pad = 0.04 * (high - low)
+    return low - pad, high + pad
+
+
+def _axes(draw: ImageDraw.ImageDraw, frame: _Frame, font: Font, labels: tuple[str, str]) -> None:
     """Grid, tick labels and axis titles."""
     x0, y0, x1, y1 = frame.box
-    for db in _ticks(*frame.y):
-        _, y = frame.px(frame.x[0], db)
-        draw.line([(x0, y), (x1, y)], fill=GRID)
-        draw.text((x0 - 6, y), f"{db:g}", fill=INK, font=font, anchor="rm")
-    for t in _ticks(*frame.x):
-        x, _ = frame.px(t, frame.y[0])
-        draw.line([(x, y0), (x, y1)], fill=GRID)
-        draw.text((x, y1 + 6), f"{t:g}", fill=INK, font=font, anchor="mt")
+    for y in _ticks(*frame.y):
+        _, py = frame.px(frame.x[0], y)
+        draw.line([(x0, py), (x1, py)], fill=GRID)
+        draw.text((x0 - 6, py), f"{y:g}", fill=INK, font=font, anchor="rm")
+    for x in _ticks(*frame.x):
+        px, _ = frame.px(x, frame.y[0])
+        draw.line([(px, y0), (px, y1)], fill=GRID)
+        draw.text((px, y1 + 6), f"{x:g}", fill=INK, font=font, anchor="mt")
     draw.rectangle(frame.box, outline=INK)
-    draw.text(((x0 + x1) / 2, SIZE[1] - 8), "t (s)", fill=INK, font=font, anchor="mb")
-    draw.text((8, (y0 + y1) / 2), "PSNR\n(dB)", fill=INK, font=font, anchor="lm")
+    draw.text(((x0 + x1) / 2, SIZE[1] - 8), labels[0], fill=INK, font=font, anchor="mb")
+    draw.text((8, (y0 + y1) / 2), labels[1], fill=INK, font=font, anchor="lm")
 
 
-def _series(
-    draw: ImageDraw.ImageDraw,
-    frame: _Frame,
-    points: Sequence[tuple[float, float]],
-    colour: tuple[int, int, int],
-) -> None:
-    """One line with a dot at every sample."""
-    pixels = [frame.px(t, db) for t, db in points]
-    if len(pixels) > 1:
-        draw.line(pixels, fill=colour, width=2)
+def _series(draw: ImageDraw.ImageDraw, frame: _Frame, series: Series, font: Font) -> None:
+    """One line (when joined) with a dot at every sample, and its tags."""
+    pixels = [frame.px(x, y) for x, y in series.points]
+    if series.joined and len(pixels) > 1:
+        draw.line(pixels, fill=series.colour, width=2)
+    radius = 3 if series.joined else 5
     for x, y in pixels:
-        draw.ellipse((x - 3, y - 3, x + 3, y + 3), fill=colour)
+        draw.ellipse((x - radius, y - radius, x + radius, y + radius), fill=series.colour)
+    taken: list[tuple[float, float, float, float]] = []
+    for (x, y), tag in zip(pixels, series.tags, strict=False):
+        box = draw.textbbox((x + 6, y + 4), tag, font=font, anchor="lt")
+        if not any(_overlap(box, other) for other in taken):  # crowded tags: the first shows
+            draw.text((x + 6, y + 4), tag, fill=series.colour, font=font, anchor="lt")
+            taken.append(box)
 
 
-def _legend(draw: ImageDraw.ImageDraw, font: Font, identical: bool) -> None:
+def _overlap(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> bool:
+    """Whether two (left, top, right, bottom) boxes intersect."""
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _legend(draw: ImageDraw.ImageDraw, font: Font, series: Sequence[Series]) -> None:
     """Colour keys above the plot area, right-aligned."""
-    labels = [("mean over views", MEAN_COLOUR), ("worst view", WORST_COLOUR)]
-    x = SIZE[0] - MARGIN[2] - 330
-    for text, colour in labels:
-        draw.line([(x, 40), (x + 22, 40)], fill=colour, width=3)
-        draw.text((x + 28, 40), text, fill=INK, font=font, anchor="lm")
-        x += 150
-    if identical:
-        draw.text(
-            (MARGIN[0], SIZE[1] - 8), "top edge = identical (inf)", fill=INK, font=font, anchor="lb"
-        )
+    widths = [40 + font.getlength(s.label) + 18 for s in series]
+    x = SIZE[0] - MARGIN[2] - sum(widths)
+    for entry, width in zip(series, widths, strict=True):
+        draw.line([(x, 40), (x + 22, 40)], fill=entry.colour, width=3)
+        draw.text((x + 28, 40), entry.label, fill=INK, font=font, anchor="lm")
+        x += width
+
+
+def line_chart(
+    title: str, labels: tuple[str, str], series: Sequence[Series], *, note: str = ""
+) -> Image.Image:
+    """A chart of ``series`` (drawn in order, the last on top) with x and y axis ``labels``."""
+    xs = [x for s in series for x, _ in s.points]
+    ys = [y for s in series for _, y in s.points]
+    frame = _Frame(_x_range(xs), _y_range(ys))
+    image = Image.new("RGB", SIZE, "white")
+    draw = ImageDraw.Draw(image)
+    font = ImageFont.load_default(size=13)
+    draw.text((MARGIN[0], 10), title, fill=INK, font=font)
+    _axes(draw, frame, font, labels)
+    for entry in series:
+        _series(draw, frame, entry, font)
+    _legend(draw, font, series)
+    if note:
+        draw.text((MARGIN[0], SIZE[1] - 8), note, fill=INK, font=font, anchor="lb")
+    return image
 
 
 def psnr_chart(report: EvalReport) -> Image.Image:
@@ -113,24 +159,23 @@ def psnr_chart(report: EvalReport) -> Image.Image:
     summaries = report.times()
     mean = [(s.t, s.psnr_mean) for s in summaries]
     worst = [(s.t, s.psnr_worst) for s in summaries]
-    ts = [s.t for s in summaries]
-    x = (min(ts), max(ts)) if max(ts) > min(ts) else (ts[0] - 0.5, ts[0] + 0.5)
-    frame = _Frame(x, _y_range([db for _, db in mean + worst]))
-    image = Image.new("RGB", SIZE, "white")
-    draw = ImageDraw.Draw(image)
-    font = ImageFont.load_default(size=13)
     names = os.path.basename(report.candidate), os.path.basename(report.reference)
-    title = f"PSNR over time: {names[0]} vs {names[1]}"
-    draw.text((MARGIN[0], 10), title, fill=INK, font=font)
-    _axes(draw, frame, font)
-    _series(draw, frame, worst, WORST_COLOUR)
-    _series(draw, frame, mean, MEAN_COLOUR)
-    _legend(draw, font, any(math.isinf(db) for _, db in mean + worst))
-    return image
+    identical = any(math.isinf(db) for _, db in mean + worst)
+    return line_chart(
+        f"PSNR over time: {names[0]} vs {names[1]}",
+        ("t (s)", "PSNR\n(dB)"),
+        [Series("worst view", WORST_COLOUR, worst), Series("mean over views", MEAN_COLOUR, mean)],
+        note="top edge = identical (inf)" if identical else "",
+    )
+
+
+def write_png(image: Image.Image, path: str | os.PathLike[str]) -> None:
+    """Publish ``image`` atomically as a PNG at ``path``."""
+    buffer = io.BytesIO()
+    image.save(buffer, format="PNG")
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def write_psnr_plot(report: EvalReport, path: str | os.PathLike[str]) -> None:
     """Draw the chart of ``report`` and publish it atomically as a PNG at ``path``."""
-    buffer = io.BytesIO()
-    psnr_chart(report).save(buffer, format="PNG")
-    atomic_write_bytes(path, buffer.getvalue())
+    write_png(psnr_chart(report), path)
