@@ -4,10 +4,13 @@
 
 For FreeTimeGS-style scenes built from the real 45k-Gaussian donut (long, medium and short
 lifespans, linear motion) and the real `.splatv` captures: encodes one TSOG chunk at quality
-100, 90, 75, 50, 25 and 0 and the scene as `.4dgs` (fourdgs defaults), renders each and the
-exact source (tsog_stream.render, CPU) at the same times from the same orbit cameras, and
-reports bytes per Gaussian, mean and worst PSNR, and TSOG's bytes against `.4dgs`'s. Writes
-benchmarks/results/rate.json and the "rate" section of docs/benchmarks.md.
+100, 90, 75, 50, 25 and 0, the paper's 8-bit ablation (timeline and motion codes rounded to
+their high byte), the scene as `.4dgs` (fourdgs defaults) and as a flipbook of one SOG per
+frame at 30 fps (our SOG v2 encoder: splat-transform's sizes within 1 %, bench_codec), renders
+each and the exact source (tsog_stream.render, CPU) at the same times from the same orbit
+cameras, and reports bytes per Gaussian, mean and worst PSNR, and bytes against `.4dgs`'s. Writes
+benchmarks/results/rate.json, the "rate" section of docs/benchmarks.md and one
+rate-distortion chart per scene, docs/rate/<scene>.png.
 """
 
 from __future__ import annotations
@@ -16,8 +19,10 @@ import argparse
 import datetime as dt
 import itertools
 import json
+import re
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,16 +31,29 @@ import numpy as np
 from bench_quality import dynamic, score
 from common import sample, write_section
 from tsog_stream.codec.bundle import bundle_bytes
-from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.codec.chunk import decode_chunk, encode_chunk, read_meta
+from tsog_stream.codec.webp import decode_webp, encode_webp
 from tsog_stream.errors import TsogError
 from tsog_stream.io.fourdgs import encode_4dgs, parse_4dgs
 from tsog_stream.io.readers import load_scene
-from tsog_stream.model import Scene
+from tsog_stream.model import Gaussians, Scene
 from tsog_stream.render.camera import scene_orbit
+from tsog_stream.render.plot import Series, line_chart, write_png
 from tsog_stream.synthetic import freetime_scene
 from tsog_stream.temporal import evaluate_at, time_range
 
-RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results"
+CHARTS = REPO / "docs" / "rate"
+TSOG_COLOUR = (31, 119, 180)
+PEER_COLOUR = (214, 39, 40)
+FLIPBOOK_COLOUR = (44, 160, 44)
+ABLATION_COLOUR = (148, 103, 189)
+FLIPBOOK_FPS = 30.0
+OFF_CHART = 3.0
+"""A variant over this many times TSOG's largest size is named under the chart, not drawn."""
+ABLATION = "TSOG q100, 8-bit timeline and motion"
+FLIPBOOK = f"SOG per frame, {FLIPBOOK_FPS:g} fps"
 QUALITIES = (100, 90, 75, 50, 25, 0)
 LIFESPANS = {"long": (0.5, 1.0), "medium": (0.05, 0.2), "short": (0.005, 0.02)}
 SIZE = (320, 240)
@@ -80,6 +98,19 @@ def rows_for(name: str, scene: Scene, views: int, times: int) -> list[dict[str, 
             }
         )
         print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    files = eight_bit(encode_chunk(scene))
+    got = score(dynamic(scene), dynamic(decode_chunk(files)), ts, cameras)
+    size = len(bundle_bytes(files))
+    rows.append(
+        {"scene": name, "variant": ABLATION, "bytes": size, "per_gaussian": size / n, **got}
+    )
+    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    size, shown = flipbook(scene, ts)
+    got = score(dynamic(scene), shown, ts, cameras)
+    rows.append(
+        {"scene": name, "variant": FLIPBOOK, "bytes": size, "per_gaussian": size / n, **got}
+    )
+    print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
     try:
         data, _ = encode_4dgs(scene, lossy=True)  # its defaults (it reorders the Gaussians)
         got = score(dynamic(scene), dynamic(parse_4dgs(data).scene), ts, cameras)
@@ -98,6 +129,49 @@ def rows_for(name: str, scene: Scene, views: int, times: int) -> list[dict[str, 
     return rows
 
 
+def eight_bit(files: dict[str, bytes]) -> dict[str, bytes]:
+    """The paper's 8-bit ablation of a TSOG chunk: every timeline and motion code rounded to its
+    high byte (the ``_l`` planes all zero); the SOG attributes as they were."""
+    meta = read_meta(files, where="ablation")
+    pairs = [(tuple(meta.timeline.files), 2)] if meta.timeline is not None else []
+    for entry in (meta.temporal or {}).values():
+        channels = len(entry.mins[0])
+        pairs += [(tuple(entry.files[k : k + 2]), channels) for k in range(0, len(entry.files), 2)]
+    out = dict(files)
+    for (low_name, high_name), channels in pairs:
+        low = decode_webp(files[low_name], where=low_name).copy()
+        high = decode_webp(files[high_name], where=high_name).copy()
+        codes = low[..., :channels].astype(np.int64) | (high[..., :channels].astype(np.int64) << 8)
+        high[..., :channels] = np.minimum((codes + 128) >> 8, 255)
+        low[..., :channels] = 0
+        out[low_name], out[high_name] = encode_webp(low), encode_webp(high)
+    return out
+
+
+def flipbook(scene: Scene, ts: list[float]) -> tuple[int, Callable[[float], Gaussians]]:
+    """(bytes, the frame shown at t) of the scene as one SOG per frame at FLIPBOOK_FPS, each
+    frame the Gaussians visible at its start (an empty frame costs nothing)."""
+    assert scene.timeline is not None
+    first, last = time_range(scene.timeline)
+    count = int(np.floor((last - first) * FLIPBOOK_FPS)) + 1
+    wanted = {min(int((t - first) * FLIPBOOK_FPS), count - 1) for t in ts}
+    size, kept = 0, {}
+    for k in range(count):
+        frame = evaluate_at(scene, first + k / FLIPBOOK_FPS)
+        if len(frame) == 0:
+            continue
+        files = encode_chunk(Scene(frame))
+        size += len(bundle_bytes(files))
+        if k in wanted:
+            kept[k] = decode_chunk(files).gaussians
+    empty = evaluate_at(scene, first).subset(np.zeros(0, np.intp))
+
+    def shown(t: float) -> Gaussians:
+        return kept.get(min(int((t - first) * FLIPBOOK_FPS), count - 1), empty)
+
+    return size, shown
+
+
 def at_psnr(rows: list[dict[str, Any]], target: float) -> tuple[float, bool] | None:
     """TSOG bytes at ``target`` PSNR, linearly interpolated between the measured qualities,
     and whether that is exact (False: even the lowest quality is above the target, so equal
@@ -111,16 +185,66 @@ def at_psnr(rows: list[dict[str, Any]], target: float) -> tuple[float, bool] | N
     return None
 
 
+def chart_name(scene: str) -> str:
+    """The chart file of a scene: its name in lower case, runs of other characters as '-'."""
+    return re.sub(r"[^a-z0-9]+", "-", scene.lower()).strip("-") + ".png"
+
+
+def write_charts(all_rows: list[dict[str, Any]]) -> None:
+    """One PNG per scene: TSOG's PSNR against bytes per Gaussian over the qualities, and the
+    other variants' points (one far off the chart, a flipbook, is named below it instead)."""
+    CHARTS.mkdir(parents=True, exist_ok=True)
+    for name in dict.fromkeys(r["scene"] for r in all_rows):
+        rows = [r for r in all_rows if r["scene"] == name and "bytes" in r]
+        tsog = sorted(
+            (r["per_gaussian"], r["psnr_mean"], r["quality"]) for r in rows if "quality" in r
+        )
+        points = [(size, psnr) for size, psnr, _ in tsog]
+        tags = [f"q{quality}" for _, _, quality in tsog]
+        series = [Series("TSOG, quality 0 to 100", TSOG_COLOUR, points, tags=tags)]
+        widest = OFF_CHART * max(size for size, _ in points)
+        off = [r for r in rows if r["per_gaussian"] > widest]
+        for variant, label, colour in (
+            (ABLATION, "8-bit timeline and motion (paper's ablation)", ABLATION_COLOUR),
+            (FLIPBOOK, FLIPBOOK, FLIPBOOK_COLOUR),
+            (".4dgs", ".4dgs (fourdgs defaults)", PEER_COLOUR),
+        ):
+            series += [
+                Series(label, colour, [(r["per_gaussian"], r["psnr_mean"])], joined=False)
+                for r in rows
+                if r["variant"] == variant and r not in off
+            ]
+        note = "; ".join(
+            f"off the chart: {r['variant']} {r['per_gaussian']:.0f} B, {r['psnr_mean']:.1f} dB"
+            for r in off
+        )
+        image = line_chart(
+            f"{name}: rendered PSNR (mean over views and times) against size",
+            ("bytes per Gaussian", "PSNR\n(dB)"),
+            series,
+            note=note,
+        )
+        write_png(image, CHARTS / chart_name(name))
+
+
 def markdown(all_rows: list[dict[str, Any]], stamp: str, views: int, times: int) -> str:
     """The rate section of docs/benchmarks.md."""
     lines = [
         "## Rate and distortion: `--quality` against `.4dgs`",
         "",
-        f"Run {stamp} (`benchmarks/bench_rate.py`): one TSOG chunk per scene at each quality "
-        f"and the scene as `.4dgs` (fourdgs defaults), each rendered with the CPU rasterizer "
+        f"Run {stamp} (`benchmarks/bench_rate.py`): one TSOG chunk per scene at each quality, "
+        "the paper's 8-bit ablation (TSOG q100 with every timeline and motion code rounded to "
+        f"its high byte), the scene as `.4dgs` (fourdgs defaults) and as one SOG per frame at "
+        f"{FLIPBOOK_FPS:g} fps (a flipbook; our SOG v2 encoder), each rendered with the CPU rasterizer "
         f"against the exact source at {times} times x {views} orbit views ({SIZE[0]}x{SIZE[1]}); "
         "PSNR in dB (mean over the images; worst image). *x .4dgs*: bytes against `.4dgs`'s; "
         "at `.4dgs`'s PSNR, interpolated between qualities (< when even quality 0 is above it).",
+        "Charts: "
+        + ", ".join(
+            f"[{name}](rate/{chart_name(name)})"
+            for name in dict.fromkeys(r["scene"] for r in all_rows)
+        )
+        + ".",
         "",
         "| scene | variant | B/Gaussian | PSNR mean | PSNR worst | x .4dgs bytes | encode s |",
         "|---|---|---:|---:|---:|---:|---:|",
@@ -166,6 +290,7 @@ def main() -> int:
         saved = json.loads((RESULTS / "rate.json").read_text())
         body = markdown(saved["rows"], saved["date"], args.views, args.times)
         write_section("rate", body, "bench_rate.py")
+        write_charts(saved["rows"])
         return 0
     rows: list[dict[str, Any]] = []
     for name, scene in scenes():
@@ -174,6 +299,7 @@ def main() -> int:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "rate.json").write_text(json.dumps({"date": stamp, "rows": rows}, indent=2))
     write_section("rate", markdown(rows, stamp, args.views, args.times), "bench_rate.py")
+    write_charts(rows)
     return 0
 
 
