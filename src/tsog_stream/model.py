@@ -18,32 +18,7 @@ from .constants import SH_BANDS_BY_COEFFS, SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
 
 F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
 Index = npt.NDArray[np.intp] | npt.NDArray[np.bool_]
-
-
-def quat_to_rotmat(quats: npt.NDArray[np.floating]) -> F64:
-    """Rotation matrices (N, 3, 3) of (w, x, y, z) quaternions, normalised first."""
-    q = quats.astype(np.float64)
-    norms = np.sqrt(np.einsum("ni,ni->n", q, q))[:, None]
-    w, x, y, z = (q / np.where(norms > 0, norms, 1.0)).T
-    r = np.empty((q.shape[0], 3, 3), np.float64)
-    r[:, 0, 0], r[:, 0, 1], r[:, 0, 2] = (
-        1 - 2 * (y * y + z * z),
-        2 * (x * y - w * z),
-        2 * (x * z + w * y),
-    )
-    r[:, 1, 0], r[:, 1, 1], r[:, 1, 2] = (
-        2 * (x * y + w * z),
-        1 - 2 * (x * x + z * z),
-        2 * (y * z - w * x),
-    )
-    r[:, 2, 0], r[:, 2, 1], r[:, 2, 2] = (
-        2 * (x * z - w * y),
-        2 * (y * z + w * x),
-        1 - 2 * (x * x + y * y),
-    )
-    return r
 
 
 def _as_f32(name: str, value: npt.ArrayLike, shape_tail: tuple[int, ...]) -> F32:

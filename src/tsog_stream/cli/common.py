@@ -48,8 +48,8 @@ QUALITY_HELP = (
     "0..100: how precisely to keep positions, rotations, scales, colours, opacity, lifespans "
     "and motion (default 100: as today). Lower keeps only what fits an error budget per "
     "Gaussian: at 50, positions "
-    "move by at most 1/8 of a Gaussian's width along each axis (its smallest sigma across its "
-    "thinnest direction) and lifespans by 1/16 of its temporal scale "
+    "move by at most 1/8 of a Gaussian's smallest sigma and lifespans by 1/16 of its temporal "
+    "scale "
     "(docs/spec.md 5.1)"
 )
 

@@ -7,13 +7,11 @@ spends almost nothing on them), and every SOG/TSOG reader decodes the chunk unch
 quality level guarantees is stated in docs/spec.md §5.1.
 
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
-- position: ``f * POSITION_AT_ZERO`` times its width along each axis (x, y, z), the width
-  being ``1 / sqrt((Σ⁻¹)_jj)``: its smallest sigma where the axis crosses its thinnest
-  direction (so a thin Gaussian never moves off a surface it lies on: the mean sigma cost
-  10 dB on a .splatv capture), more along its plane (``axes``); at every time it is visible
-  inside the scene's time range; when it moves, a third each for the base position, the orders
-  of its motion (over that part of its lifespan) and the shift of its reference time (times
-  its top speed, on the smallest-sigma budget);
+- position: ``f * POSITION_AT_ZERO`` times its smallest sigma (so a thin Gaussian never
+  crosses a surface it lies on: the mean sigma cost 10 dB on a .splatv capture), at every
+  time it is visible inside the scene's time range; when it moves, a third each for the
+  base position, the orders of its motion (over that part of its lifespan) and the shift of
+  its reference time (times its top speed);
 - rotation: the turn that moves its ellipsoid's surface by the position budget;
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
   COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
@@ -34,7 +32,7 @@ import numpy.typing as npt
 
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
-from ..model import Scene, Timeline, TimelineType, quat_to_rotmat
+from ..model import Scene, Timeline, TimelineType
 from ..temporal import lifespans, reference_times, scale_cap, time_range
 
 F64 = npt.NDArray[np.float64]
@@ -100,11 +98,7 @@ class Budgets:
     """The error each Gaussian of a chunk may take (in texel order)."""
 
     position: F64
-    """(N,) scene units a position may move, in all, at any time it is visible, along the
-    Gaussian's thinnest direction (f * POSITION_AT_ZERO * its smallest sigma)."""
-    axes: F64
-    """(N, 3) how many times ``position`` each world axis may move: the Gaussian's width
-    along that axis over its smallest sigma (>= 1; 1 for a round Gaussian)."""
+    """(N,) scene units a position may move, in all, at any time it is visible."""
     time: F64
     """(N, 2) how far its timeline channels may move (R: frame/start/centre, G: duration/
     scale), in the timeline's units; the reference time's share keeps the moving position
@@ -149,7 +143,6 @@ class Budgets:
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
         return cls(
             position,
-            axis_widths(scene.gaussians.scales, scene.gaussians.quats),
             time,
             reach,
             motion is not None,
@@ -160,27 +153,12 @@ class Budgets:
         )
 
     def base_position(self) -> F64:
-        """(N, 3) what the base position may move on each axis: a third of the budget when
-        the chunk has motion."""
-        share = self.position / 3 if self.moving else self.position
-        return share[:, None] * self.axes
+        """What the base position may move: a third of the budget when the chunk has motion."""
+        return self.position / 3 if self.moving else self.position
 
     def motion_share(self, orders: int) -> F64:
-        """(N, 3) what each order of the motion may move the position over the lifespan, on
-        each axis."""
-        return (self.position / (3 * orders))[:, None] * self.axes
-
-
-def axis_widths(scales: npt.ArrayLike, quats: npt.ArrayLike) -> F64:
-    """(N, 3) each Gaussian's width along the world axes, ``1 / sqrt((Σ⁻¹)_jj)``, over its
-    smallest sigma: moving by that many smallest sigmas along axis j moves it by at most one
-    smallest sigma in its own metric, whatever its orientation."""
-    sigmas = np.exp(np.asarray(scales, np.float64))
-    rotations = quat_to_rotmat(np.asarray(quats, np.float64))
-    inverse_diagonal = np.einsum("nji,ni->nj", rotations**2, 1.0 / sigmas**2)
-    with np.errstate(divide="ignore"):
-        widths = 1.0 / (sigmas.min(axis=1)[:, None] * np.sqrt(inverse_diagonal))
-    return np.asarray(np.clip(np.nan_to_num(widths, nan=1.0, posinf=1.0), 1.0, None))
+        """What each order of the motion may move the position over the lifespan."""
+        return self.position / (3 * orders)
 
 
 def _top_speed(coeffs: F64, reach: F64) -> F64:
@@ -221,9 +199,9 @@ def _reach(timeline: Timeline | None) -> F64:
 
 
 def coarsen_positions(codes: U16, mins: F64, maxs: F64, means: F64, budget: F64) -> U16:
-    """Position codes (SOG's symmetric-log domain) coarsened within ``budget`` ((N, 3) scene
-    units per Gaussian and axis): d(log)/dx = 1 / (1 + |x|) turns it into a log-domain one."""
-    log_budget = budget / (1.0 + np.abs(means))
+    """Position codes (SOG's symmetric-log domain) coarsened within ``budget`` scene units per
+    Gaussian: d(log)/dx = 1 / (1 + |x|) turns the budget into a log-domain one per axis."""
+    log_budget = budget[:, None] / (1.0 + np.abs(means))
     return coarsen(codes, to_codes(log_budget, mins, maxs))
 
 
@@ -271,17 +249,14 @@ def coarsen_motion(
     budget (a third of it, split evenly over the ``orders``)."""
     share = budgets.motion_share(orders)
     with np.errstate(divide="ignore"):
-        value = np.where(
-            budgets.reach[:, None] > 0, share / budgets.reach[:, None] ** order, np.inf
-        )
-    return coarsen(codes, to_codes(value, mins, maxs))
+        value = np.where(budgets.reach > 0, share / budgets.reach**order, np.inf)
+    return coarsen(codes, to_codes(value[:, None], mins, maxs))
 
 
 __all__ = [
     "MAX_TURN",
     "QUALITY_MAX",
     "Budgets",
-    "axis_widths",
     "budget_fraction",
     "check_quality",
     "coarsen",

@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 import numpy.typing as npt
 
-from ..model import Gaussians, quat_to_rotmat
+from ..model import Gaussians
 from .camera import Camera
 from .sh import sh_colors
 
@@ -50,6 +50,30 @@ class Projected:
     depth: F64
     radius: I64
     rect: I64
+
+
+def quat_to_rotmat(quats: npt.NDArray[np.floating]) -> F64:
+    """Rotation matrices (N, 3, 3) of (w, x, y, z) quaternions, normalised first."""
+    q = quats.astype(np.float64)
+    norms = np.sqrt(np.einsum("ni,ni->n", q, q))[:, None]
+    w, x, y, z = (q / np.where(norms > 0, norms, 1.0)).T
+    r = np.empty((q.shape[0], 3, 3), np.float64)
+    r[:, 0, 0], r[:, 0, 1], r[:, 0, 2] = (
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - w * z),
+        2 * (x * z + w * y),
+    )
+    r[:, 1, 0], r[:, 1, 1], r[:, 1, 2] = (
+        2 * (x * y + w * z),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - w * x),
+    )
+    r[:, 2, 0], r[:, 2, 1], r[:, 2, 2] = (
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    )
+    return r
 
 
 def covariances_3d(scales: npt.NDArray[np.floating], quats: npt.NDArray[np.floating]) -> F64:
