@@ -103,10 +103,22 @@ def test_frame_ids_stay_exact() -> None:
 
 
 def test_coarsen_rounds_to_the_coarsest_grid_within_the_tolerance() -> None:
-    codes = np.array([[0, 1000, 65535, 40000]], np.uint16)
+    """Grids of 1, 8 and 512 codes laid through each channel's most frequent code (here 0,
+    1000, 65535 and 1000): a code rounding out of the range keeps its value."""
+    codes = np.array([[0, 1000, 65535, 40000]] + [[0, 1000, 65535, 1000]] * 2, np.uint16)
     out = coarsen(codes, np.array([[0.4, 7.9, 300.0, 300.0]]))
-    assert out.tolist() == [[0, 1000, 65535, 39936]]  # grids 1, 8, 512 (65536 too far), 512
-    assert np.all(np.abs(out.astype(int) - codes.astype(int)) <= [[0, 4, 0, 256]])
+    assert out[0].tolist() == [0, 1000, 65535, 1000 + 76 * 512]  # 39912, 88 codes away
+    assert out[1:].tolist() == codes[1:].tolist()  # the shared codes stay as they are
+    assert np.all(np.abs(out.astype(int) - codes.astype(int)) <= [[0, 4, 256, 256]])
+
+
+def test_a_value_many_gaussians_share_stays_one_value() -> None:
+    """A zero rate of turn for most Gaussians, each with its own step, still costs nothing."""
+    rng = np.random.default_rng(0)
+    codes = np.full((1000, 1), 32771, np.uint16)
+    codes[:50, 0] = rng.integers(0, 65536, 50)
+    out = coarsen(codes, rng.uniform(0, 2000, (1000, 1)))
+    assert np.all(out[50:] == 32771) and np.all(np.abs(out.astype(int) - codes) <= 2000)
 
 
 @pytest.mark.parametrize("value", [-1, 101, 50.5, True])

@@ -16,6 +16,9 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
   COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
   entries of the same 256-entry codebook; opacity within ``f * ALPHA_AT_ZERO``;
+- the motion of rotations, scales, colours and opacity (their temporal coefficients): over
+  the Gaussian's lifespan, each may add as much again as its base may move (the rotation
+  budget; the scale, colour and opacity slacks), split evenly over the orders;
 - timeline (type 2 centre and scale, type 1 start and duration): ``f * TIME_AT_ZERO`` times
   its temporal scale (type 2 scale as stored; type 1 duration), the reference time less when
   the position budget asks, and not at all when other attributes move (their polynomials
@@ -73,16 +76,30 @@ def budget_fraction(quality: int) -> float:
 
 
 def coarsen(codes: CodesT, tolerance: F64) -> CodesT:
-    """Each code (16-bit, or 8-bit) rounded to the coarsest power-of-two grid whose rounding
-    error is within its ``tolerance`` (in codes; broadcast against ``codes``). A code that would
-    round past the largest code keeps its value."""
+    """Each code (16-bit, or 8-bit) rounded to the coarsest grid of power-of-two steps whose
+    rounding error is within its ``tolerance`` (in codes; broadcast against ``codes``). The
+    grids are laid through each channel's most frequent code, so a value many Gaussians share
+    (a zero rate of turn) stays one value whatever their steps; a code that would round out of
+    the code range keeps its value."""
     top = int(np.iinfo(codes.dtype).max)
     tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(top)), codes.shape)
     bits = np.floor(np.log2(np.maximum(2.0 * tol, 1.0)))
     grid = np.left_shift(1, np.clip(bits, 0, top.bit_length() - 1).astype(np.int64))
     q = codes.astype(np.int64)
-    rounded = (q + grid // 2) // grid * grid
-    return np.where(rounded > top, q, rounded).astype(codes.dtype)
+    anchor = most_frequent(codes)
+    rounded = (q - anchor + grid // 2) // grid * grid + anchor
+    return np.where((rounded > top) | (rounded < 0), q, rounded).astype(codes.dtype)
+
+
+def most_frequent(codes: CodesT) -> npt.NDArray[np.int64]:
+    """The most frequent code of each channel (the columns of a 2-D array; all of a 1-D one),
+    shaped to broadcast against ``codes``; 0 when there are none."""
+    columns = codes.reshape(len(codes), -1)
+    modes = [
+        int(np.bincount(columns[:, c]).argmax()) if len(columns) else 0
+        for c in range(columns.shape[1])
+    ]
+    return np.asarray(modes, np.int64).reshape(codes.shape[1:])
 
 
 def to_codes(tolerance: F64, mins: F64, maxs: F64) -> F64:
@@ -156,9 +173,24 @@ class Budgets:
         """What the base position may move: a third of the budget when the chunk has motion."""
         return self.position / 3 if self.moving else self.position
 
-    def motion_share(self, orders: int) -> F64:
-        """What each order of the motion may move the position over the lifespan."""
-        return self.position / (3 * orders)
+    def change_over_lifespan(self, attr: str, channels: int) -> F64:
+        """(N, channels) how far the motion of ``attr`` may move it over the lifespan, in the
+        units its coefficients are stored in (docs/spec.md §6): means a third of the position
+        budget; quats the rotation budget as quaternion components (as the base's bytes);
+        scales and sh0 colours their slacks; opacity (logit; sh0's A channel) four times the
+        alpha slack (d alpha / d logit <= 1/4)."""
+        n = len(self.position)
+        if attr == "means":
+            per_gaussian = self.position / 3
+        elif attr == "quats":
+            per_gaussian = self.rotation / (4 * np.sqrt(3.0))
+        else:
+            slack = {"scales": self.scale_slack, "opacity": 4 * self.alpha_slack}
+            per_gaussian = np.full(n, slack.get(attr, self.colour_slack))
+        out = np.repeat(per_gaussian[:, None], channels, axis=1)
+        if attr == "sh0" and channels == 4:
+            out[:, 3] = 4 * self.alpha_slack  # opacity's coefficients in sh0's A channel
+        return out
 
 
 def _top_speed(coeffs: F64, reach: F64) -> F64:
@@ -242,15 +274,23 @@ def coarsen_timeline(codes: U16, mins: F64, maxs: F64, budget: F64) -> U16:
 
 
 def coarsen_motion(
-    codes: U16, mins: F64, maxs: F64, *, order: int, orders: int, budgets: Budgets
+    codes: U16,
+    mins: F64,
+    maxs: F64,
+    *,
+    attr: str,
+    order: int,
+    orders: int,
+    budgets: Budgets,
 ) -> U16:
-    """Codes of order ``order`` of the means' motion coarsened so that, over the Gaussian's own
-    lifespan (``|t - t_ref| <= reach``), it moves the position by at most its share of the
-    budget (a third of it, split evenly over the ``orders``)."""
-    share = budgets.motion_share(orders)
+    """Codes of order ``order`` of the motion of ``attr`` coarsened so that, over the
+    Gaussian's own lifespan (``|t - t_ref| <= reach``), it moves the attribute by at most its
+    share of :meth:`Budgets.change_over_lifespan`, split evenly over the ``orders``."""
+    share = budgets.change_over_lifespan(attr, codes.shape[1]) / orders
+    reach = budgets.reach[:, None] ** order
     with np.errstate(divide="ignore"):
-        value = np.where(budgets.reach > 0, share / budgets.reach**order, np.inf)
-    return coarsen(codes, to_codes(value[:, None], mins, maxs))
+        value = np.where(reach > 0, share / np.where(reach > 0, reach, 1.0), np.inf)
+    return coarsen(codes, to_codes(value, mins, maxs))
 
 
 __all__ = [

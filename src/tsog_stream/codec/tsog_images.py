@@ -162,9 +162,15 @@ def encode_temporal(
             values = coeffs[:, order - 1, :]
             mins, maxs = _ranges(values)
             codes = quantize_u16(values, mins, maxs)
-            if budgets is not None and attr == "means":
+            if budgets is not None:
                 codes = coarsen_motion(
-                    codes, mins, maxs, order=order, orders=coeffs.shape[1], budgets=budgets
+                    codes,
+                    mins,
+                    maxs,
+                    attr=attr,
+                    order=order,
+                    orders=coeffs.shape[1],
+                    budgets=budgets,
                 )
             low, high = _u16_texels(codes)
             names = (C.temporal_file(attr, order, "l"), C.temporal_file(attr, order, "u"))

@@ -99,7 +99,7 @@ def _axes(draw: ImageDraw.ImageDraw, frame: _Frame, font: Font, labels: tuple[st
         draw.line([(px, y0), (px, y1)], fill=GRID)
         draw.text((px, y1 + 6), f"{x:g}", fill=INK, font=font, anchor="mt")
     draw.rectangle(frame.box, outline=INK)
-    draw.text(((x0 + x1) / 2, SIZE[1] - 8), labels[0], fill=INK, font=font, anchor="mb")
+    draw.text((x1, SIZE[1] - 8), labels[0], fill=INK, font=font, anchor="rb")  # notes: left
     draw.text((8, (y0 + y1) / 2), labels[1], fill=INK, font=font, anchor="lm")
 
 
