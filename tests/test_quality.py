@@ -19,6 +19,7 @@ from tsog_stream.codec.precision import (
     POSITION_AT_ZERO,
     SCALE_AT_ZERO,
     TIME_AT_ZERO,
+    Budgets,
     budget_fraction,
     coarsen,
 )
@@ -26,7 +27,7 @@ from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
 from tsog_stream.model import Scene, Timeline, TimelineType
 from tsog_stream.opacity import logit_to_alpha
-from tsog_stream.synthetic import freetime_scene, static_gaussians
+from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
 from tsog_stream.temporal import lifespans, reference_times, time_range
 
 
@@ -139,3 +140,31 @@ def test_the_cli_takes_quality(
         main(["encode", str(src), str(tmp_path / "c.sog"), "--quality", "101"])
     assert exc.value.code == 2
     assert "from 0 to 100" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("quality", [75, 0])
+def test_motion_of_every_attribute_stays_within_its_budget(quality: int) -> None:
+    """Each order k of a rotation's, scale's, colour's or opacity's motion moves it by at most
+    its share over the lifespan: |Δc_k| reach^k <= (what the base may move) / orders."""
+    dynamic = ("means", "quats", "scales", "sh0", "opacity")
+    scene = small_scene(TimelineType.CENTER_SCALE, dynamic=dynamic, seed=4)
+    ordered = scene.subset(texel_order(scene))
+    budgets = Budgets.of(ordered, quality)
+    assert budgets is not None
+    full = decode_chunk(encode_chunk(scene)).temporal
+    cut = decode_chunk(encode_chunk(scene, quality=quality)).temporal
+    f = budget_fraction(quality)
+    shares = {
+        "quats": budgets.rotation[:, None] / (4 * np.sqrt(3.0)),
+        "scales": np.full((len(scene), 1), f * SCALE_AT_ZERO),
+        "sh0": np.full((len(scene), 1), f * COLOUR_AT_ZERO / SH_C0),
+        "opacity": np.full((len(scene), 1), 4 * f * ALPHA_AT_ZERO),
+    }
+    moved_any = False
+    for attr, share in shares.items():
+        orders = full[attr].shape[1]
+        for k in range(orders):
+            change = np.abs(cut[attr][:, k] - full[attr][:, k]) * budgets.reach[:, None] ** (k + 1)
+            assert np.all(change <= share / orders * 1.0001 + 1e-6), (attr, k)
+            moved_any |= bool(np.any(change > 0))
+    assert moved_any  # the budgets are used
