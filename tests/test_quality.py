@@ -24,7 +24,7 @@ from tsog_stream.codec.precision import (
     coarsen,
 )
 from tsog_stream.constants import SH_C0
-from tsog_stream.errors import InputError
+from tsog_stream.errors import InputError, TsogError
 from tsog_stream.model import Scene, Timeline, TimelineType
 from tsog_stream.opacity import logit_to_alpha
 from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
@@ -107,10 +107,12 @@ def test_coarsen_rounds_to_the_coarsest_grid_within_the_tolerance() -> None:
     """Grids of 1, 8 and 512 codes laid through each channel's most frequent code (here 0,
     1000, 65535 and 1000): a code rounding out of the range keeps its value."""
     codes = np.array([[0, 1000, 65535, 40000]] + [[0, 1000, 65535, 1000]] * 2, np.uint16)
-    out = coarsen(codes, np.array([[0.4, 7.9, 300.0, 300.0]]))
+    out = coarsen(codes, np.array([[0.4, 7.9, 300.0, 300.0]]), shared=True)
     assert out[0].tolist() == [0, 1000, 65535, 1000 + 76 * 512]  # 39912, 88 codes away
     assert out[1:].tolist() == codes[1:].tolist()  # the shared codes stay as they are
     assert np.all(np.abs(out.astype(int) - codes.astype(int)) <= [[0, 4, 256, 256]])
+    plain = coarsen(codes[:1], np.array([[0.4, 7.9, 300.0, 300.0]]))  # grids through code 0
+    assert plain.tolist() == [[0, 1000, 65535, 39936]]
 
 
 def test_a_value_many_gaussians_share_stays_one_value() -> None:
@@ -118,7 +120,7 @@ def test_a_value_many_gaussians_share_stays_one_value() -> None:
     rng = np.random.default_rng(0)
     codes = np.full((1000, 1), 32771, np.uint16)
     codes[:50, 0] = rng.integers(0, 65536, 50)
-    out = coarsen(codes, rng.uniform(0, 2000, (1000, 1)))
+    out = coarsen(codes, rng.uniform(0, 2000, (1000, 1)), shared=True)
     assert np.all(out[50:] == 32771) and np.all(np.abs(out.astype(int) - codes) <= 2000)
 
 
@@ -168,3 +170,26 @@ def test_motion_of_every_attribute_stays_within_its_budget(quality: int) -> None
             assert np.all(change <= share / orders * 1.0001 + 1e-6), (attr, k)
             moved_any |= bool(np.any(change > 0))
     assert moved_any  # the budgets are used
+
+
+def test_non_finite_values_get_no_budget_and_no_warning() -> None:
+    """Hostile values (pytest makes warnings errors): NaN and infinite scales, rotations,
+    colours, opacities and motion encode at quality 0 exactly as they do at 100."""
+    dynamic = ("means", "quats", "scales", "sh0", "opacity")
+    scene = small_scene(TimelineType.CENTER_SCALE, dynamic=dynamic, seed=5)
+    g = scene.gaussians
+    g.scales[0] = np.nan
+    g.scales[1] = (-np.inf, 0.0, 0.0)
+    g.scales[2] = np.inf
+    g.quats[3] = np.nan
+    g.sh0[4] = np.inf
+    g.opacities[5] = -np.inf
+    for attr in ("quats", "scales", "sh0", "opacity"):
+        scene.temporal[attr][6] = np.nan
+    outcomes: list[int | str] = []
+    for quality in (100, 0):
+        try:
+            outcomes.append(len(decode_chunk(encode_chunk(scene, quality=quality))))
+        except TsogError as exc:  # NaN motion: refused alike (by the meta schema, today)
+            outcomes.append(type(exc).__name__)
+    assert outcomes[0] == outcomes[1]

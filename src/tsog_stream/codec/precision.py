@@ -55,7 +55,11 @@ QUAT_STEP = float(np.sqrt(2.0)) / 255.0
 """A smallest-three quaternion byte's step in component units (SOG v2 quats.webp)."""
 
 QUALITY_MAX = 100
-"""Today's precision: every code keeps its 16 bits."""
+"""Today's precision: every code keeps its 16 bits (the library's default)."""
+DEFAULT_QUALITY = 90
+"""``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
+bench_rate.py): on every scene measured its rendered PSNR is within 0.2 dB of quality 100's
+(worst view unchanged) for 0.5-8.5 % fewer bytes; 75 already costs 0.6-2.8 dB."""
 POSITION_AT_ZERO = 0.5
 """At quality 0 a Gaussian's position may move by this fraction of its smallest sigma."""
 TIME_AT_ZERO = 0.25
@@ -75,18 +79,18 @@ def budget_fraction(quality: int) -> float:
     return (1.0 - check_quality(quality) / QUALITY_MAX) ** 2
 
 
-def coarsen(codes: CodesT, tolerance: F64) -> CodesT:
+def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
     """Each code (16-bit, or 8-bit) rounded to the coarsest grid of power-of-two steps whose
-    rounding error is within its ``tolerance`` (in codes; broadcast against ``codes``). The
-    grids are laid through each channel's most frequent code, so a value many Gaussians share
-    (a zero rate of turn) stays one value whatever their steps; a code that would round out of
-    the code range keeps its value."""
+    rounding error is within its ``tolerance`` (in codes; broadcast against ``codes``); a code
+    that would round out of the code range keeps its value. With ``shared`` the grids are laid
+    through each channel's most frequent code, so a value many Gaussians share (a zero rate of
+    turn) stays one value whatever their steps; else through code 0."""
     top = int(np.iinfo(codes.dtype).max)
     tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(top)), codes.shape)
     bits = np.floor(np.log2(np.maximum(2.0 * tol, 1.0)))
     grid = np.left_shift(1, np.clip(bits, 0, top.bit_length() - 1).astype(np.int64))
     q = codes.astype(np.int64)
-    anchor = most_frequent(codes)
+    anchor = most_frequent(codes) if shared else 0
     rounded = (q - anchor + grid // 2) // grid * grid + anchor
     return np.where((rounded > top) | (rounded < 0), q, rounded).astype(codes.dtype)
 
@@ -138,14 +142,25 @@ class Budgets:
 
     @classmethod
     def of(cls, scene: Scene, quality: int) -> Budgets | None:
-        """The budgets of ``scene`` at ``quality``; None at 100 (nothing is coarsened)."""
+        """The budgets of ``scene`` at ``quality``; None at 100 (nothing is coarsened).
+
+        A non-finite input value gives a NaN budget, which :func:`coarsen` reads as none: such
+        a Gaussian keeps its codes, and numpy's warnings about it are silenced here.
+        """
         f = budget_fraction(quality)
         if f == 0.0:
             return None
-        sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
-        position = f * POSITION_AT_ZERO * sigmas.min(axis=1)
-        spread = sigmas.max(axis=1) - sigmas.min(axis=1)
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return cls._at(scene, f)
+
+    @classmethod
+    def _at(cls, scene: Scene, f: float) -> Budgets:
+        """The budgets at a budget fraction f > 0 (see :meth:`of`)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # non-finite scales: no budget
+            sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
+            position = _finite_or_zero(f * POSITION_AT_ZERO * sigmas.min(axis=1))
+            spread = _finite_or_zero(sigmas.max(axis=1) - sigmas.min(axis=1))
+        with np.errstate(divide="ignore", invalid="ignore"):
             rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
         timeline = scene.timeline
@@ -191,6 +206,11 @@ class Budgets:
         if attr == "sh0" and channels == 4:
             out[:, 3] = 4 * self.alpha_slack  # opacity's coefficients in sh0's A channel
         return out
+
+
+def _finite_or_zero(values: F64) -> F64:
+    """``values`` with every non-finite entry 0 (such a Gaussian keeps its codes as they are)."""
+    return np.where(np.isfinite(values), values, 0.0)
 
 
 def _top_speed(coeffs: F64, reach: F64) -> F64:
@@ -287,13 +307,15 @@ def coarsen_motion(
     Gaussian's own lifespan (``|t - t_ref| <= reach``), it moves the attribute by at most its
     share of :meth:`Budgets.change_over_lifespan`, split evenly over the ``orders``."""
     share = budgets.change_over_lifespan(attr, codes.shape[1]) / orders
+    shared = attr != "means"  # rates of turn, scale, colour, opacity: mostly one value (zero)
     reach = budgets.reach[:, None] ** order
     with np.errstate(divide="ignore"):
         value = np.where(reach > 0, share / np.where(reach > 0, reach, 1.0), np.inf)
-    return coarsen(codes, to_codes(value, mins, maxs))
+    return coarsen(codes, to_codes(value, mins, maxs), shared=shared)
 
 
 __all__ = [
+    "DEFAULT_QUALITY",
     "MAX_TURN",
     "QUALITY_MAX",
     "Budgets",
