@@ -16,6 +16,7 @@ from typing import Any
 
 from .._version import __version__
 from ..codec.chunk import decode_chunk, encode_chunk
+from ..codec.precision import DEFAULT_QUALITY
 from ..demo import run_demo
 from ..errors import TsogError
 from ..inputs import STREAM_KINDS, input_kind
@@ -83,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
         "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
     )
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fit (default 0)")
-    p.add_argument("--quality", type=QUALITY, default=100, help=QUALITY_HELP)
+    p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
     p.add_argument(
         "--lossy",
         action="store_true",

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
+from ..codec.precision import DEFAULT_QUALITY
 from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
 from ..container.sources import ReadStats
 from ..errors import InputError
@@ -126,7 +127,7 @@ def add_stream_commands(sub: Subparsers) -> None:
         "--workers", type=Integer(1, 256), default=2, help="encoder processes (default 2)"
     )
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
-    p.add_argument("--quality", type=QUALITY, default=100, help=QUALITY_HELP)
+    p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
     p.add_argument(
         "--temporal",
         choices=TEMPORAL_MODES,
