@@ -58,8 +58,9 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py): on every scene measured its rendered PSNR is within 0.2 dB of quality 100's
-(worst view unchanged) for 0.5-8.5 % fewer bytes; 75 already costs 0.6-2.8 dB."""
+bench_rate.py, 2026-11-26): on every scene measured its rendered PSNR is within 0.1 dB of
+quality 100's, worst view unchanged, for 0.6-7.2 % fewer bytes; 75 already costs up to 2.3 dB
+(mean, the long donut) and 2.5 dB (worst view, coffee10.splatv)."""
 POSITION_AT_ZERO = 0.5
 """At quality 0 a Gaussian's position may move by this fraction of its smallest sigma."""
 TIME_AT_ZERO = 0.25
