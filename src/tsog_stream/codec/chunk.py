@@ -59,6 +59,7 @@ def encode_chunk(
             f"{misplaced} Gaussians have non-finite positions: SOG cannot place them "
             "(remove them from the input first)"
         )
+    _refuse_non_finite_time(scene)
     note = progress or (lambda _msg: None)
     note("ordering")
     ordered = scene.subset(texel_order(scene) if order is None else order)
@@ -90,6 +91,22 @@ def encode_chunk(
     files = encode_many(images)
     files[C.META_JSON] = dump_meta(parsed)
     return files
+
+
+def _refuse_non_finite_time(scene: Scene) -> None:
+    """InputError naming the attribute when a lifespan or a motion coefficient is not finite:
+    their 16-bit ranges (min, max in meta.json) cannot hold it."""
+    parts = {f"{attr} motion coefficients": c for attr, c in scene.temporal.items()}
+    if scene.timeline is not None:
+        parts["lifespans"] = np.stack([scene.timeline.t0, scene.timeline.t1], axis=1)
+    for what, values in parts.items():
+        rows = np.asarray(values).reshape(len(scene), -1)
+        bad = int(np.count_nonzero(~np.all(np.isfinite(rows), axis=1)))
+        if bad:
+            raise InputError(
+                f"{bad} Gaussians have non-finite {what}: a chunk cannot store them "
+                "(remove them from the input first)"
+            )
 
 
 def read_meta(files: Mapping[str, bytes], *, where: str) -> ChunkMeta:
