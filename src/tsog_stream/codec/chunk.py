@@ -53,13 +53,7 @@ def encode_chunk(
     """
     if len(scene) == 0:
         raise InputError("the scene has no Gaussians: there is nothing to encode")
-    misplaced = int(np.count_nonzero(~np.all(np.isfinite(scene.gaussians.means), axis=1)))
-    if misplaced:
-        raise InputError(
-            f"{misplaced} Gaussians have non-finite positions: SOG cannot place them "
-            "(remove them from the input first)"
-        )
-    _refuse_non_finite_time(scene)
+    _refuse_non_finite(scene)
     note = progress or (lambda _msg: None)
     note("ordering")
     ordered = scene.subset(texel_order(scene) if order is None else order)
@@ -93,19 +87,24 @@ def encode_chunk(
     return files
 
 
-def _refuse_non_finite_time(scene: Scene) -> None:
-    """InputError naming the attribute when a lifespan or a motion coefficient is not finite:
-    their 16-bit ranges (min, max in meta.json) cannot hold it."""
-    parts = {f"{attr} motion coefficients": c for attr, c in scene.temporal.items()}
+def _refuse_non_finite(scene: Scene) -> None:
+    """InputError naming what is not finite among positions, lifespans and motion
+    coefficients: SOG cannot place such a Gaussian, and a 16-bit range (min, max in
+    meta.json) cannot hold such a value."""
+    parts: dict[str, npt.NDArray[np.floating]] = {
+        "positions: SOG cannot place them": scene.gaussians.means
+    }
     if scene.timeline is not None:
-        parts["lifespans"] = np.stack([scene.timeline.t0, scene.timeline.t1], axis=1)
+        lifespans = np.stack([scene.timeline.t0, scene.timeline.t1], axis=1)
+        parts["lifespans: a chunk cannot store them"] = lifespans
+    for attr, coeffs in scene.temporal.items():
+        parts[f"{attr} motion coefficients: a chunk cannot store them"] = coeffs
     for what, values in parts.items():
-        rows = np.asarray(values).reshape(len(scene), -1)
+        rows = values.reshape(len(scene), -1)
         bad = int(np.count_nonzero(~np.all(np.isfinite(rows), axis=1)))
         if bad:
             raise InputError(
-                f"{bad} Gaussians have non-finite {what}: a chunk cannot store them "
-                "(remove them from the input first)"
+                f"{bad} Gaussians have non-finite {what} (remove them from the input first)"
             )
 
 
