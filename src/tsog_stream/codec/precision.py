@@ -53,6 +53,12 @@ ALPHA_AT_ZERO = 0.1
 """At quality 0 an opacity (alpha, 0..1) may move this much."""
 QUAT_STEP = float(np.sqrt(2.0)) / 255.0
 """A smallest-three quaternion byte's step in component units (SOG v2 quats.webp)."""
+TURN_PER_COMPONENT = 4.0 * float(np.sqrt(3.0))
+"""Radians a rotation turns at most per unit of error in each stored quaternion component
+(twice the quaternion distance, the fourth component rederived)."""
+LOGIT_PER_ALPHA = 4.0
+"""Logit units per alpha unit that keep an opacity's change within it (d alpha / d logit <=
+1/4)."""
 
 QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
@@ -156,13 +162,11 @@ class Budgets:
 
     @classmethod
     def _at(cls, scene: Scene, f: float) -> Budgets:
-        """The budgets at a budget fraction f > 0 (see :meth:`of`)."""
-        with np.errstate(over="ignore", invalid="ignore"):  # non-finite scales: no budget
-            sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
-            position = _finite_or_zero(f * POSITION_AT_ZERO * sigmas.min(axis=1))
-            spread = _finite_or_zero(sigmas.max(axis=1) - sigmas.min(axis=1))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
+        """The budgets at a budget fraction f > 0, numpy's warnings silenced (see :meth:`of`)."""
+        sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
+        position = _finite_or_zero(f * POSITION_AT_ZERO * sigmas.min(axis=1))  # no budget for
+        spread = _finite_or_zero(sigmas.max(axis=1) - sigmas.min(axis=1))  # non-finite scales
+        rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
         timeline = scene.timeline
         reach = _reach(timeline) * (1.0 + f * TIME_AT_ZERO)
@@ -171,8 +175,7 @@ class Budgets:
             time[:, 0] = 0.0  # t_ref of rotations, colours or opacities that move: kept exact
         if motion is not None and timeline is not None:
             speed = _top_speed(np.asarray(motion, np.float64), reach)
-            with np.errstate(divide="ignore"):
-                shift = np.where(speed > 0, position / 3 / speed, np.inf)
+            shift = np.where(speed > 0, position / 3 / speed, np.inf)
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
         return cls(
             position,
@@ -199,13 +202,14 @@ class Budgets:
         if attr == "means":
             per_gaussian = self.position / 3
         elif attr == "quats":
-            per_gaussian = self.rotation / (4 * np.sqrt(3.0))
+            per_gaussian = self.rotation / TURN_PER_COMPONENT
         else:
-            slack = {"scales": self.scale_slack, "opacity": 4 * self.alpha_slack}
-            per_gaussian = np.full(n, slack.get(attr, self.colour_slack))
+            opacity = LOGIT_PER_ALPHA * self.alpha_slack
+            slack = {"scales": self.scale_slack, "sh0": self.colour_slack, "opacity": opacity}
+            per_gaussian = np.full(n, slack[attr])
         out = np.repeat(per_gaussian[:, None], channels, axis=1)
         if attr == "sh0" and channels == 4:
-            out[:, 3] = 4 * self.alpha_slack  # opacity's coefficients in sh0's A channel
+            out[:, 3] = LOGIT_PER_ALPHA * self.alpha_slack  # opacity's motion, sh0's A channel
         return out
 
 
@@ -263,7 +267,7 @@ def coarsen_rotations(texels: U8, budget: F64) -> U8:
     turns by at most ``budget`` radians: a turn is at most 4·√3 times the largest component
     error (twice the quaternion distance, the fourth component rederived)."""
     out = texels.copy()
-    out[:, :3] = coarsen(texels[:, :3], (budget / (4 * np.sqrt(3.0)) / QUAT_STEP)[:, None])
+    out[:, :3] = coarsen(texels[:, :3], (budget / TURN_PER_COMPONENT / QUAT_STEP)[:, None])
     return out
 
 
