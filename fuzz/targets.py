@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import hashlib
+import io
 import itertools
 import json
 import struct
@@ -27,10 +28,18 @@ import zstandard
 from tsog_stream.client import StreamClient
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.constants import MAX_CAMERAS
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header
 from tsog_stream.container.index import decode_index, encode_index
 from tsog_stream.container.sources import MemorySource, read_index
 from tsog_stream.errors import TsogError
+from tsog_stream.io.cameras import (
+    parse_cameras_json,
+    parse_colmap_cameras_bin,
+    parse_colmap_cameras_text,
+    parse_colmap_images_bin,
+    parse_colmap_images_text,
+)
 from tsog_stream.io.ply import parse_ply, ply_bytes
 from tsog_stream.io.splatv import MAGIC, RECORD, parse_splatv
 from tsog_stream.model import TimelineType
@@ -151,6 +160,33 @@ def fuzz_manifest(data: bytes) -> object:
     return manifest
 
 
+def fuzz_cameras_json(data: bytes) -> object:
+    """A 3DGS cameras.json (the .splatv header and --cameras read the same entries)."""
+    cameras = parse_cameras_json(data, where="fuzz/cameras.json")
+    if len(cameras) > MAX_CAMERAS:
+        raise LieError(f"{len(cameras)} cameras, over the limit")
+    return cameras
+
+
+def fuzz_colmap_bin(data: bytes) -> object:
+    """A COLMAP binary model: 4 bytes giving the length of cameras.bin, then it, then
+    images.bin; every pose read, its 2D points skipped."""
+    split = 4 + int.from_bytes(data[:4], "little")
+    where = "fuzz/sparse/0"
+    intrinsics = parse_colmap_cameras_bin(io.BytesIO(data[4:split]), where=where)
+    poses = list(parse_colmap_images_bin(io.BytesIO(data[split:]), where=where))
+    return [pose.camera(intrinsics, where=where) for pose in poses]
+
+
+def fuzz_colmap_text(data: bytes) -> object:
+    """A COLMAP text model: cameras.txt, a NUL, images.txt."""
+    cams, _, imgs = data.partition(b"\0")
+    where = "fuzz/sparse/0"
+    intrinsics = parse_colmap_cameras_text(cams.decode("utf-8", "replace"), where=where)
+    poses = list(parse_colmap_images_text(io.BytesIO(imgs), where=where))
+    return [pose.camera(intrinsics, where=where) for pose in poses]
+
+
 def fuzz_range(data: bytes) -> object:
     """A Range header (first 8 bytes: the representation length); must never raise at all."""
     length = int.from_bytes(data[:8], "little") >> (data[0] % 64 if data else 0)
@@ -188,6 +224,9 @@ TARGETS: Final[dict[str, Target]] = {
     "manifest": fuzz_manifest,
     "range": fuzz_range,
     "conditional": fuzz_conditional,
+    "cameras_json": fuzz_cameras_json,
+    "colmap_bin": fuzz_colmap_bin,
+    "colmap_text": fuzz_colmap_text,
 }
 EXTENSIONS: Final[dict[str, str]] = {
     ".ply": "ply",
@@ -201,6 +240,9 @@ EXTENSIONS: Final[dict[str, str]] = {
     ".manifest": "manifest",
     ".range": "range",
     ".cond": "conditional",
+    ".cameras": "cameras_json",
+    ".colmapbin": "colmap_bin",
+    ".colmaptxt": "colmap_text",
 }
 """Which target reads a corpus file, by its extension."""
 
@@ -297,7 +339,47 @@ def valid_seeds(target: str) -> dict[str, bytes]:
         return {f"r{i}.range": prefix + v for i, v in enumerate(RANGE_SEEDS)}
     if target == "conditional":
         return {f"c{i}.cond": v for i, v in enumerate(CONDITIONAL_SEEDS)}
+    if target == "cameras_json":
+        return {"cameras.cameras": json.dumps(CAMERA_ENTRIES).encode()}
+    if target == "colmap_bin":
+        return {"model.colmapbin": _colmap_bin_seed()}
+    if target == "colmap_text":
+        return {"model.colmaptxt": COLMAP_TEXT_SEED}
     raise KeyError(target)
+
+
+CAMERA_ENTRIES: Final = [
+    {
+        "id": 0,
+        "img_name": "00001",
+        "width": 64,
+        "height": 48,
+        "position": [0.5, -1.0, 2.0],
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+        "fx": 60.0,
+        "fy": 61.0,
+    }
+]
+COLMAP_TEXT_SEED: Final = (
+    b"# cameras\n1 PINHOLE 64 48 60 61 32 24\n2 SIMPLE_RADIAL 64 48 60 32 24 0.01\n\0"
+    b"# images\n1 1 0 0 0 0.5 -1 2 1 a.png\n3.5 4.5 -1 10 12 7\n"
+    b"2 0.7071 0 0.7071 0 1 0 0 2 b.png\n\n"
+)
+
+
+def _colmap_bin_seed() -> bytes:
+    """Two cameras (PINHOLE, OPENCV) and two images with a few 2D points each."""
+    cams = struct.pack("<Q", 2)
+    cams += struct.pack("<iiQQ4d", 1, 1, 64, 48, 60.0, 61.0, 32.0, 24.0)
+    cams += struct.pack("<iiQQ8d", 2, 4, 64, 48, 60.0, 61.0, 32.0, 24.0, 0.1, 0, 0, 0)
+    imgs = struct.pack("<Q", 2)
+    for image_id, q, cam, name in (
+        (1, (1, 0, 0, 0), 1, b"a.png"),
+        (2, (0.5, 0.5, 0.5, 0.5), 2, b"b"),
+    ):
+        imgs += struct.pack("<i7di", image_id, *q, 0.5, -1.0, 2.0, cam) + name + b"\0"
+        imgs += struct.pack("<Q", 2) + struct.pack("<ddq", 1.0, 2.0, -1) * 2
+    return len(cams).to_bytes(4, "little") + cams + imgs
 
 
 RANGE_SEEDS: Final = (

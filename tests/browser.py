@@ -9,7 +9,7 @@ from __future__ import annotations
 import io
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -31,7 +31,7 @@ FLAGS = [
     "--no-first-run",
 ]
 VIEWPORT = {"width": 640, "height": 480}
-HIDE_UI = ".overlay,.controls,.error{display:none !important}"
+HIDE_UI = ".overlay,.controls,.error,.copied,.keys{display:none !important}"
 LOAD_TIMEOUT_MS = 30_000
 COVERED = "window.tsogPlayer?.stream?.covered(window.tsogPlayer.playback.t)"
 """Page expression: every chunk the playhead needs is loaded."""
@@ -139,6 +139,34 @@ class PlayerPage:
     def close(self) -> None:
         """Close the page."""
         self.page.close()
+
+
+@contextmanager
+def page_opener(browser: Any) -> Iterator[Callable[[str], PlayerPage]]:
+    """A function opening player pages; on exit every page must have logged no error, and is
+    closed (the ``open_page`` fixture of the browser tests)."""
+    pages: list[PlayerPage] = []
+
+    def open_(url: str) -> PlayerPage:
+        pages.append(PlayerPage(browser, url))
+        return pages[-1]
+
+    yield open_
+    for page in pages:
+        assert page.errors == [], page.errors
+        page.close()
+
+
+@contextmanager
+def served(app: Any) -> Iterator[str]:
+    """The base URL of ``app`` served on loopback by a ThreadedServer, stopped on exit."""
+    from helpers import ThreadedServer  # noqa: PLC0415 - tests/ is on the path here
+
+    server = ThreadedServer(app)
+    try:
+        yield f"http://127.0.0.1:{server.port}"
+    finally:
+        server.stop()
 
 
 def image_difference(a: RGB, b: RGB) -> npt.NDArray[np.int16]:

@@ -15,6 +15,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +54,7 @@ HOSTILE_FILE_RUNS = {
     "play": ["{input}", "--duration", "0.1"],
     "render": ["{input}", "-o", "{out}/r.png", "--width", "32", "--height", "24"],
     "eval": ["{input}", "{input}", "--width", "32", "--height", "24"],
+    "view": ["{input}", "--port", "0"],
 }
 """Every command that reads an input, with the input replaced by something hostile (serve,
 sign and demo take no input file)."""
@@ -69,11 +71,12 @@ GOOD_RUNS = {
     "serve": ["{root}", "--port", "0"],
     "sign": ["http://127.0.0.1:1/files/clip.tsogs", "--secret-file", "{secret}"],
     "demo": ["--out", "{out}/demo"],
+    "view": ["{stream}", "--port", "0"],
 }
 """A command line per command that works on the test's small files: each option is then
 replaced by hostile values one at a time."""
 INPUT_OF = {"info": "{chunk}", "decode": "{chunk}", "encode": "{chunk}", "segment": "{chunk}"}
-LONG_RUNNING = {"serve"}
+LONG_RUNNING = {"serve", "view"}
 """Commands that run until stopped: alive at the deadline means the values were accepted."""
 HOSTILE_NUMBERS = ("nan", "-inf", "1e308", "-1", "0", "99999999999999999999")
 SKIPPED_OPTIONS = {"--host", "--private", "--secret-file", "--cameras", "--out", "--plot"}
@@ -92,8 +95,10 @@ class Outcome:
 
 def probe(runs: list[dict[str, Any]]) -> list[Outcome]:
     """Run command lines through tests/cli_probe.py and return what each did."""
+    cache = tempfile.mkdtemp(prefix="tsog-view-cache-")  # tsog view's copies, never ~/.cache
     done = subprocess.run(
         [sys.executable, str(PROBE)],
+        env={**os.environ, "TSOG_CACHE_DIR": cache},
         input=json.dumps(runs),
         capture_output=True,
         text=True,
@@ -205,7 +210,7 @@ def hostile_option_runs(files: dict[str, Path], tmp_path: Path) -> Iterator[tupl
                 out = tmp_path / f"{command}{flag}{value}"
                 out.mkdir()
                 argv = [command, *fill(_with_input(command, good), files, out), flag, value]
-                if command != "serve":
+                if command not in LONG_RUNNING:
                     argv.append("-q")
                 timeout = 2.5 if command in LONG_RUNNING else RUN_TIMEOUT_S
                 yield (command, flag, value), {"argv": argv, "cwd": str(out), "timeout_s": timeout}

@@ -99,12 +99,15 @@ test_index_json = fuzz_test("index_json", SLOW_FUZZ)
 test_container = fuzz_test("container", SLOW_FUZZ)
 test_sog = fuzz_test("sog", SLOW_FUZZ)
 test_chunk_member = fuzz_test("chunk", SLOW_FUZZ)
+test_cameras_json = fuzz_test("cameras_json", FUZZ)
+test_colmap_bin = fuzz_test("colmap_bin", FUZZ)
+test_colmap_text = fuzz_test("colmap_text", FUZZ)
 
 
 @FUZZ
 @given(data=st.binary(max_size=200))
 def test_random_bytes_never_crash_any_target(data: bytes) -> None:
-    for name in ("ply", "splatv", "meta", "manifest", "index", "sog", "container"):
+    for name in ("ply", "splatv", "meta", "manifest", "index", "sog", "container", "colmap_bin"):
         check(name, data)
 
 

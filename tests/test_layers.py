@@ -31,6 +31,7 @@ FLOORS: dict[str, int] = {
             "schemas",
             "compare",
             "synthetic",
+            "framing",
         ),
         0,
     ),

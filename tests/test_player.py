@@ -23,7 +23,15 @@ from tsog_stream.signing import sign_url
 from tsog_stream.synthetic import small_scene
 
 SECRET = b"player-test-secret-0123456789abcdef"
-JS_MODULES = ("player.js", "stream.js", "manifest.js", "zip.js", "tsog.js", "orbit.js")
+JS_MODULES = (
+    "player.js",
+    "stream.js",
+    "manifest.js",
+    "zip.js",
+    "tsog.js",
+    "controls.js",
+    "views.js",
+)
 OUTSIDE = b"OUTSIDE-THE-PLAYER-FOLDER"
 ENGINE = Path(__file__).resolve().parents[1] / "node_modules/playcanvas/build/playcanvas.mjs"
 """The pinned npm build (package.json) that the package's copy must equal."""
@@ -60,13 +68,15 @@ def test_index_lists_public_scenes_with_links(port: int) -> None:
     assert r.headers["Content-Type"] == "text/html; charset=utf-8"
     assert r.headers["Cache-Control"] == "no-cache"
     assert r.headers["Access-Control-Allow-Origin"] == "*"
-    links = re.findall(r'<a href="([^"]+)">([^<]+)</a>', r.body.decode())
+    pattern = r'<a href="([^"]+)">.*?<span class="name">([^<]+)</span>'
+    links = re.findall(pattern, r.body.decode())
     assert links == [("/play/clip", "clip"), ("/play/unpacked", "unpacked")]
     assert b"secret" not in r.body and b"paid" not in r.body
 
 
-def test_play_without_slash_redirects(port: int) -> None:
-    r = fetch(port, "/play")
+@pytest.mark.parametrize("path", ["/play", "/"])
+def test_play_without_slash_and_the_root_redirect(port: int, path: str) -> None:
+    r = fetch(port, path)
     assert r.status == 302 and r.headers["Location"] == "/play/"
 
 

@@ -18,8 +18,8 @@ from urllib.parse import quote
 import numpy as np
 import pytest
 
-from browser import VIEWPORT, PlayerPage, chromium, image_difference, near
-from helpers import ThreadedServer, nginx_origin
+from browser import VIEWPORT, PlayerPage, chromium, image_difference, near, page_opener, served
+from helpers import nginx_origin
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
@@ -125,11 +125,8 @@ def facts(root: Path) -> Facts:
 
 @pytest.fixture(scope="module")
 def base(root: Path) -> Iterator[str]:
-    server = ThreadedServer(make_app(root, privacy=Privacy(("paid",), SECRET)))
-    try:
-        yield f"http://127.0.0.1:{server.port}"
-    finally:
-        server.stop()
+    with served(make_app(root, privacy=Privacy(("paid",), SECRET))) as url:
+        yield url
 
 
 @pytest.fixture(scope="module")
@@ -140,16 +137,8 @@ def browser(facts: Facts) -> Iterator[Any]:
 
 @pytest.fixture
 def open_page(browser: Any) -> Iterator[Any]:
-    pages: list[PlayerPage] = []
-
-    def open_(url: str) -> PlayerPage:
-        pages.append(PlayerPage(browser, url))
-        return pages[-1]
-
-    yield open_
-    for page in pages:
-        assert page.errors == [], page.errors
-        page.close()
+    with page_opener(browser) as open_:
+        yield open_
 
 
 @pytest.mark.parametrize(("scene", "t"), FRAME_TIMES)
@@ -319,7 +308,12 @@ def test_a_missing_manifest_is_a_clear_error_on_the_page(base: str, browser: Any
         page.wait_for_function("window.tsogPlayer?.error", timeout=10_000)
         assert page.is_visible("#error")
         message = page.text_content("#error")
-        assert message is not None and "manifest: HTTP 404" in message and "/nothing/" in message
+        assert (
+            message is not None
+            and "scene not found" in message
+            and "HTTP 404" in message
+            and "/nothing/" in message
+        )
     finally:
         page.close()
 

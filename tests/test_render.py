@@ -323,10 +323,10 @@ def test_cameras_json_is_scaled_and_checked(tmp_path: Path) -> None:
     )
     assert cam.name == "a"
     path.write_text(json.dumps([{k: v for k, v in entry.items() if k != "fx"}]))
-    with pytest.raises(FormatError, match="'fx'"):
+    with pytest.raises(FormatError, match=r"'\[0\]\.fx': expected this key"):
         load_cameras_json(path)
     path.write_text(json.dumps([{**entry, "rotation": [[1, 0], [0, 1]]}]))
-    with pytest.raises(FormatError, match=r"\[0\].*'rotation'"):
+    with pytest.raises(FormatError, match=r"'\[0\]\.rotation\[0\]\[2\]': expected an item here"):
         load_cameras_json(path)
     path.write_text("{not json")
     with pytest.raises(FormatError):

@@ -133,3 +133,19 @@ RENDER_MAX_VIEWS: Final = 1000
 """Most orbit cameras per time: past it a typo would render for days."""
 EVAL_MAX_TIMES: Final = 1000
 """Most times ``eval`` samples, for the same reason."""
+MAX_CAMERAS: Final = 4096
+"""Most capture cameras a scene carries in its index (a large COLMAP capture has ~2000)."""
+MAX_CAMERA_SIDE: Final = 65536
+"""Largest image side a capture camera may declare."""
+MAX_CAMERA_FILE_BYTES: Final = 64 * 1024 * 1024
+"""Largest cameras.json or COLMAP cameras.txt read (checked before reading)."""
+
+# --- Scene thumbnails (tsog segment writes them; the server's scene list shows them) --------
+THUMBNAIL_SUFFIX: Final = ".thumb.png"
+"""A container's thumbnail sits beside it: ``clip.tsogs`` -> ``clip.tsogs.thumb.png``."""
+THUMBNAIL_SIZE: Final = (320, 180)
+
+
+def thumbnail_path(container: str) -> str:
+    """The thumbnail file of a container (a path or a root-relative name)."""
+    return container + THUMBNAIL_SUFFIX

@@ -20,7 +20,7 @@ from .io.ply import ply_bytes
 from .model import Gaussians, Scene
 from .segment.segmenter import SegmentOptions, segment_scene
 from .server.app import make_app, start_server
-from .synthetic import SceneSpec, generate_scene
+from .synthetic import SceneSpec, generate_scene, rig_cameras
 from .temporal import evaluate_all, time_range
 
 Progress = Callable[[str], None]
@@ -75,7 +75,7 @@ def _stream_report(
     with tempfile.TemporaryDirectory(prefix="tsog-demo-") as tmp:
         root = out_dir or Path(tmp)
         path = root / "demo.tsogs"
-        report = segment_scene(scene, path, SegmentOptions(window_s=0.5))
+        report = segment_scene(scene, path, SegmentOptions(window_s=0.5), cameras=rig_cameras())
         note("serving on 127.0.0.1 and playing over HTTP")
         url, frames, stats = asyncio.run(_play_over_http(root, path.name, start, seconds=1.0))
         with open_stream(path) as local:

@@ -13,11 +13,18 @@ from dataclasses import replace
 from typing import Any
 
 from .client import open_stream
+from .constants import THUMBNAIL_SIZE
+from .errors import InputError
+from .framing import default_view
+from .io.cameras import read_cameras
 from .io.readers import ReadOptions, detect_format, load_scene
 from .render.evaluate import Source, Span, scene_source
+from .schemas.cameras import CaptureCamera
 from .schemas.manifest import SceneInfo
 
 URL_SCHEMES = ("http://", "https://", "file://")
+PAGE_BACKGROUND = (18 / 255, 18 / 255, 18 / 255)
+"""The web player's clear colour (0.07 grey), so a thumbnail looks like the page."""
 STREAM_KINDS = ("stream", "tsogs", "tsogs-dir")
 """Input kinds read chunk by chunk ("stream" is any URL)."""
 OPTION_KINDS = {
@@ -63,14 +70,61 @@ def open_source(
     format: str | None = None,
     options: ReadOptions | None = None,
     progress: Callable[[str], None] | None = None,
+    cameras: str | os.PathLike[str] | None = None,
 ) -> Source:
-    """Open any input as a :class:`Source`; containers and URLs are read chunk by chunk."""
+    """Open any input as a :class:`Source`; containers and URLs are read chunk by chunk.
+
+    Capture cameras: ``cameras`` (a camera file) when given, else those the input carries,
+    sits beside or (a container) stores."""
     text = os.fspath(target)
     kind = input_kind(text, format)
     if kind in STREAM_KINDS:
-        stream = open_stream(text)
-        info = stream.index.manifest.scene
-        return Source(text, kind, _stream_span(info), stream.frame_at, stream.close, fps=info.fps)
-    loaded = load_scene(text, format=kind, options=options, progress=progress)
-    source = scene_source(loaded.scene, text)
+        return _stream_source(text, kind, cameras)
+    loaded = load_scene(text, format=kind, options=options, progress=progress, cameras=cameras)
+    source = scene_source(loaded.scene, text, loaded.cameras)
     return replace(source, kind=loaded.format, notes=list(loaded.notes))
+
+
+def _stream_source(target: str, kind: str, cameras: str | os.PathLike[str] | None) -> Source:
+    """A container or stream URL as a Source: its stored cameras and opening view (an index
+    written before views were stored opens on a framing of its first frame)."""
+    given = read_cameras(cameras).cameras if cameras is not None else None
+    stream = open_stream(target)
+    manifest = stream.index.manifest
+    info = manifest.scene
+    chosen = given if given is not None else list(manifest.cameras)
+
+    def opening() -> CaptureCamera | None:
+        if cameras is None and manifest.view is not None:
+            return manifest.view
+        try:
+            return default_view(stream.frame_at(info.start_s), chosen)
+        except InputError:
+            return None
+
+    span = _stream_span(info)
+    return Source(
+        target,
+        kind,
+        span,
+        stream.frame_at,
+        stream.close,
+        fps=info.fps,
+        cameras=chosen,
+        opening=opening,
+    )
+
+
+def thumbnail_png(container: str | os.PathLike[str]) -> bytes:
+    """A small PNG of a container's opening view half way through (the scene list's
+    picture): THUMBNAIL_SIZE, the page's background grey."""
+    from .render import from_capture, png_bytes, render, to_uint8  # noqa: PLC0415 - numba
+
+    with open_source(container) as source:
+        view = source.opening()
+        if view is None:
+            raise InputError("the scene shows nothing to aim a camera at", where=str(container))
+        middle = sum(source.span) / 2 if source.span is not None else 0.0
+        camera = from_capture(view, *THUMBNAIL_SIZE)
+        image = render(source.at(middle), camera, background=PAGE_BACKGROUND)
+    return png_bytes(to_uint8(image))

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from PIL import Image
@@ -13,6 +13,7 @@ from .constants import META_JSON, TEMPORAL_CHANNELS
 from .errors import SogError
 from .model import Scene, TimelineType
 from .schemas import listed_files
+from .schemas.cameras import CaptureCamera
 from .temporal import time_range
 
 _GROUPS = {
@@ -86,4 +87,21 @@ def scene_summary(scene: Scene) -> dict[str, Any]:
         out["temporal"] = {
             a: int(c.shape[1]) for a, c in scene.temporal.items() if a in TEMPORAL_CHANNELS
         }
+    return out
+
+
+def cameras_summary(
+    cameras: Sequence[CaptureCamera], source: str = "", view: CaptureCamera | None = None
+) -> dict[str, Any]:
+    """How many capture cameras, from where, and the view a player opens on."""
+    out: dict[str, Any] = {"count": len(cameras)}
+    if source:
+        out["from"] = source
+    if cameras:
+        first = cameras[0]
+        out["first"] = f"{first.name or '(unnamed)'}, {first.width}x{first.height}"
+    if view is not None:
+        x, y, z = view.position
+        label = "capture camera " + (view.name or "0") if view in cameras else view.name
+        out["opens_from"] = f"{label} at ({x:.3g}, {y:.3g}, {z:.3g})"
     return out

@@ -7,6 +7,7 @@ type can be produced; type 0 repeats each live Gaussian once per frame, like a P
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from math import comb
@@ -16,7 +17,9 @@ import numpy.typing as npt
 
 from .constants import SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
+from .framing import look_at
 from .model import Gaussians, Scene, Timeline, TimelineType
+from .schemas.cameras import CaptureCamera
 from .temporal import visibility_half_width
 
 F64 = npt.NDArray[np.float64]
@@ -262,3 +265,26 @@ def freetime_scene(
     velocity = rng.normal(0.0, speed * extent / np.sqrt(3), (n, 1, 3))
     timeline = Timeline(TimelineType.CENTER_SCALE, centre, scale, scene_length=duration_s)
     return Scene(g, timeline, {"means": velocity.astype(np.float32)})
+
+
+def rig_cameras(count: int = 8, width: int = 1280, height: int = 720) -> list[CaptureCamera]:
+    """Capture cameras for a generated scene (+y up): a ring of ``count`` at radius 12, 4 units
+    above the ground, looking at the scene's centre, as a capture rig would stand."""
+    focal = 0.5 * height / math.tan(math.radians(25))  # 50 degrees vertically
+    cameras = []
+    for k in range(count):
+        phi = 2 * math.pi * k / count
+        eye = np.array([12 * math.sin(phi), 4.0, 12 * math.cos(phi)])
+        c2w = look_at(eye, [0.0, 0.5, 0.0], [0.0, 1.0, 0.0])[:3, :3].T
+        cameras.append(
+            CaptureCamera(
+                name=f"rig_{k:02d}",
+                width=width,
+                height=height,
+                fx=focal,
+                fy=focal,
+                position=(float(eye[0]), float(eye[1]), float(eye[2])),
+                rotation=tuple(tuple(float(v) for v in row) for row in c2w),
+            )
+        )
+    return cameras

@@ -28,7 +28,13 @@ def add_client_commands(sub: Subparsers) -> None:
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     add_common(p)
 
-    p = sub.add_parser("play", help="simulate playing a served container; report stalls")
+    p = sub.add_parser(
+        "play",
+        help="simulate playing a served container; report stalls",
+        epilog="A stall is a frame whose chunks had not arrived by the time it was due (1/fps "
+        "after the one before): a viewer would see the picture freeze. Startup latency is the "
+        "wait for the first frame (opening the index included).",
+    )
     p.add_argument("url", help=STREAM_HELP)
     p.add_argument("--start", type=float, default=0.0, help="start time in seconds (default 0)")
     p.add_argument("--speed", type=float, default=1.0, help="playback speed (default 1)")
@@ -83,7 +89,8 @@ def _report(stats: PlayStats) -> str:
         [
             f"frames:          {stats.frames}",
             f"startup latency: {stats.startup_s * 1000:.1f} ms",
-            f"stalls:          {stats.stalls} ({stats.stall_s * 1000:.1f} ms in total)",
+            f"stalls:          {stats.stalls} frames late, {stats.stall_s * 1000:.1f} ms in "
+            "total (a stall: a frame whose chunks had not arrived when it was due, a freeze)",
             f"fetched:         {stats.bytes} bytes in {stats.requests} requests ({rate:.2f} MB/s)",
             f"cache hit rate:  {stats.hit_rate * 100:.1f}%",
         ]

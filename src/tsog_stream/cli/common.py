@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
 
 from ..errors import InputError
-from ..io.readers import FORMATS, ReadOptions, load_scene
+from ..io.readers import FORMATS, LoadedScene, ReadOptions, load_scene
 from ..io.sequence import DEFAULT_FPS
-from ..model import Scene
+from ..io.splatv import ASSUMED_DURATION
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -90,6 +90,18 @@ def add_input(p: argparse.ArgumentParser) -> None:
     )
 
 
+CAMERAS_HELP = (
+    "capture cameras: a 3DGS cameras.json, a COLMAP model (its folder, the folder holding "
+    "sparse/0, or its cameras/images .txt/.bin) or a .splatv (default: those the input "
+    "carries, or a cameras.json / COLMAP model beside it)"
+)
+
+
+def add_cameras(p: argparse.ArgumentParser) -> None:
+    """--cameras PATH: where the input's capture cameras are."""
+    p.add_argument("--cameras", type=Path, metavar="PATH", help=CAMERAS_HELP)
+
+
 def read_options(args: argparse.Namespace) -> ReadOptions:
     """The reading options given on the command line."""
     return ReadOptions(
@@ -110,15 +122,33 @@ def warn(message: str) -> None:
     print(f"tsog: warning: {message}", file=sys.stderr)
 
 
-def load_input(args: argparse.Namespace, progress: Progress) -> Scene:
-    """Load the INPUT with progress and reader notes on stderr."""
+ASSUMPTIONS = frozenset({ASSUMED_DURATION})
+"""Reader notes that are assumptions about time, not repairs: warnings, printed first."""
+
+
+def load_input(args: argparse.Namespace, progress: Progress) -> LoadedScene:
+    """Load the INPUT (and its capture cameras) with progress and reader notes on stderr."""
     progress(f"reading {args.input}")
     loaded = load_scene(
-        args.input, format=args.format, options=read_options(args), progress=progress
+        args.input,
+        format=args.format,
+        options=read_options(args),
+        progress=progress,
+        cameras=getattr(args, "cameras", None),
     )
-    for text in loaded.notes:
-        note(text)
-    return loaded.scene
+    print_reader_notes(loaded.notes)
+    return loaded
+
+
+def print_reader_notes(notes: list[str]) -> None:
+    """A reader's notes on stderr: assumptions about time first, as warnings (they change
+    every time the file is shown), then what it dropped or repaired."""
+    for text in notes:
+        if text in ASSUMPTIONS:
+            warn(text)
+    for text in notes:
+        if text not in ASSUMPTIONS:
+            note(text)
 
 
 def check_time(t: float, span: tuple[float, float] | None) -> None:

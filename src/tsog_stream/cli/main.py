@@ -24,7 +24,7 @@ from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.files import refuse_existing
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
-from ..summary import chunk_summary, scene_summary
+from ..summary import cameras_summary, chunk_summary, scene_summary
 from ..temporal import time_range
 from . import interrupt
 from .client_commands import add_client_commands, cmd_fetch, cmd_play
@@ -32,6 +32,7 @@ from .common import (
     QUALITY,
     QUALITY_HELP,
     SEED,
+    add_cameras,
     add_common,
     add_input,
     check_time,
@@ -52,8 +53,10 @@ from .stream_commands import (
     stream_info,
     write_frame,
 )
+from .view_command import add_view_command, cmd_view
 
 EPILOG = """examples:
+  tsog view clip.splatv --open                open any input in the web player
   tsog demo                                   generate, encode, decode and report
   tsog encode scene.ply scene.sog             static 3DGS PLY -> bundled SOG v2
   tsog encode chunk.sog out/                  re-encode into an unbundled folder
@@ -99,9 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_common(p)
 
     p = sub.add_parser(
-        "info", help="describe a file: count, SH bands, timeline, image sizes, bytes"
+        "info", help="describe a file: count, SH bands, timeline, image sizes, bytes, cameras"
     )
     add_input(p)
+    add_cameras(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     add_common(p)
 
@@ -120,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_serve_command(sub)
     add_sign_command(sub)
     add_render_commands(sub)
+    add_view_command(sub)
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
@@ -134,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
 def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
     refuse_existing(args.output, overwrite=args.force)
-    scene = load_input(args, progress)
+    scene = load_input(args, progress).scene
     if args.output.suffix.lower() == ".4dgs":
         for text in write_4dgs(args.output, scene, lossy=args.lossy):
             note(text)
@@ -150,7 +155,7 @@ def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_decode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog decode."""
-    scene = load_input(args, progress)
+    scene = load_input(args, progress).scene
     write_ply(args.output, scene.gaussians)
     progress.done()
     print(f"{args.output}: {len(scene)} Gaussians")
@@ -192,7 +197,9 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
         decoded = decode_chunk(files, where=str(args.input))
         info.update({k: v for k, v in scene_summary(decoded).items() if k == "timeline"})
     else:
-        info.update(scene_summary(load_input(args, progress)))
+        loaded = load_input(args, progress)
+        info.update(scene_summary(loaded.scene))
+        info["cameras"] = cameras_summary(loaded.cameras, loaded.cameras_source)
     progress.done()
     if args.json:
         print(json.dumps(info, indent=2))
@@ -212,7 +219,7 @@ def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
         if args.verbose:
             print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
         return 0
-    scene = load_input(args, progress)
+    scene = load_input(args, progress).scene
     check_time(args.t, time_range(scene.timeline) if scene.timeline is not None else None)
     progress(f"evaluating t = {args.t} s")
     frame = scene.at(args.t)
@@ -283,6 +290,7 @@ COMMANDS = {
     "sign": cmd_sign,
     "render": cmd_render,
     "eval": cmd_eval,
+    "view": cmd_view,
 }
 
 

@@ -10,27 +10,42 @@ import argparse
 import contextlib
 import json
 import math
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..constants import EVAL_MAX_TIMES, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
+from ..constants import EVAL_MAX_TIMES, MAX_CAMERAS, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
 from ..errors import InputError
+from ..framing import FRAMING_NAME
 from ..io.files import refuse_existing
-from .common import Integer, Subparsers, add_common, add_input, input_bytes, read_options
+from .common import (
+    Integer,
+    Subparsers,
+    add_cameras,
+    add_common,
+    add_input,
+    input_bytes,
+    print_reader_notes,
+    read_options,
+)
 from .progress import Progress
 
 if TYPE_CHECKING:
     from ..render.evaluate import CameraSetup, EvalReport, RenderStyle, Source
 
 RENDER_EPILOG = """examples:
-  tsog render scene.ply -o view.png                      orbit view 0 at 640x480
+  tsog render clip.splatv --t 0.5 -o view.png            the view the player opens on
+  tsog render clip.tsogs --camera 3 --width 960 -o v.png capture camera 3, 960 wide
+  tsog render scene.ply --cameras sparse/0 --camera 0 -o v.png
   tsog render clip.tsogs --t 1.5 --view 3 --views 8 -o v.png
   tsog render scene.sog --cameras cameras.json --view 12 --width 320 --height 240 -o v.png
   tsog render http://host:8080/files/clip.tsogs --t 2 --background 1,1,1 -o v.png
 
-Views 0..M-1 orbit the scene at t (--views M, default 8), or are the cameras of a 3DGS
-cameras.json (scaled to --width/--height when given). Images are 8-bit RGB PNG."""
+By default the image is what the web player shows first: the scene's first capture camera
+(carried by the input, found beside it as cameras.json or a COLMAP model, stored in its
+container, or given with --cameras), else a framing of its dense core that floaters do not
+widen; 640 pixels wide, the camera's aspect ratio unless --height is given. --view N picks
+orbit view N of --views M around the scene at t (or, with --cameras, that file's camera N
+scaled to --width/--height). Images are 8-bit RGB PNG."""
 
 EVAL_EPILOG = """examples:
   tsog eval scene.ply scene.sog                          PSNR/SSIM of a SOG round trip
@@ -45,7 +60,7 @@ Local inputs' sizes are reported too (a folder: its files), so one run gives a p
 rate-distortion trade-off: bytes against PSNR."""
 
 
-def _add_views(p: argparse.ArgumentParser, views_help: str) -> None:
+def _add_views(p: argparse.ArgumentParser, views_help: str, cameras_help: str | None) -> None:
     """Camera, image-size and rasterizer options shared by render and eval."""
     p.add_argument("--views", type=Integer(1, RENDER_MAX_VIEWS), help=views_help)
     p.add_argument(
@@ -58,7 +73,8 @@ def _add_views(p: argparse.ArgumentParser, views_help: str) -> None:
         type=Integer(1, RENDER_MAX_SIDE),
         help="image height in pixels (orbits: default 480)",
     )
-    p.add_argument("--cameras", type=Path, help="a 3DGS cameras.json instead of orbit cameras")
+    if cameras_help is not None:
+        p.add_argument("--cameras", type=Path, metavar="PATH", help=cameras_help)
     p.add_argument(
         "--background",
         default="0,0,0",
@@ -83,14 +99,21 @@ def add_render_commands(sub: Subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_input(p)
+    add_cameras(p)
     p.add_argument("--t", type=float, default=0.0, help="time in seconds (default 0)")
+    p.add_argument(
+        "--camera",
+        type=Integer(0, MAX_CAMERAS - 1),
+        help="capture camera N (from 0) of the input, its container or --cameras, drawn as the "
+        "player shows it (default: the view the player opens on)",
+    )
     p.add_argument(
         "--view",
         type=Integer(0, RENDER_MAX_VIEWS - 1),
-        default=0,
-        help="camera index, from 0 (default 0)",
+        help="orbit view N (from 0) of --views, or with --cameras that file's camera N "
+        "stretched to --width x --height",
     )
-    _add_views(p, "orbit cameras around the scene (default 8); with --cameras: all")
+    _add_views(p, "orbit cameras around the scene (default 8); with --cameras: all", None)
     p.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     add_common(p)
@@ -106,7 +129,12 @@ def add_render_commands(sub: Subparsers) -> None:
     p.add_argument(
         "--times", type=Integer(1, EVAL_MAX_TIMES), default=5, help="times sampled (default 5)"
     )
-    _add_views(p, "views per time (default 4 orbit cameras; with --cameras: all)")
+    _add_views(
+        p,
+        "views per time (default 4 orbit cameras; with --cameras: all)",
+        "render from these cameras instead of orbits: a 3DGS cameras.json, a COLMAP model or "
+        "a .splatv's cameras",
+    )
     p.add_argument("--plot", type=Path, help="also draw PSNR over time to this PNG")
     p.add_argument("-f", "--force", action="store_true", help="replace the PLOT if it exists")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -153,36 +181,63 @@ def _setup(args: argparse.Namespace, default_views: int) -> tuple[CameraSetup, R
     from ..render.evaluate import CameraSetup, RenderStyle  # noqa: PLC0415 - loads the renderer
 
     views = args.views if args.views is not None or args.cameras else default_views
-    setup = CameraSetup(views, args.width, args.height, args.cameras, parse_up(args.up))
+    cameras = args.cameras  # eval: always replaces the orbits; render: only with --view(s)
+    if hasattr(args, "view") and args.view is None and args.views is None:
+        cameras = None
+    setup = CameraSetup(views, args.width, args.height, cameras, parse_up(args.up))
     setup.check()
     return setup, RenderStyle(parse_background(args.background), args.antialiased)
 
 
 def _notes(source: Source) -> None:
-    """The reader's warnings, one line each on stderr."""
-    for note in source.notes:
-        print(f"tsog: note: {note}", file=sys.stderr)
+    """The reader's warnings and notes, one line each on stderr."""
+    print_reader_notes(source.notes)
 
 
 def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
     """tsog render."""
     from ..inputs import open_source  # noqa: PLC0415
     from ..render import save_png  # noqa: PLC0415 - loads the renderer
-    from ..render.evaluate import render_view  # noqa: PLC0415
+    from ..render.evaluate import opening_camera, render_view  # noqa: PLC0415
 
     refuse_existing(args.output, overwrite=args.force)
+    orbit = args.view is not None or args.views is not None
+    if orbit and args.camera is not None:
+        raise InputError("--camera picks a capture camera; --view/--views pick orbit views")
     setup, style = _setup(args, default_views=8)
     options = read_options(args)
     progress(f"reading {args.input}")
-    with open_source(args.input, format=args.format, options=options, progress=progress) as src:
+    with open_source(
+        args.input,
+        format=args.format,
+        options=options,
+        progress=progress,
+        cameras=None if orbit else args.cameras,
+    ) as src:
         _notes(src)
-        progress(f"rendering t = {args.t:g} s, view {args.view}")
-        image = render_view(src, args.t, args.view, setup, style)
+        if orbit:
+            seen, view = f"view {args.view or 0}", args.view or 0
+            progress(f"rendering t = {args.t:g} s, {seen}")
+            image = render_view(src, args.t, view, setup, style)
+        else:
+            camera = opening_camera(src, args.camera, args.width, args.height)
+            seen = _camera_label(args.camera, camera.name)
+            progress(f"rendering t = {args.t:g} s from {seen}")
+            image = style.image(src.at(args.t), camera)
     save_png(image, args.output)
     progress.done()
     height, width = image.shape[:2]
-    print(f"{args.output}: {width}x{height}, t = {args.t:g} s, view {args.view}")
+    print(f"{args.output}: {width}x{height}, t = {args.t:g} s, {seen}")
     return 0
+
+
+def _camera_label(index: int | None, name: str) -> str:
+    """'capture camera 2 (00003)', or what the opening view is."""
+    if index is not None:
+        return f"capture camera {index} ({name})" if name else f"capture camera {index}"
+    if name == FRAMING_NAME:
+        return "the opening view (a framing of the dense core)"
+    return f"the opening view (capture camera {name})" if name else "the opening view"
 
 
 def _open_pair(

@@ -18,9 +18,10 @@ import numpy as np
 from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
 from ..codec.precision import DEFAULT_QUALITY
-from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
+from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS, thumbnail_path
 from ..container.sources import ReadStats
-from ..errors import InputError
+from ..errors import InputError, TsogError
+from ..io.cameras import cameras_for_input
 from ..io.chunks import write_chunk_files
 from ..io.files import atomic_write_bytes, refuse_existing, remove_stale_temp_files
 from ..io.ply import write_ply
@@ -30,20 +31,24 @@ from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
 from ..merge.check import frame_errors
 from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
+from ..schemas.cameras import CaptureCamera
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
     SegmentOptions,
+    SegmentReport,
     merge_or_frames,
     segment_scene,
     segment_sequence,
 )
+from ..summary import cameras_summary
 from .common import (
     QUALITY,
     QUALITY_HELP,
     SEED,
     Integer,
     Subparsers,
+    add_cameras,
     add_common,
     add_input,
     check_time,
@@ -102,6 +107,7 @@ def add_stream_commands(sub: Subparsers) -> None:
     """Register the stream subcommands on the main parser."""
     p = sub.add_parser("segment", help="segment a 4D scene into a streamable .tsogs container")
     add_input(p)
+    add_cameras(p)
     p.add_argument(
         "-o", "--output", type=Path, required=True, help="the container to write (.tsogs)"
     )
@@ -191,13 +197,23 @@ def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
         for text in seq.notes():
             note(text)
         source: Scene | FrameSequence = seq
+        found = cameras_for_input(args.input, explicit=args.cameras)
+        cameras = found.cameras if found is not None else []
+        for text in found.notes if found is not None else []:
+            note(text)
+        source_name = found.source if found is not None and found.cameras else ""
     else:
-        source = load_input(args, progress)
-    return _segment(args, progress, source, input_bytes(args.input))
+        loaded = load_input(args, progress)
+        source, cameras, source_name = loaded.scene, loaded.cameras, loaded.cameras_source
+    return _segment(args, progress, source, input_bytes(args.input), (cameras, source_name))
 
 
 def _segment(
-    args: argparse.Namespace, progress: Progress, source: Scene | FrameSequence, input_size: int
+    args: argparse.Namespace,
+    progress: Progress,
+    source: Scene | FrameSequence,
+    input_size: int,
+    capture: tuple[list[CaptureCamera], str],
 ) -> int:
     """Segment an opened or loaded input as the options say, and report the result."""
     if isinstance(source, FrameSequence):
@@ -212,6 +228,7 @@ def _segment(
         seed=args.seed,
         quality=args.quality,
     )
+    cameras, cameras_source = capture
     for stale in remove_stale_temp_files(args.output):
         note(f"removed {stale}, left by an interrupted run")
     started = time.monotonic()
@@ -230,16 +247,18 @@ def _segment(
             print(f"temporal: {why}; stored one per frame (type 0)")
         if merged is None or why is not None:
             report = segment_sequence(
-                source, args.output, options, on_chunk=on_chunk, layout=layout
+                source, args.output, options, on_chunk=on_chunk, layout=layout, cameras=cameras
             )
         else:
-            report = segment_scene(merged, args.output, options, on_chunk=on_chunk, layout=layout)
+            report = segment_scene(
+                merged, args.output, options, on_chunk=on_chunk, layout=layout, cameras=cameras
+            )
             progress.done()
             _report_frame_errors(source, args.output)
     elif isinstance(source, FrameSequence):
-        report = segment_sequence(source, args.output, options, on_chunk=on_chunk)
+        report = segment_sequence(source, args.output, options, on_chunk=on_chunk, cameras=cameras)
     else:
-        report = segment_scene(source, args.output, options, on_chunk=on_chunk)
+        report = segment_scene(source, args.output, options, on_chunk=on_chunk, cameras=cameras)
     progress.done()
     print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, input_size)}")
     if report.layout is not None:
@@ -247,12 +266,43 @@ def _segment(
     print(f"  {report.windows} windows, {report.chunks} chunks")
     print(f"  {report.gaussians} Gaussians, {report.stored} stored copies")
     print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
+    print(f"  {_cameras_line(cameras, cameras_source, report)}")
+    _write_thumbnail(args.output, progress)
     for level, size in sorted(report.bytes_per_level.items()):
         print(f"  level {level}: {size} bytes")
     shown = ", ".join(str(b) for b in report.bytes_per_window[:12])
     more = " ..." if len(report.bytes_per_window) > 12 else ""
     print(f"  bytes per window (level 0): {shown}{more}")
     return 0
+
+
+def _write_thumbnail(container: Path, progress: Progress) -> None:
+    """The scene list's picture beside the container; a failure is a note, not an error."""
+    from ..inputs import thumbnail_png  # noqa: PLC0415 - loads the renderer
+
+    progress("drawing the thumbnail")
+    target = Path(thumbnail_path(str(container)))
+    try:
+        atomic_write_bytes(target, thumbnail_png(container))
+    except TsogError as exc:
+        note(f"no thumbnail: {exc}")
+        return
+    progress.done()
+    print(f"  thumbnail: {target}")
+
+
+def _cameras_line(cameras: list[CaptureCamera], source: str, report: SegmentReport) -> str:
+    """Where the player and tsog render open the scene, and why."""
+    if not cameras:
+        return (
+            "no capture cameras (none in the input or beside it; --cameras PATH gives them): "
+            "opens on a framing of the dense core"
+        )
+    many = "camera" if len(cameras) == 1 else "cameras"
+    found = f"{len(cameras)} capture {many} from {source}"
+    if report.view is not None and report.view == cameras[0]:
+        return f"{found}: opens from the first ({cameras[0].name or '0'}; {report.view_why})"
+    return f"{found}: opens on a framing of the dense core ({report.view_why})"
 
 
 def _size_change(size: int, input_size: int) -> str:
@@ -364,6 +414,7 @@ def stream_info(target: str) -> dict[str, Any]:
             "scene": m.scene.model_dump(),
             "nodes": len(m.nodes),
             "chunks": len(m.chunks),
+            "cameras": cameras_summary(m.cameras, view=m.view),
             "seek_costs": seek_table(reader),
         }
 

@@ -190,6 +190,8 @@ class HttpSource:
         elif resp.status == 206:
             expected = self._check_range(resp, span, probe=probe)
             await self._read_body(resp, got, expected)
+        elif resp.status in (404, 410):
+            raise SourceError(f"not found (HTTP {resp.status})", where=self.name)
         else:
             raise SourceError(
                 f"expected HTTP 206 for Range {span.http_header()}, got {resp.status}",
@@ -337,6 +339,8 @@ class HttpFiles:
                 raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
             if resp.status == 403:
                 raise AccessError(await _denial(resp), where=where)
+            if resp.status in (404, 410):
+                raise SourceError(f"not found (HTTP {resp.status})", where=where)
             if resp.status != 200:
                 raise SourceError(f"expected HTTP 200, got {resp.status}", where=where)
             if resp.headers.get("Content-Encoding", "identity").lower() != "identity":

@@ -409,6 +409,12 @@ class StreamClient:
         """
         _check_playback(start, speed, fps, duration, horizon_s)
         scene = self.index.manifest.scene
+        if not scene.start_s <= start <= scene.end_s:
+            raise InputError(
+                f"{start:g} s is outside the scene, which runs from {scene.start_s:g} to "
+                f"{scene.end_s:g} s",
+                where="--start",
+            )
         end = start + duration * speed if duration is not None else scene.end_s
         frames = max((end - start) * fps / speed + 1e-9, 0.0) + 1
         if frames > MAX_PLAY_FRAMES:

@@ -16,6 +16,7 @@ import stat
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 from ..errors import SourceError
 
@@ -153,9 +154,14 @@ def read_bytes(path: str | os.PathLike[str]) -> bytes:
     return read_head(path, -1)
 
 
+def open_regular(path: str | os.PathLike[str]) -> BinaryIO:
+    """A regular file opened for binary reading (a FIFO, device or folder: a SourceError)."""
+    return os.fdopen(_open_regular(path), "rb")
+
+
 def read_head(path: str | os.PathLike[str], limit: int) -> bytes:
     """At most ``limit`` first bytes of a regular file (all of it for -1), or a SourceError."""
-    with os.fdopen(_open_regular(path), "rb") as f:
+    with open_regular(path) as f:
         try:
             return f.read(limit)
         except OSError as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..model import Scene
+from ..schemas.cameras import CaptureCamera
 
 
 @dataclass(frozen=True)
@@ -18,3 +19,5 @@ class Loaded4D:
 
     scene: Scene
     notes: list[str] = field(default_factory=list)
+    cameras: list[CaptureCamera] = field(default_factory=list)
+    """Capture cameras the file carries (``.splatv`` headers), in file order."""

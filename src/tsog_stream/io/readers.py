@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -16,6 +16,8 @@ from ..codec.bundle import is_zip
 from ..constants import is_container
 from ..errors import InputError, UnsupportedError
 from ..model import Scene
+from ..schemas.cameras import CaptureCamera
+from .cameras import cameras_for_input
 from .chunks import is_unbundled, read_chunk
 from .compressed_ply import is_compressed_ply
 from .files import read_bytes, read_head
@@ -71,6 +73,10 @@ class LoadedScene:
     scene: Scene
     format: str
     notes: list[str] = field(default_factory=list)
+    cameras: list[CaptureCamera] = field(default_factory=list)
+    """Capture cameras: given with ``cameras=``, carried by the file, or found beside it."""
+    cameras_source: str = ""
+    """Where the cameras were read ("" without cameras)."""
 
 
 def _is_glob(path: str | os.PathLike[str]) -> bool:
@@ -164,9 +170,30 @@ def load_scene(
     format: str | None = None,
     options: ReadOptions | None = None,
     progress: Progress | None = None,
+    cameras: str | os.PathLike[str] | None = None,
 ) -> LoadedScene:
-    """Read any supported input as a Scene (static inputs have no timeline)."""
-    options = options or ReadOptions()
+    """Read any supported input as a Scene (static inputs have no timeline), with its capture
+    cameras: ``cameras`` (a cameras.json or COLMAP model), else the file's own, else any found
+    beside it (io/cameras.py)."""
+    loaded = _load(path, format, options or ReadOptions(), progress)
+    found = cameras_for_input(path, explicit=cameras, own=loaded.cameras)
+    if found is None:
+        return loaded
+    return replace(
+        loaded,
+        notes=loaded.notes + found.notes,
+        cameras=found.cameras,
+        cameras_source=found.source if found.cameras else "",
+    )
+
+
+def _load(
+    path: str | os.PathLike[str],
+    format: str | None,
+    options: ReadOptions,
+    progress: Progress | None,
+) -> LoadedScene:
+    """The scene and notes of any input, with the cameras the file itself carries."""
     kind = format or detect_format(path)
     if kind in STREAMS:
         raise InputError(
@@ -181,4 +208,4 @@ def load_scene(
         contents = parse_ply(read_bytes(path), name=str(path))  # the header tells which kind
         return LoadedScene(Scene(contents.gaussians), kind, list(contents.notes))
     loaded = _read_4d(kind, str(path), options, progress)
-    return LoadedScene(loaded.scene, kind, list(loaded.notes))
+    return LoadedScene(loaded.scene, kind, list(loaded.notes), list(loaded.cameras))

@@ -55,7 +55,8 @@ from ..constants import SH_C0
 from ..errors import FormatError, InputError
 from ..model import F32, Gaussians, Scene, Timeline, TimelineType
 from ..opacity import alpha_to_logit
-from .files import read_bytes
+from ..schemas.cameras import CaptureCamera, cameras_from_json
+from .files import read_bytes, read_head
 from .loaded import Loaded4D
 
 MAGIC: Final = 0x674B
@@ -116,8 +117,37 @@ def parse_splatv(
     keep = _keep_mask(records, notes)
     scene = _to_scene(records[keep], duration, notes)
     if duration_s is None:
-        notes.append("splatv time is normalised to [0, 1]: 1 unit read as 1.0 s (duration_s)")
-    return Loaded4D(scene, notes)
+        notes.insert(0, ASSUMED_DURATION)
+    return Loaded4D(scene, notes, _header_cameras(chunks, name, notes))
+
+
+ASSUMED_DURATION: Final = (
+    "splatv time is normalised to [0, 1] and the file does not say how long the clip is: "
+    "read as 1 s (pass --duration-s)"
+)
+
+
+def read_splatv_cameras(path: str | os.PathLike[str]) -> tuple[list[CaptureCamera], list[str]]:
+    """The cameras a ``.splatv`` header carries (reads the header only) and notes on them."""
+    head = read_head(path, PREAMBLE.size + MAX_JSON_BYTES)
+    chunks, _ = _read_header(head, str(path))
+    notes: list[str] = []
+    return _header_cameras(chunks, str(path), notes), notes
+
+
+def _header_cameras(
+    chunks: list[dict[str, Any]], name: str, notes: list[str]
+) -> list[CaptureCamera]:
+    """The ``cameras`` list of the first chunk that has one (3DGS cameras.json entries); an
+    unreadable list is noted and ignored: the Gaussians do not depend on it."""
+    for i, chunk in enumerate(chunks):
+        if "cameras" in chunk:
+            try:
+                return cameras_from_json(chunk["cameras"], where=f"{name}: chunk {i} cameras")
+            except FormatError as exc:
+                notes.append(f"ignored the file's cameras: {exc}")
+                return []
+    return []
 
 
 def _duration(duration_s: float | None) -> float:

@@ -16,10 +16,11 @@ import numpy.typing as npt
 from PIL import Image
 
 from ..errors import InputError
+from ..framing import look_at
 from ..io.files import atomic_write_bytes
 from ..model import Gaussians
 from . import raster_numba
-from .camera import Camera, load_cameras_json, look_at, orbit_cameras, scene_orbit
+from .camera import Camera, from_capture, load_cameras_json, orbit_cameras, scene_orbit
 from .project import Projected, project
 from .raster import bin_tiles, rasterize_numpy
 
@@ -29,10 +30,12 @@ __all__ = [
     "Backend",
     "Camera",
     "Projected",
+    "from_capture",
     "load_cameras_json",
     "look_at",
     "numba_available",
     "orbit_cameras",
+    "png_bytes",
     "project",
     "render",
     "save_png",
@@ -80,12 +83,17 @@ def to_uint8(image: npt.ArrayLike) -> npt.NDArray[np.uint8]:
     return np.round(np.clip(arr, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def save_png(image: npt.ArrayLike, path: str | os.PathLike[str]) -> None:
-    """Write an (H, W, 3) float or uint8 image as an 8-bit PNG, atomically."""
+def png_bytes(image: npt.ArrayLike) -> bytes:
+    """An (H, W, 3) float or uint8 image as 8-bit PNG bytes."""
     arr = np.asarray(image)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise InputError(f"expected an (H, W, 3) image, got shape {arr.shape}")
     pixels = arr if arr.dtype == np.uint8 else to_uint8(arr)
     buffer = io.BytesIO()
     Image.fromarray(pixels).save(buffer, format="PNG")
-    atomic_write_bytes(path, buffer.getvalue())
+    return buffer.getvalue()
+
+
+def save_png(image: npt.ArrayLike, path: str | os.PathLike[str]) -> None:
+    """Write an (H, W, 3) float or uint8 image as an 8-bit PNG, atomically."""
+    atomic_write_bytes(path, png_bytes(image))

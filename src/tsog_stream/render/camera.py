@@ -1,4 +1,5 @@
-"""Pinhole cameras for the CPU renderer: the 3DGS ``cameras.json`` and generated orbits.
+"""Pinhole cameras for the CPU renderer: capture cameras (3DGS ``cameras.json``, COLMAP,
+``.splatv``) and generated orbits.
 
 Convention (the 3DGS / COLMAP / OpenCV one): camera x right, y down, z forward;
 ``world_to_camera`` maps world points to that frame. ``cx``/``cy`` are measured with the image
@@ -8,18 +9,18 @@ spanning [0, width] x [0, height] (pixel i covers [i, i + 1)), so a centred came
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import FormatError, InputError, SourceError
+from ..errors import InputError
+from ..framing import look_at, world_to_camera
+from ..io.cameras import read_cameras
 from ..model import Gaussians
+from ..schemas.cameras import CaptureCamera
 
 F64 = npt.NDArray[np.float64]
 
@@ -86,25 +87,6 @@ class Camera:
         )
 
 
-def look_at(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike) -> F64:
-    """World-to-camera matrix of a camera at ``eye`` looking at ``target`` (y down, z forward)."""
-    eye_v = np.asarray(eye, dtype=np.float64)
-    forward = np.asarray(target, dtype=np.float64) - eye_v
-    norm = np.linalg.norm(forward)
-    if norm == 0:
-        raise InputError("the camera position equals its target")
-    forward /= norm
-    right = np.cross(forward, np.asarray(up, dtype=np.float64))
-    if np.linalg.norm(right) < 1e-9:
-        raise InputError("the view direction is parallel to the up vector")
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    w2c = np.eye(4)
-    w2c[:3, :3] = np.stack([right, down, forward])
-    w2c[:3, 3] = -w2c[:3, :3] @ eye_v
-    return w2c
-
-
 def orbit_cameras(
     center: npt.ArrayLike,
     radius: float,
@@ -168,57 +150,57 @@ def scene_orbit(
     return orbit_cameras(center, distance, count, width, height, fov_deg=fov_deg, up=up)
 
 
-def _field(entry: dict[str, Any], key: str, shape: tuple[int, ...], where: str) -> F64:
-    """``entry[key]`` as a finite float64 array of ``shape`` or a FormatError naming the field."""
-    if key not in entry:
-        raise FormatError(f"missing field '{key}'", where=where)
-    try:
-        value = np.array(entry[key], dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise FormatError(f"field '{key}' is not numeric", where=where) from exc
-    if value.shape != shape or not np.all(np.isfinite(value)):
-        raise FormatError(f"field '{key}' must be finite numbers of shape {shape}", where=where)
-    return value
-
-
-def _json_camera(entry: object, where: str, width: int | None, height: int | None) -> Camera:
-    """One cameras.json entry, its intrinsics scaled to the requested size."""
-    if not isinstance(entry, dict):
-        raise FormatError("each camera must be a JSON object", where=where)
-    w0, h0 = float(_field(entry, "width", (), where)), float(_field(entry, "height", (), where))
-    fx, fy = float(_field(entry, "fx", (), where)), float(_field(entry, "fy", (), where))
-    if w0 <= 0 or h0 <= 0 or fx <= 0 or fy <= 0:
-        raise FormatError("width, height, fx and fy must be positive", where=where)
-    position = _field(entry, "position", (3,), where)
-    rotation = _field(entry, "rotation", (3, 3), where)  # camera-to-world
-    w = width if width is not None else round(w0 * height / h0) if height is not None else int(w0)
-    h = height if height is not None else round(h0 * w / w0)
-    w2c = np.eye(4)
-    w2c[:3, :3] = rotation.T
-    w2c[:3, 3] = -rotation.T @ position
-    name = str(entry.get("img_name", entry.get("id", "")))
-    return Camera(w, h, fx * w / w0, fy * h / h0, w / 2, h / 2, w2c, name)
-
-
 def load_cameras_json(
     path: str | os.PathLike[str], width: int | None = None, height: int | None = None
 ) -> list[Camera]:
-    """The cameras of a 3DGS ``cameras.json``, scaled to ``width`` x ``height``.
+    """The cameras of a camera file (3DGS ``cameras.json``, COLMAP model, ``.splatv``: see
+    :func:`tsog_stream.io.cameras.read_cameras`), scaled to ``width`` x ``height``.
 
     When only one of them is given the other keeps each camera's aspect ratio; when neither is,
-    the file's own sizes are used. The principal point is the image centre, as in 3DGS.
+    the file's own sizes are used. Intrinsics scale per axis, as 3DGS's evaluation does.
     """
     for label, value in (("width", width), ("height", height)):
         if value is not None and value <= 0:
             raise InputError(f"{label} must be positive, got {value}")
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"cannot read the cameras file: {exc}", where=str(path)) from exc
-    try:
-        entries = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FormatError(f"not valid JSON: {exc}", where=str(path)) from exc
-    if not isinstance(entries, list) or not entries:
-        raise FormatError("expected a non-empty JSON list of cameras", where=str(path))
-    return [_json_camera(e, f"{path}[{i}]", width, height) for i, e in enumerate(entries)]
+    return [stretched(c, width, height) for c in read_cameras(path).cameras]
+
+
+def _size(capture: CaptureCamera, width: int | None, height: int | None) -> tuple[int, int]:
+    """The requested size, a missing side following the capture's aspect ratio."""
+    if width is None and height is None:
+        return capture.width, capture.height
+    if width is None:
+        assert height is not None
+        return max(1, round(capture.width * height / capture.height)), height
+    if height is None:
+        return width, max(1, round(capture.height * width / capture.width))
+    return width, height
+
+
+def from_capture(capture: CaptureCamera, width: int | None, height: int | None = None) -> Camera:
+    """A capture camera drawing ``width`` x ``height`` pixels as a player's window shows it:
+    the vertical field of view kept, square pixels, the principal point moved with the centre
+    (a window wider than the capture sees more at the sides). A side left None follows the
+    capture's aspect ratio (both None: the capture's size)."""
+    w, h = _size(capture, width, height)
+    scale = h / capture.height
+    cx, cy = capture.principal_point
+    return Camera(
+        w,
+        h,
+        capture.fx * scale,
+        capture.fy * scale,
+        w / 2 + (cx - capture.width / 2) * scale,
+        h / 2 + (cy - capture.height / 2) * scale,
+        world_to_camera(capture),
+        capture.name,
+    )
+
+
+def stretched(capture: CaptureCamera, width: int | None, height: int | None) -> Camera:
+    """A capture camera scaled per axis to ``width`` x ``height`` (3DGS evaluation style)."""
+    w, h = _size(capture, width, height)
+    sx, sy = w / capture.width, h / capture.height
+    cx, cy = capture.principal_point
+    w2c = world_to_camera(capture)
+    return Camera(w, h, capture.fx * sx, capture.fy * sy, cx * sx, cy * sy, w2c, capture.name)

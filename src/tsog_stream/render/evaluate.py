@@ -20,13 +20,17 @@ import numpy.typing as npt
 
 from ..constants import EVAL_MAX_TIMES, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
 from ..errors import InputError
+from ..framing import default_view
 from ..model import Gaussians, Scene
+from ..schemas.cameras import CaptureCamera
 from ..temporal import time_range
 from . import render, to_uint8
-from .camera import Camera, load_cameras_json, scene_orbit
+from .camera import Camera, from_capture, load_cameras_json, scene_orbit
 from .metrics import mse, psnr_from_mse, ssim
 
 Span = tuple[float, float]
+DEFAULT_WIDTH = 640
+"""Image width of renders when none is given (orbits: 640x480)."""
 StepCallback = Callable[[int, int], None]
 """Called with (steps done, steps in all) while an evaluation runs."""
 
@@ -44,6 +48,10 @@ class Source:
     notes: list[str] = field(default_factory=list)
     fps: float | None = None
     """Frame rate of a frame-based scene (timeline types 0 and 1 with ``fps``), else None."""
+    cameras: list[CaptureCamera] = field(default_factory=list)
+    """Capture cameras the input carries, sits beside, or its container stores."""
+    opening: Callable[[], CaptureCamera | None] = lambda: None
+    """Where a viewer opens the scene (framing.default_view), computed when asked."""
 
     def at(self, t: float) -> Gaussians:
         """The Gaussians visible at ``t`` seconds."""
@@ -62,12 +70,21 @@ class Source:
         self.close()
 
 
-def scene_source(scene: Scene, name: str = "scene") -> Source:
+def scene_source(
+    scene: Scene, name: str = "scene", cameras: Sequence[CaptureCamera] = ()
+) -> Source:
     """An in-memory scene as a :class:`Source` (for scripts, tests and benchmarks)."""
     timeline = scene.timeline
     span = time_range(timeline) if timeline is not None else None
     fps = timeline.fps if timeline is not None else None
-    return Source(name, "scene", span, scene.at, fps=fps)
+
+    def opening() -> CaptureCamera | None:
+        try:
+            return default_view(scene.gaussians, cameras)
+        except InputError:
+            return None
+
+    return Source(name, "scene", span, scene.at, fps=fps, cameras=list(cameras), opening=opening)
 
 
 def sample_times(span: Span | None, count: int, fps: float | None = None) -> list[float]:
@@ -172,6 +189,31 @@ def render_view(
     if not 0 <= view < len(cameras):
         raise InputError(f"no view {view}; there are views 0-{len(cameras) - 1}", where="--view")
     return (style or RenderStyle()).image(frame, cameras[view])
+
+
+def opening_camera(
+    source: Source, camera: int | None, width: int | None, height: int | None
+) -> Camera:
+    """Capture camera ``camera`` of the source, or (None) the view it opens from, drawn at
+    ``width`` (default 640) x ``height`` (default: the camera's aspect ratio) as a player
+    window shows it (:func:`~tsog_stream.render.camera.from_capture`)."""
+    if camera is not None:
+        if not source.cameras:
+            raise InputError(
+                "the input has no capture cameras (give them with --cameras)", where="--camera"
+            )
+        if not 0 <= camera < len(source.cameras):
+            last = len(source.cameras) - 1
+            raise InputError(f"no camera {camera}; there are cameras 0-{last}", where="--camera")
+        chosen = source.cameras[camera]
+    else:
+        opening = source.opening()
+        if opening is None:
+            raise InputError("the scene shows nothing to aim a camera at")
+        chosen = opening
+    if width is None and height is None:
+        width = DEFAULT_WIDTH
+    return from_capture(chosen, width, height)
 
 
 def json_psnr(value: float) -> float | None:

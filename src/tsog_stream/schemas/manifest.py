@@ -16,6 +16,7 @@ from pydantic.dataclasses import dataclass
 
 from ..constants import TEMPORAL_CHANNELS
 from ..errors import IntegrityError, MetaError
+from .cameras import CameraList, CaptureCamera
 from .sog_meta import to_meta_error
 
 MANIFEST_VERSION = 1
@@ -45,6 +46,15 @@ class Box:
     max: Vec3
 
 
+@dataclass(frozen=True, slots=True, config=_STRICT)
+class Core:
+    """The scene's dense core (framing.dense_core): where a viewer's orbit pivots and how far
+    it zooms, whatever floaters stretch the bounding box to."""
+
+    center: Vec3
+    radius: Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
 class SceneInfo(_Model):
     """What the whole stream holds."""
 
@@ -57,6 +67,7 @@ class SceneInfo(_Model):
     temporal: dict[str, NonNegInt] = Field(description="dynamic attribute -> polynomial order")
     sh_bands: Literal[0, 1, 2, 3]
     bbox: Box
+    core: Core | None = Field(default=None, description="the dense core (null: not measured)")
 
     @model_validator(mode="after")
     def _check(self) -> SceneInfo:
@@ -109,6 +120,14 @@ class Manifest(_Model):
     nodes: list[Node]
     chunks: list[ChunkEntry]
     payload_bytes: NonNegInt
+    cameras: CameraList = Field(
+        default_factory=list, description="capture cameras the input carried or sat beside"
+    )
+    view: CaptureCamera | None = Field(
+        default=None,
+        description="where a viewer opens: the first capture camera, else a framing of the "
+        "scene's dense core (null in indexes written before cameras were stored)",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> Manifest:

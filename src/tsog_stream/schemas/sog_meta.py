@@ -91,6 +91,8 @@ def _message(err: ErrorDetails) -> str:
     kind, msg, ctx = err["type"], err["msg"], err.get("ctx") or {}
     if kind.startswith("tsog_"):
         return msg  # our own messages already say expected/found
+    if kind == "missing" and isinstance(err["loc"][-1], int):
+        return "expected an item here, found too few items"
     if kind == "missing":
         return "expected this key, found it missing"
     if kind == "extra_forbidden":

@@ -34,9 +34,11 @@ from ..constants import (
 )
 from ..container.writer import ContainerFile
 from ..errors import InputError
+from ..framing import dense_core, opening_view
 from ..io.sequence import FrameSequence
-from ..model import Scene
+from ..model import Gaussians, Scene
 from ..morton import morton_order
+from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
@@ -78,6 +80,29 @@ class SegmentOptions:
 
 
 @dataclass(frozen=True)
+class Views:
+    """The capture cameras an index stores and the view a player opens the scene from."""
+
+    cameras: list[CaptureCamera]
+    view: CaptureCamera | None
+    core: dict[str, Any] | None
+    why: str = ""
+    """Why the view is the one it is (framing.opening_view)."""
+
+    @classmethod
+    def of(cls, gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> Views:
+        """``cameras``, the default view and the dense core of a scene whose base (or first
+        frame) is ``gaussians``; no view or core for a scene with nothing visible to frame."""
+        try:
+            centre, radius = dense_core(gaussians)
+        except InputError:
+            return cls(list(cameras), cameras[0] if cameras else None, None, "nothing visible")
+        core = {"center": _vec3(centre), "radius": radius}
+        view, why = opening_view(gaussians, cameras)
+        return cls(list(cameras), view, core, why)
+
+
+@dataclass(frozen=True)
 class ChunkJob:
     """One chunk to encode: its node and its Gaussians (indices into the scene)."""
 
@@ -101,6 +126,10 @@ class SegmentReport:
     """Bytes of the window chunks (level 0) of each window, in time order."""
     layout: Choice | None = None
     """The layout used, its estimates, the others tried and why it was chosen."""
+    view: CaptureCamera | None = None
+    """Where a player opens the scene (the index's ``view``)."""
+    view_why: str = ""
+    """Why that view (framing.opening_view)."""
 
 
 def palette_pixels(count: int, sh_bands: int) -> int:
@@ -379,6 +408,7 @@ def _write_container(
     scene_fields: dict[str, Any],
     options: SegmentOptions,
     on_chunk: ChunkProgress | None,
+    views: Views,
 ) -> SegmentReport:
     """Encode parts (in order), append them, and finish the container with its index."""
     entries: list[ChunkEntry] = []
@@ -411,6 +441,7 @@ def _write_container(
             "start_s": plan.start_s,
             "end_s": plan.end_s,
             "bbox": _union([e.bbox for e in entries]),
+            "core": views.core,
         }
         manifest = Manifest.model_validate(
             {
@@ -422,6 +453,8 @@ def _write_container(
                 "nodes": _nodes(plan, keys),
                 "chunks": entries,
                 "payload_bytes": sum(e.length for e in entries),
+                "cameras": views.cameras,
+                "view": views.view,
             }
         )
         size = out.finish(manifest)
@@ -441,6 +474,8 @@ def _write_container(
         plan.dropped,
         per_level,
         per_window,
+        view=views.view,
+        view_why=views.why,
     )
 
 
@@ -451,9 +486,11 @@ def segment_scene(
     *,
     on_chunk: ChunkProgress | None = None,
     layout: Choice | None = None,
+    cameras: Sequence[CaptureCamera] = (),
 ) -> SegmentReport:
     """Segment an in-memory scene into the container at ``path`` (published atomically), in
-    ``layout`` when already chosen for these options (see :func:`merge_or_frames`)."""
+    ``layout`` when already chosen for these options (see :func:`merge_or_frames`), with its
+    capture ``cameras`` and the view a player opens it from (framing.default_view)."""
     options = options or SegmentOptions()
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
     choice = layout or scene_layout(scene, options, max_count)
@@ -478,6 +515,7 @@ def segment_scene(
         scene_fields=fields,
         options=options,
         on_chunk=on_chunk,
+        views=Views.of(scene.gaussians, cameras),
     )
     return replace(report, layout=choice)
 
@@ -498,6 +536,7 @@ def segment_sequence(
     *,
     on_chunk: ChunkProgress | None = None,
     layout: Choice | None = None,
+    cameras: Sequence[CaptureCamera] = (),
 ) -> SegmentReport:
     """Segment a frame sequence window by window: memory depends on the window, not the length.
     ``layout``: the frames per chunk when already chosen (see :func:`merge_or_frames`).
@@ -535,8 +574,20 @@ def segment_sequence(
         scene_fields=fields,
         options=options,
         on_chunk=on_chunk,
+        views=Views.of(_sampled_frames(seq), cameras),
     )
     return replace(report, layout=choice)
+
+
+VIEW_FRAMES = 5
+"""Frames of a sequence (evenly spread) whose Gaussians the opening view frames."""
+
+
+def _sampled_frames(seq: FrameSequence) -> Gaussians:
+    """The Gaussians of a few frames spread over the sequence: a first frame alone can be a
+    launching rocket whose explosion fills the later frames."""
+    picks = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(VIEW_FRAMES, seq.count))})
+    return Gaussians.concat([seq.read(k, k + 1).scene.gaussians for k in picks])
 
 
 def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Choice:

@@ -34,7 +34,7 @@ from .private import (
     signed_suffix,
 )
 from .respond import CORS, IMMUTABLE, LIMITS, LOAD, REVALIDATE, Limits, Load, send_representation
-from .scenes import CATALOG, find_scene, public_scenes
+from .scenes import CATALOG, find_scene, scene_list, thumbnail_rel
 
 PREFLIGHT = {
     "Access-Control-Allow-Methods": "GET, HEAD, OPTIONS",
@@ -129,27 +129,18 @@ async def _scene(request: web.Request) -> SceneEntry:
     return await find_scene(request, request.match_info["id"])
 
 
-def _scene_json(scene: SceneEntry) -> dict[str, Any]:
-    """One item of the scene list."""
-    q = quote(scene.id)
-    info = scene.index.manifest.scene
-    return {
-        "id": scene.id,
-        "url": f"/files/{q}.tsogs" if scene.packed else f"/files/{q}/manifest.json",
-        "manifest": f"/v1/scenes/{q}/manifest",
-        "packed": scene.packed,
-        "bytes": scene.size,
-        "identity": scene.index.identity,
-        "start_s": info.start_s,
-        "end_s": info.end_s,
-        "duration_s": info.end_s - info.start_s,
-        "chunks": len(scene.index.manifest.chunks),
-    }
+async def thumbnail(request: web.Request) -> web.StreamResponse:
+    """GET/HEAD /v1/scenes/{id}/thumbnail: the PNG tsog segment drew beside the scene (404
+    when there is none); admitted as the scene is."""
+    scene = await _scene(request)
+    catalog = request.app[CATALOG]
+    rep = await catalog.file(thumbnail_rel(catalog, scene))
+    return await send_representation(request, rep)
 
 
 async def scenes(request: web.Request) -> web.StreamResponse:
     """GET /v1/scenes: every readable public scene under the root (private ones are not listed)."""
-    items = [_scene_json(scene) for scene in await public_scenes(request)]
+    items = await scene_list(request)
     return web.json_response({"scenes": items}, headers={"Cache-Control": "no-cache"})
 
 
@@ -243,6 +234,7 @@ def make_app(
     r.add_get("/v1/authorize", authorize)
     r.add_get("/v1/scenes/{id:.+}/manifest", manifest)
     r.add_get("/v1/scenes/{id:.+}/chunks", chunks)
+    r.add_get("/v1/scenes/{id:.+}/thumbnail", thumbnail)
     r.add_get("/v1/scenes/{id:.+}/chunks/{n:[0-9]{1,9}}.sog", chunk)
     add_player_routes(app)
     return app

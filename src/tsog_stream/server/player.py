@@ -24,7 +24,7 @@ from ..signing import EXPIRES, signing_params
 from .catalog import NotFoundError, Representation
 from .private import PRIVACY, is_signed
 from .respond import send_representation
-from .scenes import find_scene, public_scenes
+from .scenes import find_scene, scene_list
 
 PLAYER_DIR = Path(__file__).with_name("player")
 ENGINE_ENV = "TSOG_PLAYCANVAS_DIR"
@@ -127,10 +127,7 @@ async def index(request: web.Request) -> web.StreamResponse:
     url = request.query.get("manifest")
     if url is not None:
         return await _player_page("stream", {"scene": None, "manifest": _manifest_url(url)})
-    items = "".join(
-        f'<li><a href="/play/{quote(s.id)}">{html.escape(s.id)}</a></li>\n'
-        for s in await public_scenes(request)
-    )
+    items = "".join(_scene_item(item) for item in await scene_list(request))
     listing = f'<ul class="scenes">\n{items}</ul>\n' if items else "<p>No scenes here.</p>\n"
     form = (
         '<form class="open" action="/play/" method="get">\n'
@@ -141,6 +138,25 @@ async def index(request: web.Request) -> web.StreamResponse:
     )
     body = f'<main class="index">\n<h1>Scenes</h1>\n{listing}{form}</main>\n'
     return _page("tsog-stream scenes", body)
+
+
+def _scene_item(item: dict[str, Any]) -> str:
+    """One scene of the index: its thumbnail (when tsog segment drew one), name, duration,
+    Gaussian count and size."""
+    picture = (
+        f'<img src="{html.escape(item["thumbnail"])}" alt="" loading="lazy">'
+        if item["thumbnail"]
+        else '<span class="no-thumbnail"></span>'
+    )
+    facts = (
+        f"{item['duration_s']:.2f} s &middot; {item['gaussians']:,} Gaussians &middot; "
+        f"{item['bytes'] / 1e6:.1f} MB"
+    )
+    return (
+        f'<li><a href="/play/{quote(item["id"])}">{picture}'
+        f'<span class="name">{html.escape(item["id"])}</span>'
+        f'<span class="facts">{facts}</span></a></li>\n'
+    )
 
 
 def _manifest_url(url: str) -> str:
@@ -189,7 +205,7 @@ async def play(request: web.Request) -> web.StreamResponse:
 
 
 async def to_index(request: web.Request) -> web.StreamResponse:
-    """GET /play: redirect to the index page."""
+    """GET / and GET /play: redirect to the index page of scenes."""
     raise web.HTTPFound("/play/")
 
 
@@ -197,6 +213,7 @@ def add_player_routes(app: web.Application) -> None:
     """Register the player routes on ``app`` (made by :func:`~.app.make_app`)."""
     app[ETAGS] = {}
     r = app.router
+    r.add_get("/", to_index)
     r.add_get("/play", to_index)
     r.add_get("/play/", index)
     r.add_get("/play/{id:.+}", play)

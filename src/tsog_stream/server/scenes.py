@@ -9,9 +9,13 @@ spells (the player's ``/v1/scenes/paid/show/`` opens ``paid/show`` and not a sce
 from __future__ import annotations
 
 import asyncio
+from typing import Any
+from urllib.parse import quote
 
 from aiohttp import web
 
+from ..constants import thumbnail_path
+from ..container.stream_index import MANIFEST
 from ..errors import AccessError, InputError, TsogError
 from ..signing import SCOPE, decoded_path
 from .catalog import CONTAINER_SUFFIX, Catalog, NotFoundError, SceneEntry
@@ -64,3 +68,39 @@ async def public_scenes(request: web.Request) -> list[SceneEntry]:
         if not any(privacy.is_private(r) for r in rels):
             found.append(scene)
     return found
+
+
+def thumbnail_rel(catalog: Catalog, scene: SceneEntry) -> str:
+    """The root-relative name of a scene's thumbnail (beside its container or manifest)."""
+    rel = catalog.scene_relative(scene)
+    return thumbnail_path(rel if scene.packed else f"{rel}/{MANIFEST}")
+
+
+def _scene_json(scene: SceneEntry, has_thumbnail: bool = False) -> dict[str, Any]:
+    """One item of the scene list."""
+    q = quote(scene.id)
+    info = scene.index.manifest.scene
+    return {
+        "id": scene.id,
+        "url": f"/files/{q}.tsogs" if scene.packed else f"/files/{q}/manifest.json",
+        "manifest": f"/v1/scenes/{q}/manifest",
+        "packed": scene.packed,
+        "bytes": scene.size,
+        "identity": scene.index.identity,
+        "start_s": info.start_s,
+        "end_s": info.end_s,
+        "duration_s": info.end_s - info.start_s,
+        "chunks": len(scene.index.manifest.chunks),
+        "gaussians": info.gaussians,
+        "cameras": len(scene.index.manifest.cameras),
+        "thumbnail": f"/v1/scenes/{q}/thumbnail" if has_thumbnail else None,
+    }
+
+
+async def scene_list(request: web.Request) -> list[dict[str, Any]]:
+    """The public scenes as the API and the player's index list them."""
+    catalog = request.app[CATALOG]
+    found = await public_scenes(request)
+    rels = [catalog.root / thumbnail_rel(catalog, s) for s in found]
+    present = await asyncio.to_thread(lambda: [p.is_file() for p in rels])
+    return [_scene_json(s, has) for s, has in zip(found, present, strict=True)]

@@ -4,15 +4,15 @@
 // controls and an overlay. See docs/design/player.md.
 import * as pc from 'playcanvas';
 import { ChunkStream } from './stream.js';
-import { OrbitCamera } from './orbit.js';
+import { CameraControls } from './controls.js';
+import { UP_CHOICES, capturePose, pivotDistance, sceneUp, upRotation } from './views.js';
 
 const $ = (id) => document.getElementById(id);
 
-/** Euler angles (degrees) that turn a scene's up axis to the engine's +y. 3DGS captures in
- * COLMAP convention are y-down: open them with ?up=-y. */
-const UP_ROTATIONS = { y: [0, 0, 0], '-y': [0, 0, 180], z: [-90, 0, 0], '-z': [90, 0, 0] };
+const DEFAULT_FRAME_S = 1 / 30; // a frame step when the scene has no frame rate
 
-/** The page's configuration (written by the server) and its query: t, paused, manifest. */
+/** The page's configuration (written by the server) and its query: t, paused, the camera
+ * (camera=N, pose=tx,ty,tz,yaw,pitch,distance[,fov], or the older yaw/pitch/distance), up. */
 function readConfig() {
     const config = JSON.parse($('tsog-config').textContent);
     const params = new URLSearchParams(window.location.search);
@@ -21,8 +21,16 @@ function readConfig() {
         const value = Number.parseFloat(params.get(name) ?? '');
         return Number.isFinite(value) ? value : null;
     };
-    const view = { yaw: number('yaw'), pitch: number('pitch'), distance: number('distance'), up: params.get('up') ?? 'y' };
-    if (!(view.up in UP_ROTATIONS)) throw new Error(`up must be one of ${Object.keys(UP_ROTATIONS).join(', ')}`);
+    const pose = (params.get('pose') ?? '').split(',').map(Number.parseFloat);
+    const view = {
+        yaw: number('yaw'),
+        pitch: number('pitch'),
+        distance: number('distance'),
+        up: params.get('up'),
+        camera: number('camera'),
+        pose: (pose.length === 6 || pose.length === 7) && pose.every(Number.isFinite) ? pose : null,
+    };
+    if (view.up !== null && !UP_CHOICES.includes(view.up)) throw new Error(`up must be one of ${UP_CHOICES.join(', ')}`);
     return { ...config, manifest, view, t: number('t'), paused: params.has('paused') };
 }
 
@@ -44,7 +52,7 @@ function fail(message) {
     window.tsogPlayer = { ...(window.tsogPlayer ?? {}), error: message };
 }
 
-/** The application, a camera orbiting the scene's bounding box (turned so `up` is up). */
+/** The application: a camera, and the scene turned so its up axis is the engine's +y. */
 function createApp(manifest, view) {
     const canvas = $('view');
     const app = new pc.Application(canvas, { graphicsDeviceOptions: { antialias: false } });
@@ -55,16 +63,44 @@ function createApp(manifest, view) {
     camera.addComponent('camera', { clearColor: new pc.Color(0.07, 0.07, 0.07), fov: 60 });
     app.root.addChild(camera);
     const scene = new pc.Entity('scene');
-    scene.setLocalEulerAngles(...UP_ROTATIONS[view.up]);
+    const legacy = view.yaw !== null || view.pitch !== null || view.distance !== null;
+    const turn = upRotation(pc, sceneUp(manifest, view.up, legacy));
+    scene.setLocalRotation(turn);
     app.root.addChild(scene);
+    const core = manifest.scene.core;
     const box = manifest.scene.bbox;
-    const center = new pc.Vec3(...box.min.map((v, i) => (v + box.max[i]) / 2));
-    scene.getWorldTransform().transformPoint(center, center);
-    const size = Math.hypot(...box.max.map((v, i) => v - box.min[i])) || 1;
-    const orbit = new OrbitCamera(camera, canvas, center, view.distance ?? 1.2 * size);
-    if (view.yaw !== null) orbit.yaw = view.yaw;
-    if (view.pitch !== null) orbit.pitch = view.pitch;
-    return { app, camera, orbit, scene };
+    const scale = core ? core.radius : Math.hypot(...box.max.map((v, i) => v - box.min[i])) / 2 || 1;
+    const controls = new CameraControls(pc, camera, canvas, scale);
+    const presets = (manifest.cameras ?? []).map((c) => capturePose(pc, c, turn));
+    const opening = manifest.view ? capturePose(pc, manifest.view, turn) : null;
+    const views = { turn, core, box, presets, opening };
+    startView(controls, camera, manifest, view, views);
+    controls.saveHome();
+    return { app, camera, controls, scene, views };
+}
+
+/** Put the camera where the page's query, else the manifest, says. */
+function startView(controls, camera, manifest, view, views) {
+    const { turn, box } = views;
+    const centre = turn.transformVector(new pc.Vec3(...box.min.map((v, i) => (v + box.max[i]) / 2)), new pc.Vec3());
+    const preset = view.camera !== null ? views.presets[view.camera] : null;
+    if (view.pose) {
+        const [x, y, z, yaw, pitch, distance, fov] = view.pose;
+        controls.setOrbit(new pc.Vec3(x, y, z), distance, yaw, pitch);
+        if (fov > 0 && fov < 180) camera.camera.fov = fov;
+        else if (views.opening) camera.camera.fov = views.opening.fov;
+    } else if (preset || (views.opening && view.yaw === null && view.pitch === null && view.distance === null)) {
+        showPose(controls, camera, preset ?? views.opening, views);
+    } else { // yaw/pitch/distance around the bounding box's centre, as links always meant
+        const size = Math.hypot(...box.max.map((v, i) => v - box.min[i])) || 1;
+        controls.setOrbit(centre, view.distance ?? 1.2 * size, view.yaw ?? 0, view.pitch ?? -15);
+    }
+}
+
+/** Look exactly as a capture camera (or the opening view) does. */
+function showPose(controls, camera, pose, views) {
+    camera.camera.fov = pose.fov;
+    controls.setPose(pose.position, pose.rotation, pivotDistance(pc, pose, views.core, views.turn));
 }
 
 /** Playback state: time, speed, loop, and what the controls show. */
@@ -72,11 +108,16 @@ class Playback {
     constructor(manifest, config) {
         this.start = manifest.scene.start_s;
         this.end = manifest.scene.end_s;
-        this.t = config.t === null ? this.start : Math.min(Math.max(config.t, this.start), this.end);
+        this.frame = manifest.scene.fps ? 1 / manifest.scene.fps : DEFAULT_FRAME_S;
+        this.t = config.t === null ? this.start : this.clamp(config.t);
         this.playing = !config.paused;
         this.speed = 1;
         this.loop = true;
         this.buffering = false;
+    }
+
+    clamp(t) {
+        return Math.min(Math.max(t, this.start), this.end);
     }
 
     /** Advance by dt seconds of wall time unless paused or waiting for chunks. */
@@ -92,22 +133,147 @@ class Playback {
         }
     }
 
+    /** Pause and move by `frames` frames (1/fps, or 1/30 s for a scene without a rate). */
+    step(frames) {
+        this.playing = false;
+        this.t = this.clamp(this.t + frames * this.frame);
+    }
+
+    /** Move by `seconds`, playing or not. */
+    skip(seconds) {
+        this.t = this.clamp(this.t + seconds);
+    }
+
     get state() {
         if (this.buffering) return 'buffering';
         return this.playing ? 'playing' : 'paused';
     }
 }
 
-/** Wire the controls to the playback state. */
-function bindControls(playback) {
+/** Seconds as the time display shows them: 12.34 s, 1:02.50 past a minute. */
+function clock(seconds) {
+    if (Math.abs(seconds) < 60) return `${seconds.toFixed(2)} s`;
+    const m = Math.floor(seconds / 60);
+    return `${m}:${(seconds - 60 * m).toFixed(2).padStart(5, '0')}`;
+}
+
+/** Fill the capture-camera preset list (hidden when the scene has none). */
+function fillPresets(views) {
+    const select = $('camera');
+    select.replaceChildren(new Option(views.opening ? 'opening view' : 'start view', ''));
+    views.presets.forEach((p, i) => select.add(new Option(`camera ${i}${p.name ? ` (${p.name})` : ''}`, String(i))));
+    select.hidden = views.presets.length === 0;
+}
+
+/** The page's URL for the current time and camera: a preset still in view is named, any
+ * other view is written as its pivot, angles and distance. */
+function linkFor(playback, controls, preset, camera) {
+    const url = new URL(window.location.href);
+    for (const key of ['t', 'paused', 'camera', 'pose', 'yaw', 'pitch', 'distance']) url.searchParams.delete(key);
+    url.searchParams.set('t', playback.t.toFixed(3));
+    if (!playback.playing) url.searchParams.set('paused', '');
+    if (preset.index !== null && preset.moved === controls.moved) url.searchParams.set('camera', String(preset.index));
+    else if (controls.exact === null || preset.index === null) {
+        const t = controls.target;
+        const values = [t.x, t.y, t.z, controls.yaw, controls.pitch, controls.distance, camera.camera.fov];
+        const pose = values.map((v) => Number(v.toFixed(4)));
+        if (controls.moved > 0) url.searchParams.set('pose', pose.join(','));
+    }
+    return url.href.replace('paused=&', 'paused&').replace(/paused=$/, 'paused');
+}
+
+/** Wire the buttons, the scrub bar and the keyboard to playback and camera. */
+function bindControls(playback, controls, views, camera) {
     const scrub = $('scrub');
     scrub.min = String(playback.start);
     scrub.max = String(playback.end);
     scrub.step = String(Math.max((playback.end - playback.start) / 1000, 1e-4));
+    $('duration').textContent = clock(playback.end);
+    const preset = { index: null, moved: 0 };
+    const choose = (value) => {
+        const index = value === '' ? null : Number(value);
+        const pose = index === null ? null : views.presets[index];
+        if (pose) {
+            camera.camera.fov = pose.fov;
+            controls.setPose(pose.position, pose.rotation, pivotDistance(pc, pose, views.core, views.turn));
+            controls.moved += 1;
+        } else controls.reset();
+        preset.index = index;
+        preset.moved = controls.moved;
+        $('camera').value = value;
+    };
+    fillPresets(views);
     $('play').addEventListener('click', () => { playback.playing = !playback.playing; });
+    $('back').addEventListener('click', () => playback.step(-1));
+    $('forward').addEventListener('click', () => playback.step(1));
     scrub.addEventListener('input', () => { playback.t = Number.parseFloat(scrub.value); });
     $('speed').addEventListener('change', (e) => { playback.speed = Number.parseFloat(e.target.value); });
     $('loop').addEventListener('change', (e) => { playback.loop = e.target.checked; });
+    $('camera').addEventListener('change', (e) => choose(e.target.value));
+    $('reset').addEventListener('click', () => choose(''));
+    $('mode').addEventListener('click', () => {
+        controls.mode = controls.mode === 'orbit' ? 'fly' : 'orbit';
+        $('mode').textContent = controls.mode;
+    });
+    $('fullscreen').addEventListener('click', toggleFullscreen);
+    $('link').addEventListener('click', () => copyLink(linkFor(playback, controls, preset, camera)));
+    $('help').addEventListener('click', () => { $('keys').hidden = !$('keys').hidden; });
+    bindKeys(playback, controls, choose);
+    return { preset };
+}
+
+function toggleFullscreen() {
+    if (document.fullscreenElement) document.exitFullscreen();
+    else document.documentElement.requestFullscreen?.();
+}
+
+/** Put the link on the clipboard (where the page may) and show it either way. */
+function copyLink(href) {
+    window.tsogPlayer.link = href;
+    const shown = $('copied');
+    shown.textContent = href;
+    shown.hidden = false;
+    clearTimeout(copyLink.timer);
+    copyLink.timer = setTimeout(() => { shown.hidden = true; }, 6000);
+    navigator.clipboard?.writeText(href).then(
+        () => { shown.textContent = `copied: ${href}`; },
+        () => {},
+    );
+}
+
+/** Keys: space play/pause, arrows frame step (shift: 1 s), WASD/QE fly, R reset, V fly mode,
+ * F fullscreen, L loop, 0-9 capture cameras, ? help. Ignored while typing in a field. */
+function bindKeys(playback, controls, choose) {
+    window.addEventListener('keydown', (e) => {
+        const field = e.target instanceof HTMLElement && e.target.matches('input[type=url], input[type=text], select');
+        if (field || e.ctrlKey || e.metaKey || e.altKey) return;
+        const actions = {
+            Space: () => { playback.playing = !playback.playing; },
+            ArrowLeft: () => (e.shiftKey ? playback.skip(-1) : playback.step(-1)),
+            ArrowRight: () => (e.shiftKey ? playback.skip(1) : playback.step(1)),
+            Comma: () => playback.step(-1),
+            Period: () => playback.step(1),
+            Home: () => { playback.t = playback.start; },
+            End: () => { playback.t = playback.end; },
+            KeyR: () => choose(''),
+            KeyV: () => $('mode').click(),
+            KeyF: toggleFullscreen,
+            KeyL: () => $('loop').click(),
+            Slash: () => $('help').click(),
+        };
+        const digit = /^Digit([0-9])$/.exec(e.code);
+        if (digit && $('camera').options.length > Number(digit[1]) + 1) {
+            choose(digit[1]);
+        } else if (actions[e.code]) {
+            actions[e.code]();
+        } else if (/^Key[WASDQE]$|^Shift/.test(e.code)) {
+            controls.keys.add(e.code);
+            return;
+        } else return;
+        e.preventDefault();
+    });
+    window.addEventListener('keyup', (e) => controls.keys.delete(e.code));
+    window.addEventListener('blur', () => controls.keys.clear());
 }
 
 /** Draw the buffered time ranges above the scrub bar. */
@@ -136,6 +302,7 @@ function showState(playback, stream, fps) {
     $('o-bytes').textContent = stats.bytes.toLocaleString('en');
     $('o-state').textContent = stats.error ? `${playback.state} (${stats.error})` : playback.state;
     $('play').textContent = playback.playing ? 'pause' : 'play';
+    $('time').textContent = clock(playback.t);
     if (document.activeElement !== $('scrub')) $('scrub').value = String(playback.t);
     drawBuffered(playback, stream.buffered());
 }
@@ -149,20 +316,25 @@ async function main() {
     const response = await fetch(manifestUrl).catch(() => {
         throw new Error(`cannot fetch ${manifestUrl} (network error, or its origin does not allow CORS)`);
     });
+    if (response.status === 404) throw new Error(`scene not found: ${manifestUrl} (HTTP 404)`);
     if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${manifestUrl}`);
     const manifest = await response.json();
     if (manifest.format !== 'tsogs') throw new Error(`${manifestUrl} is not a TSOG stream manifest`);
-    const { app, camera, orbit, scene } = createApp(manifest, config.view);
+    const { app, camera, controls, scene, views } = createApp(manifest, config.view);
     const stream = new ChunkStream(pc, app, scene, manifest, chunkUrlFor(config), fetchLog);
     const playback = new Playback(manifest, config);
-    bindControls(playback);
+    const { preset } = bindControls(playback, controls, views, camera);
+    if (config.view.camera !== null && views.presets[config.view.camera]) {
+        preset.index = config.view.camera;
+        $('camera').value = String(config.view.camera);
+    }
     let fps = 0;
     let sinceShown = 1;
     app.on('update', (dt) => {
         playback.advance(dt);
         stream.update(playback.t, playback.playing, playback.loop);
         playback.buffering = !stream.covered(playback.t);
-        orbit.update();
+        controls.update(dt);
         fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;
         sinceShown += dt;
         if (sinceShown >= 0.2) {
@@ -170,7 +342,7 @@ async function main() {
             showState(playback, stream, fps);
         }
     });
-    Object.assign(window.tsogPlayer, { pc, app, camera, orbit, stream, playback, manifest });
+    Object.assign(window.tsogPlayer, { pc, app, camera, controls, stream, playback, manifest, views });
     app.start();
 }
 

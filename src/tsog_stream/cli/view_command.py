@@ -1,0 +1,174 @@
+"""``tsog view INPUT``: one step from any input to the web player.
+
+A container (or unpacked folder) is served as it is; any other input is segmented once into a
+cache folder, keyed by the input's files (names, sizes, modification times), the reading
+options and the version, so opening it again while it is unchanged starts at once. The
+server listens on 127.0.0.1 (a free port unless ``--port``) and the player URL is printed
+(and opened in a browser with ``--open``). Ctrl-C stops it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import hashlib
+import json
+import os
+import webbrowser
+from pathlib import Path
+from urllib.parse import quote
+
+from .._version import __version__
+from ..client import open_stream
+from ..errors import InputError
+from ..inputs import STREAM_KINDS, input_kind, is_url
+from ..server import make_app, start_server
+from .common import Integer, Subparsers, add_cameras, add_common, add_input
+from .progress import Progress
+
+CACHE_ENV = "TSOG_CACHE_DIR"
+MAX_FINGERPRINT_FILES = 100_000
+"""A folder with more files than this is refused rather than walked for ever."""
+
+VIEW_EPILOG = """examples:
+  tsog view clip.splatv --duration-s 10       segment once (cached), serve, print the URL
+  tsog view frames/ --fps 30 --open           a frame folder, opened in the browser
+  tsog view clip.tsogs --port 8080            a container is served as it is
+
+The segmented copy lives in $TSOG_CACHE_DIR, else $XDG_CACHE_HOME/tsog-stream/view, else
+~/.cache/tsog-stream/view (--cache DIR to choose), one folder per input version; delete it
+freely. The server listens on 127.0.0.1 only; Ctrl-C stops it."""
+
+
+def add_view_command(sub: Subparsers) -> None:
+    """Register ``view`` on the main parser."""
+    p = sub.add_parser(
+        "view",
+        help="open any input in the web player: segment it once (cached), serve it, print the URL",
+        epilog=VIEW_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_input(p)
+    add_cameras(p)
+    p.add_argument(
+        "--port", type=Integer(0, 65535), default=0, help="port on 127.0.0.1 (default: any free)"
+    )
+    p.add_argument("--open", action="store_true", help="open the player in a web browser")
+    p.add_argument("--cache", type=Path, help="folder for segmented copies (see below)")
+    add_common(p)
+
+
+def cache_root(given: Path | None) -> Path:
+    """Where segmented copies are kept."""
+    if given is not None:
+        return given
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "tsog-stream" / "view"
+
+
+def _files_of(target: Path) -> list[Path]:
+    """The files an input is read from: itself, a folder's files, or a pattern's matches."""
+    if target.is_file():
+        return [target]
+    if target.is_dir():
+        found = []
+        for path in sorted(target.rglob("*")):
+            if path.is_file():
+                found.append(path)
+            if len(found) > MAX_FINGERPRINT_FILES:
+                raise InputError(f"more than {MAX_FINGERPRINT_FILES} files", where=str(target))
+        return found
+    matches = sorted(Path(target.anchor or ".").glob(str(target.relative_to(target.anchor))))
+    if not matches:
+        raise InputError("no such file, folder or matching frames", where=str(target))
+    return [m for m in matches if m.is_file()]
+
+
+def fingerprint(args: argparse.Namespace) -> str:
+    """A key that changes when the input's files, the reading options or the version do."""
+    items: list[object] = [__version__, str(Path(args.input).resolve())]
+    sources = _files_of(Path(args.input))
+    if args.cameras is not None:
+        sources += _files_of(Path(args.cameras))
+    for path in sources:
+        st = path.stat()
+        items.append([str(path.resolve()), st.st_size, st.st_mtime_ns])
+    options = [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
+    items.append([str(args.cameras) if args.cameras else None, *options])
+    return hashlib.sha256(json.dumps(items).encode()).hexdigest()[:24]
+
+
+def _scene_name(target: str) -> str:
+    """A URL-friendly scene name from the input's name."""
+    stem = Path(target.rstrip("/")).name.split("*")[0] or "scene"
+    stem = stem.removesuffix(".tsogs").split(".")[0] or "scene"
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in stem)[:64]
+
+
+def _segmented(args: argparse.Namespace, progress: Progress) -> Path:
+    """The input's container in the cache, segmented now unless an unchanged copy is there."""
+    from .main import build_parser  # noqa: PLC0415 - the segment command, as typed
+    from .stream_commands import cmd_segment  # noqa: PLC0415
+
+    folder = cache_root(args.cache) / fingerprint(args)
+    container = folder / f"{_scene_name(args.input)}.tsogs"
+    if container.is_file():
+        print(f"{container}: reusing the copy segmented earlier (the input is unchanged)")
+        return container
+    folder.mkdir(parents=True, exist_ok=True)
+    argv = ["segment", args.input, "-o", str(container)]
+    for flag, value in (
+        ("--format", args.format),
+        ("--fps", args.fps),
+        ("--duration-s", args.duration_s),
+        ("--scene-length-s", args.scene_length_s),
+        ("--cameras", args.cameras),
+    ):
+        if value is not None:
+            argv += [flag, str(value)]
+    argv += ["--duration-mode", args.duration_mode]
+    try:
+        cmd_segment(build_parser().parse_args(argv), progress)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only when empty: a failed segment publishes nothing
+        raise
+    return container
+
+
+def cmd_view(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog view."""
+    if is_url(args.input):
+        raise InputError(
+            "tsog view opens local inputs; for a served stream open its server's /play/ page"
+        )
+    kind = input_kind(args.input, args.format)
+    if kind in STREAM_KINDS:
+        with open_stream(args.input) as opened:  # a broken index fails here, in one line
+            opened.index.manifest  # noqa: B018
+        target = Path(args.input)
+        root = target if kind == "tsogs" else target.parent
+        name = target.name.removesuffix(".tsogs")
+    else:
+        root = _segmented(args, progress)
+        name = root.name.removesuffix(".tsogs")
+    progress.done()
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(_serve(root, name, args.port, args.open))
+    return 0
+
+
+async def _serve(root: Path, name: str, port: int, open_browser: bool) -> None:
+    """Serve ``root`` on 127.0.0.1 until cancelled; print (and open) the player URL."""
+    runner, bound = await start_server(make_app(root), "127.0.0.1", port)
+    url = f"http://127.0.0.1:{bound}/play/{quote(name)}"
+    print(f"playing at {url}  (Ctrl-C to stop)", flush=True)
+    if open_browser:
+        webbrowser.open(url)
+    try:
+        await asyncio.Event().wait()
+    finally:
+        await runner.cleanup()

@@ -1,0 +1,189 @@
+"""Where a viewer starts: capture-camera geometry, the scene's up axis and a floater-proof framing.
+
+Pure numerics over :class:`~tsog_stream.schemas.cameras.CaptureCamera` values. A scene opens
+from its first capture camera; without one, from a camera framing the *dense core*: the
+opacity-weighted median of the centres and a weighted percentile of their distances, so a
+few floaters far away (a real capture's bounding box can be 30x its subject) do not push the
+camera out of the room. See docs/design/player.md ("The first view").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from .errors import InputError
+from .model import Gaussians
+from .schemas.cameras import CaptureCamera
+
+F64 = npt.NDArray[np.float64]
+DEFAULT_UP: tuple[float, float, float] = (0.0, -1.0, 0.0)
+"""The up axis of a scene without cameras: COLMAP-trained captures (3DGS, Spacetime
+Gaussians, FreeTimeGS) keep COLMAP's y-down world."""
+CORE_QUANTILE = 0.8
+"""Share of the opacity-weighted Gaussians the framing fits into the view."""
+FRAMING_FOV_DEG = 50.0
+"""Vertical field of view of a framing camera."""
+FRAMING_ELEVATION_DEG = 20.0
+"""How far above the horizon a framing camera looks down on the core."""
+FRAMING_SIZE = (1280, 720)
+"""Image size recorded for a framing camera (only the aspect and focal length matter)."""
+MARGIN = 1.1
+MIN_COVERAGE = 0.5
+"""A capture camera that sees less of the scene than this (opacity-weighted) is not its view."""
+FRAMING_NAME = "framing"
+"""The ``name`` of a framing camera (capture cameras carry their image names)."""
+
+
+def rotation(camera: CaptureCamera) -> F64:
+    """The camera-to-world rotation as a (3, 3) array (columns: right, down, forward)."""
+    return np.array(camera.rotation, dtype=np.float64)
+
+
+def world_to_camera(camera: CaptureCamera) -> F64:
+    """The (4, 4) world-to-camera matrix of a capture camera."""
+    r = rotation(camera)
+    w2c = np.eye(4)
+    w2c[:3, :3] = r.T
+    w2c[:3, 3] = -r.T @ np.array(camera.position, dtype=np.float64)
+    return w2c
+
+
+def look_at(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike) -> F64:
+    """World-to-camera matrix of a camera at ``eye`` looking at ``target`` (y down, z forward)."""
+    eye_v = np.asarray(eye, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - eye_v
+    norm = np.linalg.norm(forward)
+    if norm == 0:
+        raise InputError("the camera position equals its target")
+    forward /= norm
+    right = np.cross(forward, np.asarray(up, dtype=np.float64))
+    if np.linalg.norm(right) < 1e-9:
+        raise InputError("the view direction is parallel to the up vector")
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    w2c = np.eye(4)
+    w2c[:3, :3] = np.stack([right, down, forward])
+    w2c[:3, 3] = -w2c[:3, :3] @ eye_v
+    return w2c
+
+
+def up_from_cameras(cameras: Sequence[CaptureCamera]) -> F64 | None:
+    """The scene's up axis as the capture cameras hold it (the mean of their -y axes), or None
+    when there are no cameras or their ups cancel out."""
+    if not cameras:
+        return None
+    ups = -np.array([c.rotation for c in cameras], dtype=np.float64)[:, :, 1]
+    mean = ups.mean(axis=0)
+    norm = float(np.linalg.norm(mean))
+    return mean / norm if norm > 1e-6 else None
+
+
+def scene_up(cameras: Sequence[CaptureCamera]) -> F64:
+    """The up axis: from the cameras when they agree on one, else :data:`DEFAULT_UP`."""
+    up = up_from_cameras(cameras)
+    return up if up is not None else np.array(DEFAULT_UP, dtype=np.float64)
+
+
+def weighted_quantile(values: F64, weights: F64, q: float) -> float:
+    """The ``q`` quantile of ``values`` where each counts ``weights`` times."""
+    order = np.argsort(values, kind="stable")
+    cumulative = np.cumsum(weights[order])
+    at = int(np.searchsorted(cumulative, q * cumulative[-1]))
+    return float(values[order[min(at, len(order) - 1)]])
+
+
+def dense_core(gaussians: Gaussians) -> tuple[F64, float]:
+    """Centre and radius of the dense core: the opacity-weighted median of the finite centres
+    per axis, and the distance within which :data:`CORE_QUANTILE` of the weight lies."""
+    means = gaussians.means.astype(np.float64)
+    alpha = 1.0 / (1.0 + np.exp(-gaussians.opacities.astype(np.float64)))
+    keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha) & (alpha > 0)
+    if not keep.any():
+        raise InputError("cannot frame a scene without a visible Gaussian")
+    means, weights = means[keep], alpha[keep]
+    centre = np.array([weighted_quantile(means[:, k], weights, 0.5) for k in range(3)])
+    distances = np.linalg.norm(means - centre, axis=1)
+    radius = max(weighted_quantile(distances, weights, CORE_QUANTILE), 1e-6)
+    return centre, radius
+
+
+def _horizontal(up: F64) -> F64:
+    """A unit direction perpendicular to ``up`` (the framing's viewing side)."""
+    axis = np.array([0.0, 0.0, 1.0]) if abs(up[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    side = axis - up * float(axis @ up)
+    return side / np.linalg.norm(side)
+
+
+def framing_camera(gaussians: Gaussians, up: npt.ArrayLike) -> CaptureCamera:
+    """A camera looking down on the dense core from :data:`FRAMING_ELEVATION_DEG`, far enough
+    that the core's sphere fills the :data:`FRAMING_FOV_DEG` view with a 10 % margin."""
+    u = np.asarray(up, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    centre, radius = dense_core(gaussians)
+    distance = MARGIN * radius / math.sin(math.radians(FRAMING_FOV_DEG) / 2)
+    elevation = math.radians(FRAMING_ELEVATION_DEG)
+    back = math.cos(elevation) * -_horizontal(u) + math.sin(elevation) * u
+    eye = centre + distance * back
+    w2c = look_at(eye, centre, u)
+    width, height = FRAMING_SIZE
+    focal = 0.5 * height / math.tan(math.radians(FRAMING_FOV_DEG) / 2)
+    return CaptureCamera(
+        name=FRAMING_NAME,
+        width=width,
+        height=height,
+        fx=focal,
+        fy=focal,
+        position=_vec3(eye),
+        rotation=_rows(w2c[:3, :3].T),
+    )
+
+
+def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
+    """The share of the scene's opacity-weighted Gaussians whose centres ``camera`` sees (in
+    front of it and inside its image)."""
+    means = gaussians.means.astype(np.float64)
+    alpha = 1.0 / (1.0 + np.exp(-gaussians.opacities.astype(np.float64)))
+    keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha)
+    if not keep.any() or alpha[keep].sum() <= 0:
+        return 0.0
+    points = means[keep] @ world_to_camera(camera)[:3, :3].T + world_to_camera(camera)[:3, 3]
+    depth = points[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cx, cy = camera.principal_point
+        x = camera.fx * points[:, 0] / depth + cx
+        y = camera.fy * points[:, 1] / depth + cy
+    seen = (depth > 0) & (x >= 0) & (x < camera.width) & (y >= 0) & (y < camera.height)
+    return float((alpha[keep] * seen).sum() / alpha[keep].sum())
+
+
+def opening_view(
+    gaussians: Gaussians, cameras: Sequence[CaptureCamera]
+) -> tuple[CaptureCamera, str]:
+    """Where a viewer opens the scene, and why: the first capture camera when it sees at least
+    :data:`MIN_COVERAGE` of the scene, else a framing of the dense core (up from the cameras,
+    or :data:`DEFAULT_UP`). A file may carry a camera of another scene: every macaburguera
+    ``.splatv`` holds the same one, which sees 33 % of ``yellow_clip2``."""
+    if not cameras:
+        return framing_camera(gaussians, scene_up(cameras)), "no capture cameras"
+    seen = coverage(gaussians, cameras[0])
+    if seen >= MIN_COVERAGE:
+        return cameras[0], f"capture camera 0 sees {seen:.0%} of the scene"
+    why = f"capture camera 0 sees only {seen:.0%} of the scene"
+    return framing_camera(gaussians, scene_up(cameras)), why
+
+
+def default_view(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> CaptureCamera:
+    """Where a viewer opens the scene (:func:`opening_view`)."""
+    return opening_view(gaussians, cameras)[0]
+
+
+def _vec3(v: F64) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
+
+
+def _rows(m: F64) -> tuple[tuple[float, float, float], ...]:
+    return tuple(_vec3(row) for row in m)

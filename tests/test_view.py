@@ -1,0 +1,162 @@
+"""``tsog view``: any input to a served player page in one step, segmented once and reused."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from helpers import ThreadedServer
+from tsog_stream.server import make_app
+
+FRAMES = "4d/tztechno_fireworks_frames"
+START_TIMEOUT_S = 120
+
+
+@contextmanager
+def tsog_view(*argv: str, cache: Path) -> Iterator[tuple[str, list[str]]]:
+    """Run ``tsog view`` until it prints its URL; yields the URL and the lines before it, then
+    stops it with Ctrl-C (SIGINT), which must end it without a traceback."""
+    env = {**os.environ, "TSOG_CACHE_DIR": str(cache)}
+    command = [sys.executable, "-m", "tsog_stream.cli.main", "view", *argv, "-q"]
+    with subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True
+    ) as proc:
+        assert proc.stdout is not None and proc.stderr is not None
+        try:
+            yield _url_of(proc)
+        finally:
+            proc.send_signal(signal.SIGINT)
+            try:
+                code = proc.wait(timeout=20)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+        assert code in (0, 130) and "Traceback" not in proc.stderr.read()
+
+
+def _url_of(proc: subprocess.Popen[str]) -> tuple[str, list[str]]:
+    """The player URL ``tsog view`` prints, and the lines it printed before."""
+    assert proc.stdout is not None
+    lines: list[str] = []
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            err = proc.stderr.read() if proc.stderr else ""
+            pytest.fail(f"tsog view exited with {proc.wait()}: {err}")
+        if line.startswith("playing at "):
+            return line.split()[2], lines
+        lines.append(line)
+    pytest.fail("tsog view printed no URL in time")
+
+
+def get(url: str) -> tuple[int, bytes, str]:
+    with urllib.request.urlopen(url, timeout=10) as response:  # loopback only
+        return response.status, response.read(), response.geturl()
+
+
+def test_view_segments_once_serves_the_player_and_reuses_the_copy(
+    samples: Path, tmp_path: Path
+) -> None:
+    frames = tmp_path / "fireworks"
+    shutil.copytree(samples / FRAMES, frames)
+    cache = tmp_path / "cache"
+    with tsog_view(str(frames), "--fps", "6", cache=cache) as (url, before):
+        assert url.startswith("http://127.0.0.1:") and url.endswith("/play/fireworks")
+        assert any("fireworks.tsogs:" in line for line in before)  # the segment summary
+        status, page, _ = get(url)
+        assert status == 200 and b"tsog-config" in page
+        base = url.split("/play/")[0]
+        _, body, _ = get(f"{base}/v1/scenes/fireworks/manifest")
+        manifest = json.loads(body)
+        assert manifest["scene"]["fps"] == 6 and len(manifest["chunks"]) >= 1
+        assert get(f"{base}/")[2] == f"{base}/play/"  # / redirects to the scene list
+    copies = list(cache.glob("*/fireworks.tsogs"))
+    assert len(copies) == 1
+    # Unchanged: reused, not segmented again.
+    with tsog_view(str(frames), "--fps", "6", cache=cache) as (_, before):
+        assert any("reusing the copy segmented earlier" in line for line in before)
+    # Another frame rate or a changed frame: a new copy.
+    with tsog_view(str(frames), "--fps", "12", cache=cache):
+        pass
+    (frames / "frame_005.ply").unlink()
+    with tsog_view(str(frames), "--fps", "6", cache=cache) as (_, before):
+        assert not any("reusing" in line for line in before)
+    assert len(list(cache.glob("*/fireworks.tsogs"))) == 3
+
+
+def test_view_serves_a_container_as_it_is(samples: Path, tmp_path: Path) -> None:
+    container = tmp_path / "clip.tsogs"
+    argv = ["segment", str(samples / FRAMES), "-o", str(container), "-q"]
+    subprocess.run([sys.executable, "-m", "tsog_stream.cli.main", *argv], check=True)
+    with tsog_view(str(container), cache=tmp_path / "cache") as (url, before):
+        assert url.endswith("/play/clip") and before == []
+        assert get(url)[0] == 200
+    assert not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["http://127.0.0.1:9/clip.tsogs"], "tsog view opens local inputs"),
+        (["{tmp}/missing.ply"], "missing.ply"),
+        (["{tmp}", "--port", "70000"], "--port"),
+    ],
+)
+def test_view_errors_are_one_line(tmp_path: Path, argv: list[str], message: str) -> None:
+    args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    command = [sys.executable, "-m", "tsog_stream.cli.main", "view", *args]
+    env = {**os.environ, "TSOG_CACHE_DIR": str(tmp_path / "cache")}
+    done = subprocess.run(command, check=False, capture_output=True, text=True, timeout=60, env=env)
+    assert done.returncode in (1, 2) and "Traceback" not in done.stderr
+    assert message in done.stderr.splitlines()[-1]
+
+
+def test_the_scene_list_shows_thumbnail_duration_and_count(samples: Path, tmp_path: Path) -> None:
+    root = tmp_path / "root"
+    root.mkdir()
+    segment = [sys.executable, "-m", "tsog_stream.cli.main", "segment", "--fps", "6", "-q"]
+    frames = str(samples / FRAMES)
+    done = subprocess.run(
+        [*segment, frames, "-o", str(root / "fire.tsogs")],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    assert f"thumbnail: {root / 'fire.tsogs.thumb.png'}" in done.stdout
+    shutil.copy(root / "fire.tsogs", root / "bare.tsogs")  # no thumbnail beside it
+    server = ThreadedServer(make_app(root))
+    try:
+        base = f"http://127.0.0.1:{server.port}"
+        listed = {s["id"]: s for s in json.loads(get(f"{base}/v1/scenes")[1])["scenes"]}
+        assert listed["fire"]["thumbnail"] == "/v1/scenes/fire/thumbnail"
+        assert listed["bare"]["thumbnail"] is None
+        assert listed["fire"]["gaussians"] == 24000 and listed["fire"]["duration_s"] == 1.0
+        page = get(f"{base}/play/")[1].decode()
+        assert '<img src="/v1/scenes/fire/thumbnail"' in page and "24,000 Gaussians" in page
+        assert "1.00 s" in page and page.count("<img") == 1
+        status, png, _ = get(f"{base}/v1/scenes/fire/thumbnail")
+        with Image.open(io.BytesIO(png)) as image:
+            pixels = np.asarray(image.convert("RGB"))
+        assert status == 200 and pixels.shape == (180, 320, 3)
+        assert (np.abs(pixels.astype(int) - 18).max(axis=2) > 40).mean() > 0.01  # not blank
+        with pytest.raises(urllib.error.HTTPError) as missing:
+            get(f"{base}/v1/scenes/bare/thumbnail")
+        assert missing.value.code == 404
+    finally:
+        server.stop()
