@@ -157,6 +157,7 @@ def test_the_scene_list_shows_thumbnail_duration_and_count(samples: Path, tmp_pa
         assert (np.abs(pixels.astype(int) - 18).max(axis=2) > 40).mean() > 0.01  # not blank
         with pytest.raises(urllib.error.HTTPError) as missing:
             get(f"{base}/v1/scenes/bare/thumbnail")
+        missing.value.close()  # the error holds the response and its socket
         assert missing.value.code == 404
     finally:
         server.stop()

@@ -118,12 +118,19 @@ def _horizontal(up: F64) -> F64:
     return side / np.linalg.norm(side)
 
 
-def framing_camera(gaussians: Gaussians, up: npt.ArrayLike) -> CaptureCamera:
-    """A camera looking down on the dense core from :data:`FRAMING_ELEVATION_DEG`, far enough
-    that the core's sphere fills the :data:`FRAMING_FOV_DEG` view with a 10 % margin."""
+Core = tuple[F64, float]
+"""(centre, radius) of a dense core, as :func:`dense_core` gives it."""
+
+
+def framing_camera(
+    gaussians: Gaussians, up: npt.ArrayLike, core: Core | None = None
+) -> CaptureCamera:
+    """A camera looking down on the dense core (``core``, else measured) from
+    :data:`FRAMING_ELEVATION_DEG`, far enough that the core's sphere fills the
+    :data:`FRAMING_FOV_DEG` view with a 10 % margin."""
     u = np.asarray(up, dtype=np.float64)
     u = u / np.linalg.norm(u)
-    centre, radius = dense_core(gaussians)
+    centre, radius = core if core is not None else dense_core(gaussians)
     distance = MARGIN * radius / math.sin(math.radians(FRAMING_FOV_DEG) / 2)
     elevation = math.radians(FRAMING_ELEVATION_DEG)
     back = math.cos(elevation) * -_horizontal(u) + math.sin(elevation) * u
@@ -150,7 +157,8 @@ def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
     keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha)
     if not keep.any() or alpha[keep].sum() <= 0:
         return 0.0
-    points = means[keep] @ world_to_camera(camera)[:3, :3].T + world_to_camera(camera)[:3, 3]
+    w2c = world_to_camera(camera)
+    points = means[keep] @ w2c[:3, :3].T + w2c[:3, 3]
     depth = points[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         cx, cy = camera.principal_point
@@ -161,19 +169,19 @@ def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
 
 
 def opening_view(
-    gaussians: Gaussians, cameras: Sequence[CaptureCamera]
+    gaussians: Gaussians, cameras: Sequence[CaptureCamera], core: Core | None = None
 ) -> tuple[CaptureCamera, str]:
     """Where a viewer opens the scene, and why: the first capture camera when it sees at least
     :data:`MIN_COVERAGE` of the scene, else a framing of the dense core (up from the cameras,
     or :data:`DEFAULT_UP`). A file may carry a camera of another scene: every macaburguera
     ``.splatv`` holds the same one, which sees 33 % of ``yellow_clip2``."""
     if not cameras:
-        return framing_camera(gaussians, scene_up(cameras)), "no capture cameras"
+        return framing_camera(gaussians, scene_up(cameras), core), "no capture cameras"
     seen = coverage(gaussians, cameras[0])
     if seen >= MIN_COVERAGE:
         return cameras[0], f"capture camera 0 sees {seen:.0%} of the scene"
     why = f"capture camera 0 sees only {seen:.0%} of the scene"
-    return framing_camera(gaussians, scene_up(cameras)), why
+    return framing_camera(gaussians, scene_up(cameras), core), why
 
 
 def default_view(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> CaptureCamera:

@@ -98,7 +98,7 @@ class Views:
         except InputError:
             return cls(list(cameras), cameras[0] if cameras else None, None, "nothing visible")
         core = {"center": _vec3(centre), "radius": radius}
-        view, why = opening_view(gaussians, cameras)
+        view, why = opening_view(gaussians, cameras, (centre, radius))
         return cls(list(cameras), view, core, why)
 
 
