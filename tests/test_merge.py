@@ -15,7 +15,14 @@ from tsog_stream.errors import InputError
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.merge.check import frame_errors
-from tsog_stream.merge.features import Steps, Tolerance, columns, quat_tolerance, tolerances
+from tsog_stream.merge.features import (
+    Steps,
+    Tolerance,
+    columns,
+    quat_tolerance,
+    robust_extent,
+    tolerances,
+)
 from tsog_stream.merge.fit import fit_tracks
 from tsog_stream.merge.sequence import merge_frames, merge_sequence, probe_merge
 from tsog_stream.model import Gaussians, Scene, TimelineType
@@ -265,3 +272,18 @@ def test_fit_follows_fading_and_turning_gaussians(
             merged = matched_errors(frames[k], reader.frame_at(k / FPS))
             assert merged["alpha"] <= alone["alpha"] + 1 / 255 + 1e-6, (k, merged, alone)
             assert merged["quats"] <= alone["quats"] + 0.01, (k, merged, alone)
+
+
+def test_floaters_do_not_widen_the_search_reach() -> None:
+    """The reach is a fraction of the frame's extent: a blob with 2 % floaters 200 units out
+    keeps the blob's extent (a min-max extent of 400 made matching quadratic), and a frame
+    without floaters keeps its min-max extent."""
+    rng = np.random.default_rng(0)
+    blob = rng.normal(size=(2000, 3)) * 0.4
+    floaters = rng.normal(size=(40, 3))
+    floaters = 200 * floaters / np.linalg.norm(floaters, axis=1, keepdims=True)
+    extent = robust_extent(np.concatenate([blob, floaters]))
+    spread = np.ptp(np.concatenate([blob, floaters]), axis=0)
+    assert np.all(spread > 300) and np.all((extent > np.ptp(blob, axis=0)) & (extent < 5))
+    np.testing.assert_allclose(robust_extent(blob), blob.max(axis=0) - blob.min(axis=0))
+    np.testing.assert_array_equal(robust_extent(np.full((3, 3), np.nan)), np.zeros(3))

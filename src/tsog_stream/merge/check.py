@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..model import Gaussians
-from .features import COLUMN_GROUPS, MEANS, align_signs, columns, unit_quats
+from .features import COLUMN_GROUPS, MEANS, align_signs, columns, robust_extent, unit_quats
 from .match import I64, candidate_pairs, cell_keys, mutual_best
 
 F64 = npt.NDArray[np.float64]
@@ -61,7 +61,7 @@ def frame_errors(source: Gaussians, decoded: Gaussians) -> tuple[dict[str, float
         return {}, abs(len(source) - len(decoded))
     qs, qd = unit_quats(source), unit_quats(decoded)
     a, b = np.hstack([columns(source), qs]), np.hstack([columns(decoded), qd])
-    extent = float((a[:, MEANS].max(axis=0) - a[:, MEANS].min(axis=0)).max())
+    extent = float(robust_extent(a[:, MEANS]).max())
     reach = max(PAIRING_REACH * extent, 1e-9)
     scale = a.std(axis=0) * TIE_WEIGHT  # attributes only break ties between coincident points
     scale[MEANS] = reach

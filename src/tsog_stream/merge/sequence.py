@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.sequence import FrameSequence
 from ..model import Gaussians, Scene
-from .features import Steps, Tolerance
+from .features import Steps, Tolerance, robust_extent
 from .runs import DEFAULT_REACH, FrameMerger, MergeStats
 
 TemporalMode = Literal["off", "merge", "fit"]
@@ -71,14 +71,14 @@ def merge_frames(
     merger: FrameMerger | None = None
     for g in frames:
         if merger is None:
-            extent = g.means.max(axis=0) - g.means.min(axis=0) if len(g) else np.zeros(3)
+            extent = robust_extent(g.means)
             merger = FrameMerger(
                 Steps.of(g),
                 tolerance or Tolerance(),
                 fps,
                 sh_coeffs,
                 fit=mode == "fit",
-                reach=DEFAULT_REACH * extent.astype(np.float64),
+                reach=DEFAULT_REACH * extent,
             )
         merger.add(g)
         if max_held is not None and merger.held > max_held:
