@@ -309,7 +309,7 @@ def test_the_framing_fits_the_dense_core_not_the_floaters() -> None:
     np.testing.assert_allclose(centre, [5, 0, 0], atol=0.1)
     assert 0.5 < radius < 1.0  # 80 % of the weight of a sigma-0.4 blob; the box is 400 wide
     view = default_view(gaussians, [])
-    assert view.name == FRAMING_NAME
+    assert view is not None and view.name == FRAMING_NAME
     camera = from_capture(view, 320, 240)
     points = np.c_[gaussians.means[:2000], np.ones(2000)] @ camera.world_to_camera.T
     x = camera.fx * points[:, 0] / points[:, 2] + camera.cx
@@ -334,6 +334,7 @@ def test_the_framing_fits_the_dense_core_not_the_floaters() -> None:
     assert view.name == FRAMING_NAME and why == "capture camera 0 sees only 0% of the scene"
     with pytest.raises(InputError, match="without a visible Gaussian"):
         dense_core(Gaussians.empty(0))
+    assert default_view(Gaussians.empty(0), []) is None
 
 
 def test_cameras_are_found_where_trainers_leave_them(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from .errors import InputError
 from .model import Gaussians
+from .opacity import logit_to_alpha
 from .schemas.cameras import CaptureCamera
 
 F64 = npt.NDArray[np.float64]
@@ -96,15 +97,21 @@ def weighted_quantile(values: F64, weights: F64, q: float) -> float:
     return float(values[order[min(at, len(order) - 1)]])
 
 
+def weighted_centres(gaussians: Gaussians) -> tuple[F64, F64]:
+    """The finite centres of the Gaussians with some opacity, and their opacities (alpha) as
+    weights: what framing and coverage count."""
+    means = gaussians.means.astype(np.float64)
+    alpha = logit_to_alpha(gaussians.opacities)
+    keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha) & (alpha > 0)
+    return means[keep], alpha[keep]
+
+
 def dense_core(gaussians: Gaussians) -> tuple[F64, float]:
     """Centre and radius of the dense core: the opacity-weighted median of the finite centres
     per axis, and the distance within which :data:`CORE_QUANTILE` of the weight lies."""
-    means = gaussians.means.astype(np.float64)
-    alpha = 1.0 / (1.0 + np.exp(-gaussians.opacities.astype(np.float64)))
-    keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha) & (alpha > 0)
-    if not keep.any():
+    means, weights = weighted_centres(gaussians)
+    if len(means) == 0:
         raise InputError("cannot frame a scene without a visible Gaussian")
-    means, weights = means[keep], alpha[keep]
     centre = np.array([weighted_quantile(means[:, k], weights, 0.5) for k in range(3)])
     distances = np.linalg.norm(means - centre, axis=1)
     radius = max(weighted_quantile(distances, weights, CORE_QUANTILE), 1e-6)
@@ -152,20 +159,18 @@ def framing_camera(
 def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
     """The share of the scene's opacity-weighted Gaussians whose centres ``camera`` sees (in
     front of it and inside its image)."""
-    means = gaussians.means.astype(np.float64)
-    alpha = 1.0 / (1.0 + np.exp(-gaussians.opacities.astype(np.float64)))
-    keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha)
-    if not keep.any() or alpha[keep].sum() <= 0:
+    means, weights = weighted_centres(gaussians)
+    if len(means) == 0:
         return 0.0
     w2c = world_to_camera(camera)
-    points = means[keep] @ w2c[:3, :3].T + w2c[:3, 3]
+    points = means @ w2c[:3, :3].T + w2c[:3, 3]
     depth = points[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         cx, cy = camera.principal_point
         x = camera.fx * points[:, 0] / depth + cx
         y = camera.fy * points[:, 1] / depth + cy
     seen = (depth > 0) & (x >= 0) & (x < camera.width) & (y >= 0) & (y < camera.height)
-    return float((alpha[keep] * seen).sum() / alpha[keep].sum())
+    return float((weights * seen).sum() / weights.sum())
 
 
 def opening_view(
@@ -184,9 +189,13 @@ def opening_view(
     return framing_camera(gaussians, scene_up(cameras), core), why
 
 
-def default_view(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> CaptureCamera:
-    """Where a viewer opens the scene (:func:`opening_view`)."""
-    return opening_view(gaussians, cameras)[0]
+def default_view(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> CaptureCamera | None:
+    """Where a viewer opens the scene (:func:`opening_view`); None when it shows nothing to
+    frame."""
+    try:
+        return opening_view(gaussians, cameras)[0]
+    except InputError:
+        return None
 
 
 def _vec3(v: F64) -> tuple[float, float, float]:

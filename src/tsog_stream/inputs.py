@@ -97,10 +97,7 @@ def _stream_source(target: str, kind: str, cameras: str | os.PathLike[str] | Non
     def opening() -> CaptureCamera | None:
         if cameras is None and manifest.view is not None:
             return manifest.view
-        try:
-            return default_view(stream.frame_at(info.start_s), chosen)
-        except InputError:
-            return None
+        return default_view(stream.frame_at(info.start_s), chosen)
 
     span = _stream_span(info)
     return Source(

@@ -77,14 +77,15 @@ def scene_source(
     timeline = scene.timeline
     span = time_range(timeline) if timeline is not None else None
     fps = timeline.fps if timeline is not None else None
-
-    def opening() -> CaptureCamera | None:
-        try:
-            return default_view(scene.gaussians, cameras)
-        except InputError:
-            return None
-
-    return Source(name, "scene", span, scene.at, fps=fps, cameras=list(cameras), opening=opening)
+    return Source(
+        name,
+        "scene",
+        span,
+        scene.at,
+        fps=fps,
+        cameras=list(cameras),
+        opening=lambda: default_view(scene.gaussians, cameras),
+    )
 
 
 def sample_times(span: Span | None, count: int, fps: float | None = None) -> list[float]:
