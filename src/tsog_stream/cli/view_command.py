@@ -23,6 +23,7 @@ from .._version import __version__
 from ..client import open_stream
 from ..errors import InputError
 from ..inputs import STREAM_KINDS, input_kind, is_url
+from ..io.sequence import list_frames
 from ..server import make_app, start_server
 from .common import Integer, Subparsers, add_cameras, add_common, add_input
 from .progress import Progress
@@ -70,7 +71,7 @@ def cache_root(given: Path | None) -> Path:
 
 
 def _files_of(target: Path) -> list[Path]:
-    """The files an input is read from: itself, a folder's files, or a pattern's matches."""
+    """The files an input is read from: itself, a folder's files, or a pattern's frames."""
     if target.is_file():
         return [target]
     if target.is_dir():
@@ -81,10 +82,7 @@ def _files_of(target: Path) -> list[Path]:
             if len(found) > MAX_FINGERPRINT_FILES:
                 raise InputError(f"more than {MAX_FINGERPRINT_FILES} files", where=str(target))
         return found
-    matches = sorted(Path(target.anchor or ".").glob(str(target.relative_to(target.anchor))))
-    if not matches:
-        raise InputError("no such file, folder or matching frames", where=str(target))
-    return [m for m in matches if m.is_file()]
+    return list_frames(str(target))  # a frame pattern: the frames the sequence reader reads
 
 
 def fingerprint(args: argparse.Namespace) -> str:
