@@ -29,6 +29,7 @@ from ..constants import MAX_CAMERA_FILE_BYTES, MAX_CAMERAS
 from ..errors import FormatError, InputError, SourceError
 from ..schemas.cameras import CaptureCamera, cameras_from_json
 from .files import open_regular, read_bytes
+from .splatv import read_splatv_cameras
 
 COLMAP_MODELS: Final[dict[int, tuple[str, int]]] = {
     0: ("SIMPLE_PINHOLE", 3),
@@ -147,8 +148,6 @@ def _read_limited(path: Path) -> bytes:
 
 def _splatv_cameras(path: Path) -> FoundCameras:
     """The cameras a .splatv header carries."""
-    from .splatv import read_splatv_cameras  # noqa: PLC0415 - one format, one module
-
     cameras, notes = read_splatv_cameras(path)
     if not cameras:
         raise InputError("the .splatv file carries no cameras", where=str(path))

@@ -64,6 +64,11 @@ PREAMBLE: Final = struct.Struct("<II")
 """magic, JSON length."""
 MAX_JSON_BYTES: Final = 16 * 1024 * 1024
 """A JSON header longer than this is rejected before it is read."""
+ASSUMED_DURATION: Final = (
+    "splatv time is normalised to [0, 1] and the file does not say how long the clip is: "
+    "read as 1 s (pass --duration-s)"
+)
+"""The note on a clip read without duration_s (the CLI says it first, as a warning)."""
 RECORD: Final = np.dtype(
     [
         ("position", "<f4", (3,)),
@@ -119,12 +124,6 @@ def parse_splatv(
     if duration_s is None:
         notes.insert(0, ASSUMED_DURATION)
     return Loaded4D(scene, notes, _header_cameras(chunks, name, notes))
-
-
-ASSUMED_DURATION: Final = (
-    "splatv time is normalised to [0, 1] and the file does not say how long the clip is: "
-    "read as 1 s (pass --duration-s)"
-)
 
 
 def read_splatv_cameras(path: str | os.PathLike[str]) -> tuple[list[CaptureCamera], list[str]]:
