@@ -79,7 +79,7 @@ def big(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("served")
     background = max(80_000, 2 * send_buffer_max() // 24)
     spec = SceneSpec(background=background, objects=2, per_object=500, duration=2.0, sh_bands=3)
-    options = SegmentOptions(window_s=2.0, policy="duplicate")
+    options = SegmentOptions(window_s=2.0, policy="duplicate", layers=1)  # one big chunk
     segment_scene(generate_scene(spec), root / "big.tsogs", options)
     return root / "big.tsogs"
 

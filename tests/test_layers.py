@@ -40,12 +40,13 @@ FLOORS: dict[str, int] = {
     "io": 2,  # files of every format
     "container": 3,  # the .tsogs format (sans-I/O), byte sources, the writer
     "merge": 4,
+    "render": 4,  # the CPU renderer: segment measures its layers with it
     # services: none of them imports another
     "segment": 5,
     "client": 5,
     "server": 5,
-    "render": 5,
     "inputs": 6,  # any input as a scene at time t (io + client)
+    "throttled_play": 6,  # a playback over a shaped link (server + client + render)
     "demo": 6,
     "cli": 7,
 }

@@ -7,11 +7,16 @@ Thin: parse arguments, call :mod:`tsog_stream.client`, print results; no logic o
 from __future__ import annotations
 
 import argparse
+import asyncio
+import math
 from collections.abc import Callable
 from pathlib import Path
 
 from ..client import PlayStats, open_stream
+from ..errors import InputError
 from ..io.files import refuse_existing
+from ..server.link import LinkShape, parse_bandwidth, parse_latency
+from ..throttled_play import LinkPlayReport, play_through_link
 from .common import Subparsers, add_common
 from .progress import Progress
 from .stream_commands import STREAM_HELP, stream_frame
@@ -31,9 +36,15 @@ def add_client_commands(sub: Subparsers) -> None:
     p = sub.add_parser(
         "play",
         help="simulate playing a served container; report stalls",
+        description="Play a stream as a viewer would and report what it cost. With --realtime "
+        "or --bandwidth, a layered stream (tsog segment --layers) plays adaptively: the base "
+        "layer is drawn as soon as it arrives (the first picture), playback waits a little "
+        "for the layers the measured throughput keeps up with, then plays, dropping layers "
+        "when the link slows and taking them back when it recovers.",
         epilog="A stall is a frame whose chunks had not arrived by the time it was due (1/fps "
-        "after the one before): a viewer would see the picture freeze. Startup latency is the "
-        "wait for the first frame (opening the index included).",
+        "after the one before; adaptive: whose base layer had not): a viewer would see the "
+        "picture freeze. Startup latency is the wait for the first played frame. Example: "
+        "tsog play clip.tsogs --start 3 --duration 5 --bandwidth 1Mbit --latency 50ms",
     )
     p.add_argument("url", help=STREAM_HELP)
     p.add_argument("--start", type=float, default=0.0, help="start time in seconds (default 0)")
@@ -46,6 +57,23 @@ def add_client_commands(sub: Subparsers) -> None:
     )
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--realtime", action="store_true", help="pace frames in real time")
+    p.add_argument(
+        "--bandwidth",
+        metavar="RATE",
+        help="play in real time over a shaped loopback link of this rate (20Mbit, 500kbit, "
+        "2MB/s) in front of the origin (a local file or folder is served on loopback first); "
+        "also reports the PSNR of sampled shown frames against full quality",
+    )
+    p.add_argument(
+        "--latency",
+        metavar="DELAY",
+        help="with --bandwidth: round trip added to every request (50ms, 0.2s; default 0)",
+    )
+    p.add_argument(
+        "--full-quality",
+        action="store_true",
+        help="wait for every layer of each frame (no adaptation): the comparison",
+    )
     add_common(p)
 
 
@@ -59,6 +87,10 @@ def cmd_fetch(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """tsog play: a simulated playback with startup latency, stalls and throughput."""
+    if args.bandwidth is not None:
+        return _play_shaped(args, progress)
+    if args.latency is not None:
+        raise InputError("a latency needs a link: give --bandwidth too", where="--latency")
     progress(f"opening {args.url}")
     with open_stream(args.url) as client:
         playback = client.client.play(
@@ -67,11 +99,53 @@ def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             fps=args.fps,
             duration=args.duration,
             realtime=args.realtime,
+            adaptive=args.realtime and not args.full_quality,
         )
         # keep nothing: each frame is dropped once reported (memory stays bounded by the cache)
         client.drain_playback(playback, lambda f: progress(_line(f.t, playback.stats)))
     print(_report(playback.stats))
     return 0
+
+
+def _play_shaped(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
+    """tsog play --bandwidth: the playback through a shaped loopback link, with quality."""
+    shape = LinkShape(
+        parse_bandwidth(args.bandwidth),
+        parse_latency(args.latency) if args.latency is not None else 0.0,
+    )
+    progress(f"opening {args.url} over {shape.describe()}")
+    report = asyncio.run(
+        play_through_link(
+            args.url,
+            shape,
+            start=args.start,
+            duration=args.duration,
+            speed=args.speed,
+            fps=args.fps,
+            adaptive=not args.full_quality,
+            on_frame=lambda f, stats: progress(f"{_line(f.t, stats)}, {f.layers} layers"),
+        )
+    )
+    print(
+        f"link:            {shape.describe()} (full quality needs "
+        f"{report.full_bitrate_bps / 1e6:.2f} Mbit/s on average)"
+    )
+    print(f"opening:         {report.opened_s * 1000:.1f} ms")
+    print(_report(report.stats))
+    print(_quality_line(report))
+    return 0
+
+
+def _quality_line(report: LinkPlayReport) -> str:
+    """The sampled shown frames' PSNR against full quality."""
+    if not report.quality:
+        return "quality:         not measured (the scene has no view to render from)"
+    shown = ", ".join(
+        f"t={t:.2f} s: {'full' if math.isinf(db) else f'{db:.1f} dB'}"
+        for t, _, db in report.quality
+    )
+    worst = "full" if math.isinf(report.worst_psnr) else f"{report.worst_psnr:.1f} dB"
+    return f"quality:         worst {worst} against full quality ({shown})"
 
 
 def _line(t: float, stats: PlayStats) -> str:
@@ -88,10 +162,13 @@ def _report(stats: PlayStats) -> str:
     return "\n".join(
         [
             f"frames:          {stats.frames}",
+            f"first picture:   {stats.first_picture_s * 1000:.1f} ms",
             f"startup latency: {stats.startup_s * 1000:.1f} ms",
             f"stalls:          {stats.stalls} frames late, {stats.stall_s * 1000:.1f} ms in "
             "total (a stall: a frame whose chunks had not arrived when it was due, a freeze)",
             f"fetched:         {stats.bytes} bytes in {stats.requests} requests ({rate:.2f} MB/s)",
             f"cache hit rate:  {stats.hit_rate * 100:.1f}%",
+            "layers shown:    "
+            + ", ".join(f"{n} frames with {k}" for k, n in sorted(stats.layers_shown.items())),
         ]
     )

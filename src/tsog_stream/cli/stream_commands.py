@@ -10,6 +10,7 @@ import argparse
 import json
 import re
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,8 @@ from ..merge.check import frame_errors
 from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
 from ..schemas.cameras import CaptureCamera
+from ..schemas.manifest import Layer
+from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
 from ..segment.segmenter import (
@@ -135,6 +138,16 @@ def add_stream_commands(sub: Subparsers) -> None:
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
     p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
     p.add_argument(
+        "--layers",
+        type=Integer(1, MAX_LAYERS),
+        metavar="N",
+        help="quality layers, each its own chunks, so a player on a slow link draws the base at "
+        "once and adds the rest as it arrives (default: chosen by measuring rendered PSNR: "
+        f"{AUTO_LAYERS} layers, the base reaching {LAYER_TARGETS_DB[0]:g} dB and the first two "
+        f"{LAYER_TARGETS_DB[1]:g} dB against the whole, when a frame shows at least "
+        f"{LAYERED_MIN_GAUSSIANS} Gaussians, else 1); 1 keeps one layer",
+    )
+    p.add_argument(
         "--temporal",
         choices=TEMPORAL_MODES,
         default=DEFAULT_TEMPORAL,
@@ -227,6 +240,7 @@ def _segment(
         workers=max(1, args.workers),
         seed=args.seed,
         quality=args.quality,
+        layers=args.layers,
     )
     cameras, cameras_source = capture
     for stale in remove_stale_temp_files(args.output):
@@ -267,6 +281,7 @@ def _segment(
     print(f"  {report.gaussians} Gaussians, {report.stored} stored copies")
     print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
     print(f"  {_cameras_line(cameras, cameras_source, report)}")
+    print(f"  {_layers_line(report)}")
     _write_thumbnail(args.output, progress)
     for level, size in sorted(report.bytes_per_level.items()):
         print(f"  level {level}: {size} bytes")
@@ -274,6 +289,14 @@ def _segment(
     more = " ..." if len(report.bytes_per_window) > 12 else ""
     print(f"  bytes per window (level 0): {shown}{more}")
     return 0
+
+
+def _layers_line(report: SegmentReport) -> str:
+    """How many quality layers, why, and what each weighs."""
+    if not report.layers:
+        return report.layers_why or "one layer"
+    sizes = ", ".join(f"{layer.bytes}" for layer in report.layers)
+    return f"{report.layers_why}; bytes per layer: {sizes}"
 
 
 def _write_thumbnail(container: Path, progress: Progress) -> None:
@@ -393,6 +416,17 @@ def seek_table(reader: Stream, samples: int = 8) -> list[dict[str, Any]]:
     return [reader.seek_cost(round(float(t), 4)).as_dict() for t in times]
 
 
+def layers_summary(layers: Sequence[Layer]) -> dict[str, Any]:
+    """The quality layers: how many, and per layer its Gaussians, bytes and measured PSNR."""
+    out: dict[str, Any] = {"count": max(len(layers), 1)}
+    for layer in layers:
+        shows = "full" if layer.psnr_db is None else f"{layer.psnr_db:.1f} dB"
+        out[f"layer {layer.index}"] = (
+            f"{layer.gaussians} Gaussians, {layer.bytes} bytes; with the layers below: {shows}"
+        )
+    return out
+
+
 def stream_info(target: str) -> dict[str, Any]:
     """Header, index summary and a seek-cost table of a container."""
     with open_stream(target) as reader:
@@ -415,6 +449,7 @@ def stream_info(target: str) -> dict[str, Any]:
             "nodes": len(m.nodes),
             "chunks": len(m.chunks),
             "cameras": cameras_summary(m.cameras, view=m.view),
+            "layers": layers_summary(m.layers),
             "seek_costs": seek_table(reader),
         }
 

@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import asyncio
 import bisect
+import heapq
+import itertools
 import math
 import os
 import time
-from collections import OrderedDict, deque
-from collections.abc import AsyncIterator, Sequence
+from collections import OrderedDict
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 
@@ -28,6 +30,14 @@ from ..container.stream_index import StreamIndex, verify_chunk
 from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..schemas.manifest import ChunkEntry
+from .adaptive import (
+    HORIZON_S,
+    Throughput,
+    choose_layers,
+    due_order,
+    layers_shown,
+    startup_allowance,
+)
 from .costs import SeekCost, seek_cost
 from .fetchers import ChunkFetcher, RangeFetcher, make_fetcher
 from .http_source import HttpOptions
@@ -35,6 +45,10 @@ from .unpacked import pack, unpack
 from .verify import VerifyReport, verify_stream
 
 MiB = 1 << 20
+Rank = tuple[float, float]
+URGENT: Rank = (-math.inf, 0.0)
+REPLAN_S = 0.5
+"""Wall seconds between two choices of the layers an adaptive playback fetches."""
 MAX_PLAY_FRAMES = 1_000_000
 """Frames one simulated playback may have (9 hours at 30 fps): a bound, so that no choice of
 speed and fps makes one that never ends."""
@@ -112,10 +126,16 @@ class SceneCache:
 
 @dataclass
 class PlayStats:
-    """What a playback cost: startup latency, stalls, transfer and cache behaviour."""
+    """What a playback cost: startup latency, stalls, transfer and cache behaviour; for an
+    adaptive one also when the first picture came and how many layers each frame showed."""
 
     frames: int = 0
     startup_s: float = 0.0
+    first_picture_s: float = 0.0
+    """Wait for the first picture (the base layer at the start time; = startup_s when not
+    adaptive)."""
+    layers_shown: dict[int, int] = field(default_factory=dict)
+    """Frames shown with each number of layers."""
     stalls: int = 0
     stall_s: float = 0.0
     requests: int = 0
@@ -132,6 +152,8 @@ class PlayedFrame:
     t: float
     gaussians: Gaussians
     wait_s: float
+    layers: int = 1
+    """Quality layers drawn (all of the stream's when not adaptive)."""
 
 
 @dataclass(frozen=True)
@@ -145,6 +167,7 @@ class _PlayPlan:
     budget: float
     horizon: float
     realtime: bool
+    speed: float = 1.0
 
 
 @dataclass
@@ -165,6 +188,9 @@ class _Job:
     group: list[ChunkEntry]
     futures: dict[int, asyncio.Future[Scene]]
     started: bool = False
+    rank: Rank = (0.0, 0.0)
+    """Fetched in rank order (then in order queued): (layer, second due) for a prefetch, so
+    every queued base chunk goes before any enhancement; a frame being shown ranks first."""
 
 
 def _settle_failed(futures: dict[int, asyncio.Future[Scene]], exc: BaseException) -> None:
@@ -205,7 +231,9 @@ class StreamClient:
         self.cache_stats = CacheStats()
         self.coalesce_gap = coalesce_gap
         self.concurrency = concurrency
-        self._queue: deque[_Job] = deque()
+        self.throughput = Throughput(time.monotonic)
+        self._queue: list[tuple[Rank, tuple[int, int], _Job]] = []
+        self._order = itertools.count()
         self._pending: dict[int, _Job] = {}
         self._workers: set[asyncio.Task[None]] = set()
 
@@ -242,9 +270,10 @@ class StreamClient:
             coalesce_gap=coalesce_gap,
         )
 
-    async def frame_at(self, t: float) -> Gaussians:
-        """The Gaussians visible at ``t``, fetching only the chunks ``t`` needs."""
-        chunks = self.index.chunks_for(t)
+    async def frame_at(self, t: float, layers: int | None = None) -> Gaussians:
+        """The Gaussians visible at ``t`` with the first ``layers`` quality layers (None: all),
+        fetching only the chunks that needs."""
+        chunks = self.index.chunks_for(t, layers)
         for c in chunks:
             if c.id in self.cache:
                 self.cache_stats.hits += 1
@@ -254,18 +283,33 @@ class StreamClient:
         bands = self.index.manifest.scene.sh_bands
         return Gaussians.concat([s.at(t) for s in scenes], sh_bands=bands)
 
-    async def prefetch(self, t: float, horizon: float, *, wait: bool = True) -> int:
-        """Fetch the chunks of [t, t + horizon] in time order; returns how many were scheduled.
+    async def prefetch(
+        self, t: float, horizon: float, *, wait: bool = True, layers: int | None = None
+    ) -> int:
+        """Fetch the chunks of [t, t + horizon] (of the first ``layers`` quality layers; None:
+        all) in the order they are due; returns how many were scheduled.
 
         With ``wait=False`` the fetches run in the background (a failure there is not raised:
         the chunk is fetched again, and the error raised, when a frame needs it).
         """
-        chunks = self.index.chunks_for_interval(t, t + max(horizon, 0.0))
-        chunks.sort(key=lambda c: (c.start_s, c.offset))
-        futures = self._schedule(chunks)
+        chunks = due_order(self.index.chunks_for_interval(t, t + max(horizon, 0.0), layers), t)
+        futures = self._schedule(chunks, rank=lambda c: (float(c.layer), max(c.start_s, t)))
         if wait:
             await asyncio.gather(*futures.values())
         return len(futures)
+
+    def _prefetch_due(self, t: float, horizon: float, layers: int) -> bool:
+        """Queue the chunks of [t, t + horizon] of the first ``layers`` layers, base layers
+        first, each request holding chunks due at the same second only (a chunk due now never
+        waits for one due later read with it); True when all are already here."""
+        chunks = self.index.chunks_for_interval(t, t + max(horizon, 0.0), layers)
+        missing = due_order([c for c in chunks if c.id not in self.cache], t)
+        self._schedule(
+            missing,
+            rank=lambda c: (float(c.layer), max(c.start_s, t)),
+            apart=lambda c: (c.layer, max(c.start_s, t)),
+        )
+        return not missing
 
     async def chunk_scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
         """The decoded chunks, from the cache or fetched ahead of any queued prefetch
@@ -277,13 +321,20 @@ class StreamClient:
         return [found[c.id] for c in chunks]
 
     def _schedule(
-        self, chunks: Sequence[ChunkEntry], *, urgent: bool = False
+        self,
+        chunks: Sequence[ChunkEntry],
+        *,
+        urgent: bool = False,
+        rank: Callable[[ChunkEntry], Rank] | None = None,
+        apart: Callable[[ChunkEntry], object] | None = None,
     ) -> dict[int, asyncio.Future[Scene]]:
         """Futures of the given chunks, queueing coalesced fetches for those not under way.
 
         Fetches wait in one queue served by at most ``concurrency`` workers, so a prefetch of
         any length costs one future per chunk, not one task. ``urgent`` ones (a frame being
         shown) go to the front, queued ones included: a job queued twice is fetched once.
+        Others are fetched by ``rank`` (scene second they are due), then in order queued;
+        chunks with a different ``apart`` key are never read with one request.
         """
         waiting = {c.id: self._pending[c.id] for c in chunks if c.id in self._pending}
         out = {cid: job.futures[cid] for cid, job in waiting.items()}
@@ -292,15 +343,19 @@ class StreamClient:
         jobs = list({id(job): job for job in waiting.values() if not job.started}.values())
         if not urgent:
             jobs = []  # already queued: they keep their place
-        for group in self._groups(todo):
-            job = _Job(group, {c.id: loop.create_future() for c in group})
+        for group in self._groups(todo, apart):
+            first = URGENT if urgent else min(map(rank, group)) if rank else (0.0, 0.0)
+            job = _Job(group, {c.id: loop.create_future() for c in group}, rank=first)
             self._pending.update(dict.fromkeys(job.futures, job))
             out.update(job.futures)
             jobs.append(job)
-        if urgent:
-            self._queue.extendleft(reversed(jobs))
-        else:
-            self._queue.extend(jobs)
+        batch = next(self._order)
+        for i, job in enumerate(jobs):
+            # urgent ones (queued ones moved up too): the newest batch first, in its own order
+            if urgent:
+                job.rank = URGENT
+            order = (-batch, i) if urgent else (batch, i)
+            heapq.heappush(self._queue, (job.rank, order, job))
         self._start_workers()
         for c in chunks:
             if c.id not in out and (s := self.cache.get(c.id)) is not None:
@@ -321,25 +376,35 @@ class StreamClient:
     async def _work(self) -> None:
         """Fetch queued jobs, front first, until the queue is empty."""
         while self._queue:
-            job = self._queue.popleft()
+            _, _, job = heapq.heappop(self._queue)
             if not job.started:
                 job.started = True
                 await self._fetch_group(job)
 
-    def _groups(self, chunks: Sequence[ChunkEntry]) -> list[list[ChunkEntry]]:
-        """Chunks split into runs whose byte ranges are at most ``coalesce_gap`` apart.
+    def _groups(
+        self, chunks: Sequence[ChunkEntry], apart: Callable[[ChunkEntry], object] | None = None
+    ) -> list[list[ChunkEntry]]:
+        """Chunks split into runs of one quality layer (and one ``apart`` key) whose byte
+        ranges are at most ``coalesce_gap`` apart (a base chunk never waits for an
+        enhancement read with it).
 
         Runs keep the order in which their first chunk was asked for (time order); a gap of
         None fetches every chunk on its own.
         """
         if self.coalesce_gap is None or not self.source.coalesces:
             return [[c] for c in chunks]
-        spans = coalesce((self.index.chunk_range(c) for c in chunks), self.coalesce_gap)
-        starts = [s.start for s in spans]
-        groups: dict[ByteRange, list[ChunkEntry]] = {}
+        kinds: dict[object, list[ChunkEntry]] = {}
         for c in chunks:
-            span = spans[bisect.bisect_right(starts, c.offset) - 1]
-            groups.setdefault(span, []).append(c)
+            kinds.setdefault((c.layer, apart(c) if apart else None), []).append(c)
+        run_of: dict[int, tuple[object, ByteRange]] = {}
+        for kind, members in kinds.items():
+            spans = coalesce((self.index.chunk_range(c) for c in members), self.coalesce_gap)
+            starts = [s.start for s in spans]
+            for c in members:
+                run_of[c.id] = (kind, spans[bisect.bisect_right(starts, c.offset) - 1])
+        groups: dict[tuple[object, ByteRange], list[ChunkEntry]] = {}
+        for c in chunks:
+            groups.setdefault(run_of[c.id], []).append(c)
         return list(groups.values())
 
     async def _fetch_group(self, job: _Job) -> None:
@@ -347,7 +412,13 @@ class StreamClient:
         futures = job.futures
         try:
             group = sorted(job.group, key=lambda c: c.offset)
-            bodies = await self.source.fetch(group)
+            self.throughput.started()
+            received = 0
+            try:
+                bodies = await self.source.fetch(group)
+                received = sum(len(body) for body in bodies)
+            finally:
+                self.throughput.finished(received)
             for c, body in zip(group, bodies, strict=True):
                 where = f"{self.source.name} chunk {c.id}"
                 data = verify_chunk(c, body, where=where)
@@ -400,12 +471,16 @@ class StreamClient:
         duration: float | None = None,
         horizon_s: float = 1.0,
         realtime: bool = False,
+        adaptive: bool = False,
     ) -> Playback:
         """Simulated playback from ``start`` at ``speed``, ``fps`` frames per wall second.
 
         Each frame keeps ``horizon_s`` of scene time (clipped to the end) prefetched. Without
         ``realtime`` nothing sleeps: a stall is a frame whose data took longer than its budget
-        (1 / fps) to arrive; the first frame's wait is the startup latency.
+        (1 / fps) to arrive; the first frame's wait is the startup latency. ``adaptive`` (in
+        real time) draws the base layer first and fetches as many quality layers as the
+        measured throughput keeps up with (:mod:`.adaptive`); a stall is then a frame whose
+        base layer was late.
         """
         _check_playback(start, speed, fps, duration, horizon_s)
         scene = self.index.manifest.scene
@@ -422,9 +497,12 @@ class StreamClient:
                 f"{frames:.3g} frames to play (at most {MAX_PLAY_FRAMES}): raise --speed, or "
                 "lower --fps or --duration"
             )
-        plan = _PlayPlan(start, end, int(frames), speed / fps, 1.0 / fps, horizon_s, realtime)
+        plan = _PlayPlan(
+            start, end, int(frames), speed / fps, 1.0 / fps, horizon_s, realtime or adaptive, speed
+        )
         stats = PlayStats()
-        return Playback(self._play(plan, stats), stats)
+        frames_of = self._play_adaptive if adaptive else self._play
+        return Playback(frames_of(plan, stats), stats)
 
     async def _play(self, plan: _PlayPlan, stats: PlayStats) -> AsyncIterator[PlayedFrame]:
         """The frames of :meth:`play`, updating ``stats`` as they are produced."""
@@ -443,22 +521,102 @@ class StreamClient:
             elif wait > budget:
                 stats.stalls += 1
                 stats.stall_s += wait - budget
-            stats.frames = k + 1
-            stats.requests = self.source.stats.requests - requests
-            stats.bytes = self.source.stats.bytes - nbytes
-            looked = self.cache_stats.hits - hits + self.cache_stats.misses - misses
-            stats.hit_rate = (self.cache_stats.hits - hits) / looked if looked else 0.0
-            stats.elapsed_s = time.monotonic() - began
-            yield PlayedFrame(k, t, frame, wait)
+            stats.first_picture_s = stats.startup_s
+            layers = self.index.layer_count
+            stats.layers_shown[layers] = stats.layers_shown.get(layers, 0) + 1
+            self._count(stats, k, began, (requests, nbytes, hits, misses))
+            yield PlayedFrame(k, t, frame, wait, layers)
             if plan.realtime:
                 await asyncio.sleep(
                     max(0.0, began + stats.startup_s + (k + 1) * budget - time.monotonic())
                 )
 
+    def _count(
+        self, stats: PlayStats, k: int, began: float, before: tuple[int, int, int, int]
+    ) -> None:
+        """Frames, transfer and cache figures of a playback after its frame ``k``."""
+        requests, nbytes, hits, misses = before
+        stats.frames = k + 1
+        stats.requests = self.source.stats.requests - requests
+        stats.bytes = self.source.stats.bytes - nbytes
+        looked = self.cache_stats.hits - hits + self.cache_stats.misses - misses
+        stats.hit_rate = (self.cache_stats.hits - hits) / looked if looked else 0.0
+        stats.elapsed_s = time.monotonic() - began
+
+    async def _play_adaptive(self, plan: _PlayPlan, stats: PlayStats) -> AsyncIterator[PlayedFrame]:
+        """The frames of an adaptive :meth:`play`: the base layer at the start as soon as it
+        arrives (the first picture), then as many layers as the link keeps up with."""
+        before = (
+            self.source.stats.requests,
+            self.source.stats.bytes,
+            self.cache_stats.hits,
+            self.cache_stats.misses,
+        )
+        began = time.monotonic()
+        horizon = max(plan.horizon, HORIZON_S * plan.speed)
+        await self.chunk_scenes(self.index.chunks_for(plan.start, 1))  # nothing shares the link
+        stats.first_picture_s = time.monotonic() - began
+        allowance = startup_allowance(stats.first_picture_s)
+        level = self._plan_level(plan, plan.start, allowance, current=0)
+        wanted = self._schedule(self.index.chunks_for(plan.start, level), urgent=True)
+        if self._prefetch_due(plan.start, horizon, 1):
+            self._prefetch_due(plan.start, horizon, level)
+        if wanted:
+            await asyncio.wait(list(wanted.values()), timeout=allowance)
+        playing = time.monotonic()
+        stats.startup_s = playing - began
+        replanned = playing
+        for k in range(plan.count):
+            t = plan.start + k * plan.step
+            if time.monotonic() - replanned >= REPLAN_S:
+                level = self._plan_level(plan, t, 0.0, current=level)
+                replanned = time.monotonic()
+            ahead = min(horizon, max(plan.end - t, 0.0))
+            if self._prefetch_due(t, ahead, 1):  # enhancements once the base is in
+                self._prefetch_due(t, ahead, level)
+            asked = time.monotonic()
+            await self.chunk_scenes(self.index.chunks_for(t, 1))
+            wait = time.monotonic() - asked
+            if k > 0 and wait > plan.budget:
+                stats.stalls += 1
+                stats.stall_s += wait - plan.budget
+            shown = max(layers_shown(self.index, t, self.cache.__contains__), 1)
+            frame = await self.frame_at(t, shown)
+            stats.layers_shown[shown] = stats.layers_shown.get(shown, 0) + 1
+            self._count(stats, k, began, before)
+            yield PlayedFrame(k, t, frame, wait, shown)
+            await asyncio.sleep(max(0.0, playing + (k + 1) * plan.budget - time.monotonic()))
+
+    def _plan_level(self, plan: _PlayPlan, t: float, allowance: float, *, current: int) -> int:
+        """Layers to keep fetching from ``t`` (:func:`.adaptive.choose_layers`); queued
+        fetches of layers given up are dropped."""
+        level = choose_layers(
+            self.index,
+            t,
+            plan.end,
+            speed=plan.speed,
+            rate=self.throughput.estimate,
+            have=self.cache.__contains__,
+            current=current,
+            allowance=allowance,
+        )
+        if 0 < level < current:
+            self._drop_queued(level)
+        return level
+
+    def _drop_queued(self, layers: int) -> None:
+        """Forget queued (not started) fetches holding only chunks of layer ``layers`` or up."""
+        for _, _, job in self._queue:
+            if not job.started and all(c.layer >= layers for c in job.group):
+                job.started = True
+                _settle_failed(job.futures, asyncio.CancelledError())
+                for cid in job.futures:
+                    self._pending.pop(cid, None)
+
     async def aclose(self) -> None:
         """Cancel queued and running fetches and close the source's connections."""
         while self._queue:
-            job = self._queue.popleft()
+            _, _, job = heapq.heappop(self._queue)
             _settle_failed(job.futures, asyncio.CancelledError())
             for cid in job.futures:
                 self._pending.pop(cid, None)

@@ -63,9 +63,10 @@ class Stream:
         """Requests made and bytes received so far."""
         return self.client.source.stats
 
-    def frame_at(self, t: float) -> Gaussians:
-        """The Gaussians visible at ``t`` seconds, fetching only the chunks ``t`` needs."""
-        return self._run(self.client.frame_at(t))
+    def frame_at(self, t: float, layers: int | None = None) -> Gaussians:
+        """The Gaussians visible at ``t`` seconds with the first ``layers`` quality layers
+        (None: all), fetching only the chunks that needs."""
+        return self._run(self.client.frame_at(t, layers))
 
     def prefetch(self, t: float, horizon: float) -> int:
         """Fetch the chunks of [t, t + horizon]; returns how many were fetched."""
@@ -104,10 +105,17 @@ class Stream:
         duration: float | None = None,
         horizon_s: float = 1.0,
         realtime: bool = False,
+        adaptive: bool = False,
     ) -> tuple[list[PlayedFrame], PlayStats]:
         """Every frame of a simulated playback (see :meth:`StreamClient.play`) and its stats."""
         playback = self.client.play(
-            start, speed=speed, fps=fps, duration=duration, horizon_s=horizon_s, realtime=realtime
+            start,
+            speed=speed,
+            fps=fps,
+            duration=duration,
+            horizon_s=horizon_s,
+            realtime=realtime,
+            adaptive=adaptive,
         )
         return self.run_playback(playback), playback.stats
 

@@ -68,8 +68,16 @@ class StreamIndex:
         x = (t - self.manifest.scene.start_s) / self.manifest.window_s + WINDOW_EPSILON
         return min(math.floor(min(max(x, 0.0), float(windows))), windows - 1)
 
-    def chunks_for_interval(self, start: float, end: float) -> list[ChunkEntry]:
-        """Chunks holding Gaussians visible at some time in [start, end], in file order.
+    @cached_property
+    def layer_count(self) -> int:
+        """Quality layers of the stream (1 for an index without ``layers``)."""
+        return max(len(self.manifest.layers), 1)
+
+    def chunks_for_interval(
+        self, start: float, end: float, layers: int | None = None
+    ) -> list[ChunkEntry]:
+        """Chunks holding Gaussians visible at some time in [start, end], in file order, of
+        the first ``layers`` quality layers (None: all).
 
         Windows are chosen by index (not by comparing with their stored float edges, which
         round differently from frame times), so a time is in exactly one window and each
@@ -82,6 +90,7 @@ class StreamIndex:
         fps = m.scene.fps
         slack = TIME_EPSILON * (1.0 / fps if fps else 1.0) + WINDOW_EPSILON * m.window_s
         windows = self.windows
+        top = self.layer_count if layers is None else layers
         if windows == 0 or end < m.scene.start_s - slack or start > m.scene.end_s + slack:
             return []
         first, last = self._window(start, windows), self._window(end, windows)
@@ -92,13 +101,14 @@ class StreamIndex:
                 continue
             for cid in node.chunks:
                 c = m.chunks[cid]
-                if c.start_s <= end + slack and c.end_s >= start - slack:
+                if c.layer < top and c.start_s <= end + slack and c.end_s >= start - slack:
                     chosen.add(cid)
         return sorted((m.chunks[i] for i in chosen), key=lambda c: c.offset)
 
-    def chunks_for(self, t: float) -> list[ChunkEntry]:
-        """Chunks needed to show time ``t`` (empty before the first or after the last Gaussian)."""
-        return self.chunks_for_interval(t, t)
+    def chunks_for(self, t: float, layers: int | None = None) -> list[ChunkEntry]:
+        """Chunks needed to show time ``t`` with the first ``layers`` quality layers (None: all;
+        empty before the first or after the last Gaussian)."""
+        return self.chunks_for_interval(t, t, layers)
 
 
 def check_file_length(header: Header, size: int, *, where: str) -> None:

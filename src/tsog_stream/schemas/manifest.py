@@ -105,6 +105,24 @@ class ChunkEntry:
     start_s: Annotated[Finite, Field(description="first second any of its Gaussians is visible")]
     end_s: Annotated[Finite, Field(description="second after which none is visible")]
     bbox: Box
+    layer: Annotated[
+        NonNegInt, Field(description="quality layer (0: the base; absent in the JSON when 0)")
+    ] = 0
+
+
+class Layer(_Model):
+    """One quality layer of a progressive stream: its share of the scene and the rendered
+    quality a viewer has once it and every layer below it are shown."""
+
+    index: NonNegInt
+    gaussians: NonNegInt = Field(
+        description="Gaussians stored in the layer's chunks (copies included)"
+    )
+    bytes: NonNegInt = Field(description="bytes of the layer's chunks")
+    psnr_db: Finite | None = Field(
+        description="PSNR of layers 0..index against all layers, rendered by the CPU renderer "
+        "at the sampled times from the opening view (null for the last layer: the full scene)"
+    )
 
 
 class Manifest(_Model):
@@ -128,6 +146,10 @@ class Manifest(_Model):
         description="where a viewer opens: the first capture camera, else a framing of the "
         "scene's dense core (null in indexes written before cameras were stored)",
     )
+    layers: list[Layer] = Field(
+        default_factory=list,
+        description="quality layers, base first (empty: one layer, every chunk's layer is 0)",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> Manifest:
@@ -136,6 +158,7 @@ class Manifest(_Model):
                 raise ValueError(f"chunks[{i}] has id {chunk.id}")
             if not _CHUNK_FILE.fullmatch(chunk.file):
                 raise ValueError(f"chunks[{i}].file {chunk.file!r} is not chunks/NNNNNN.sog")
+        _check_layers(self.layers, self.chunks)
         for j, node in enumerate(self.nodes):
             for c in node.chunks:
                 if c >= len(self.chunks):
@@ -143,6 +166,17 @@ class Manifest(_Model):
                         f"nodes[{j}] names chunk {c}, past the {len(self.chunks)} chunks"
                     )
         return self
+
+
+def _check_layers(layers: list[Layer], chunks: list[ChunkEntry]) -> None:
+    """Layers are numbered 0..n-1 in order and every chunk's layer is one of them."""
+    for i, layer in enumerate(layers):
+        if layer.index != i:
+            raise ValueError(f"layers[{i}] has index {layer.index}")
+    count = max(len(layers), 1)
+    for chunk in chunks:
+        if chunk.layer >= count:
+            raise ValueError(f"chunks[{chunk.id}] is in layer {chunk.layer} of {count}")
 
 
 def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manifest:
@@ -162,10 +196,15 @@ def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manife
 
 
 def dump_manifest(manifest: Manifest) -> bytes:
-    """Compact, deterministic JSON of the index."""
-    return json.dumps(
-        manifest.model_dump(mode="json"), separators=(",", ":"), sort_keys=False
-    ).encode()
+    """Compact, deterministic JSON of the index; a single-layer index is written as before
+    layers existed (no ``layers``, no chunk ``layer``), a base chunk never names its layer."""
+    data = manifest.model_dump(mode="json")
+    if not data["layers"]:
+        del data["layers"]
+    for chunk in data["chunks"]:
+        if chunk["layer"] == 0:
+            del chunk["layer"]
+    return json.dumps(data, separators=(",", ":"), sort_keys=False).encode()
 
 
 def check_layout(manifest: Manifest, payload_start: int, payload_end: int, *, where: str) -> None:

@@ -39,9 +39,10 @@ from ..io.sequence import FrameSequence
 from ..model import Gaussians, Scene
 from ..morton import morton_order
 from ..schemas.cameras import CaptureCamera
-from ..schemas.manifest import Box, ChunkEntry, Manifest, Node, Policy
+from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
+from .layers import LayerPlan, check_layers, importance, plan_layers
 from .layout import (
     Choice,
     Lifespans,
@@ -77,6 +78,8 @@ class SegmentOptions:
     used as given with an explicit window (none unless given)."""
     quality: int = QUALITY_MAX
     """Error budgets of the chunks' codes, 0..100 (codec/precision.py; 100: full precision)."""
+    layers: int | None = None
+    """Quality layers (segment/layers.py): None chooses by measurement, 1 is one layer."""
 
 
 @dataclass(frozen=True)
@@ -104,10 +107,11 @@ class Views:
 
 @dataclass(frozen=True)
 class ChunkJob:
-    """One chunk to encode: its node and its Gaussians (indices into the scene)."""
+    """One chunk to encode: its node, its Gaussians (indices into the scene) and layer."""
 
     key: NodeKey
     indices: Ints
+    layer: int = 0
 
 
 @dataclass
@@ -130,6 +134,10 @@ class SegmentReport:
     """Where a player opens the scene (the index's ``view``)."""
     view_why: str = ""
     """Why that view (framing.opening_view)."""
+    layers: list[Layer] = field(default_factory=list)
+    """The index's quality layers (empty: one layer)."""
+    layers_why: str = ""
+    """How the layers were chosen (segment/layers.py)."""
 
 
 def palette_pixels(count: int, sh_bands: int) -> int:
@@ -208,24 +216,43 @@ def _with_layout(options: SegmentOptions, choice: Choice) -> SegmentOptions:
     return replace(options, window_s=layout.window_s, policy=layout.policy, slice_s=layout.slice_s)
 
 
-def chunk_jobs(
-    scene: Scene, plan: Plan, max_count: int, slice_s: float | None = None
-) -> list[ChunkJob]:
-    """Split every node's Gaussians into contiguous Morton runs of at most ``max_count``,
-    first by start time into slices of ``slice_s`` when given (layout.py), so each chunk's
-    own visible interval is short.
-
-    Jobs are ordered by node start time, coarser levels first, then by slice, so the chunks
-    one seek needs sit close together in the file.
-    """
-    jobs: list[ChunkJob] = []
+def node_groups(
+    scene: Scene, plan: Plan, slice_s: float | None = None
+) -> list[tuple[NodeKey, Ints]]:
+    """Every node's Gaussians, cut by start time into slices of ``slice_s`` when given
+    (layout.py), so each chunk's own visible interval is short; ordered by node start time,
+    coarser levels first, then by slice, so the chunks one seek needs sit close together."""
     start = lifespans(scene.timeline)[0] if scene.timeline is not None else None
     keys = sorted(plan.buckets, key=lambda k: (plan.node_interval(k)[0], -k.level, k.index))
-    for key in keys:
-        for members in _by_slice(plan.buckets[key], start, plan.node_interval(key)[0], slice_s):
+    return [
+        (key, group)
+        for key in keys
+        for group in _by_slice(plan.buckets[key], start, plan.node_interval(key)[0], slice_s)
+    ]
+
+
+def chunk_jobs(
+    scene: Scene,
+    groups: Sequence[tuple[NodeKey, Ints]],
+    max_count: int,
+    layer_of: Ints | None = None,
+) -> list[ChunkJob]:
+    """Split every group (:func:`node_groups`) into contiguous Morton runs of at most
+    ``max_count``, by quality layer (``layer_of``: each Gaussian's; None: one layer).
+
+    Jobs are ordered by layer, then in the groups' order, so the chunks one seek needs at one
+    quality sit close together in the file.
+    """
+    jobs: list[ChunkJob] = []
+    layers = int(layer_of.max(initial=0)) + 1 if layer_of is not None else 1
+    for layer in range(layers):
+        for key, group in groups:
+            members = group if layer_of is None else group[layer_of[group] == layer]
+            if members.size == 0 and layers > 1:
+                continue
             ordered = members[morton_order(scene.gaussians.means[members])]
             parts = -(-ordered.size // max_count)
-            jobs.extend(ChunkJob(key, run) for run in np.array_split(ordered, parts))
+            jobs.extend(ChunkJob(key, run, layer) for run in np.array_split(ordered, parts))
     return jobs
 
 
@@ -292,10 +319,11 @@ def _interval(scene: Scene, node: tuple[float, float]) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class Part:
-    """One chunk to encode: its node and its Gaussians."""
+    """One chunk to encode: its node, its Gaussians and its quality layer."""
 
     key: NodeKey
     scene: Scene
+    layer: int = 0
 
 
 @dataclass(frozen=True)
@@ -307,12 +335,14 @@ class PartInfo:
     start_s: float
     end_s: float
     bbox: Box
+    layer: int
 
 
 def describe_part(part: Part, plan: Plan) -> PartInfo:
     """A part's count, visible interval (clipped to its node) and bounding box."""
     start, end = _interval(part.scene, plan.node_interval(part.key))
-    return PartInfo(part.key, len(part.scene), start, end, _bounds(part.scene, start, end))
+    bbox = _bounds(part.scene, start, end)
+    return PartInfo(part.key, len(part.scene), start, end, bbox, part.layer)
 
 
 def _encoded(
@@ -409,6 +439,7 @@ def _write_container(
     options: SegmentOptions,
     on_chunk: ChunkProgress | None,
     views: Views,
+    layering: LayerPlan,
 ) -> SegmentReport:
     """Encode parts (in order), append them, and finish the container with its index."""
     entries: list[ChunkEntry] = []
@@ -430,6 +461,7 @@ def _write_container(
                     start_s=info.start_s,
                     end_s=info.end_s,
                     bbox=info.bbox,
+                    layer=info.layer,
                 )
             )
             keys.append(info.key)
@@ -455,6 +487,7 @@ def _write_container(
                 "payload_bytes": sum(e.length for e in entries),
                 "cameras": views.cameras,
                 "view": views.view,
+                "layers": _layers(layering, entries),
             }
         )
         size = out.finish(manifest)
@@ -476,7 +509,23 @@ def _write_container(
         per_window,
         view=views.view,
         view_why=views.why,
+        layers=manifest.layers,
+        layers_why=layering.why,
     )
+
+
+def _layers(layering: LayerPlan, entries: Sequence[ChunkEntry]) -> list[Layer]:
+    """The index's layers (none for one layer): Gaussians, bytes and measured PSNR of each."""
+    if layering.layers == 1:
+        return []
+    sizes, counts = [0] * layering.layers, [0] * layering.layers
+    for e in entries:
+        sizes[e.layer] += e.length
+        counts[e.layer] += e.count
+    return [
+        Layer(index=k, gaussians=count, bytes=size, psnr_db=psnr)
+        for k, (count, size, psnr) in enumerate(zip(counts, sizes, layering.psnr_db, strict=True))
+    ]
 
 
 def segment_scene(
@@ -493,11 +542,19 @@ def segment_scene(
     capture ``cameras`` and the view a player opens it from (framing.default_view)."""
     options = options or SegmentOptions()
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
+    check_layers(options.layers)
     choice = layout or scene_layout(scene, options, max_count)
     options = _with_layout(options, choice)
     plan = plan_scene(scene, options)
-    jobs = chunk_jobs(scene, plan, max_count, options.slice_s)
-    parts = (Part(job.key, scene.subset(job.indices)) for job in jobs)
+    views = Views.of(scene.gaussians, cameras)
+    groups = node_groups(scene, plan, options.slice_s)
+    members = [g for _, g in groups]
+    layering = plan_layers(scene, members, views.view, options.layers)
+    layer_of = None
+    if layering.layers > 1:
+        layer_of = layering.assign(importance(scene.gaussians), members)
+    jobs = chunk_jobs(scene, groups, max_count, layer_of)
+    parts = (Part(job.key, scene.subset(job.indices), job.layer) for job in jobs)
     tl = scene.timeline
     fields: dict[str, Any] = {
         "gaussians": len(scene),
@@ -515,7 +572,8 @@ def segment_scene(
         scene_fields=fields,
         options=options,
         on_chunk=on_chunk,
-        views=Views.of(scene.gaussians, cameras),
+        views=views,
+        layering=layering,
     )
     return replace(report, layout=choice)
 
@@ -575,6 +633,7 @@ def segment_sequence(
         options=options,
         on_chunk=on_chunk,
         views=Views.of(_sampled_frames(seq), cameras),
+        layering=LayerPlan.single("one layer: frame sequences are not layered"),
     )
     return replace(report, layout=choice)
 

@@ -12,6 +12,7 @@ export class SceneIndex {
         this.windows = manifest.nodes.filter((n) => n.level === 0).length;
         const fps = manifest.scene.fps;
         this.slack = TIME_EPSILON * (fps ? 1 / fps : 1) + WINDOW_EPSILON * manifest.window_s;
+        this.layerCount = Math.max((manifest.layers ?? []).length, 1);
     }
 
     /** The window holding t (t = k * window_s is in window k), clipped to the scene. */
@@ -21,8 +22,9 @@ export class SceneIndex {
         return Math.min(Math.floor(Math.min(Math.max(x, 0), this.windows)), this.windows - 1);
     }
 
-    /** Chunks holding Gaussians visible at some time in [a, b], in file order. */
-    chunksForInterval(a, b) {
+    /** Chunks holding Gaussians visible at some time in [a, b], in file order, of the first
+     * `layers` quality layers (default: all; a chunk without `layer` is in layer 0). */
+    chunksForInterval(a, b, layers = this.layerCount) {
         const m = this.manifest;
         if (!Number.isFinite(a) || !Number.isFinite(b)) return [];
         if (this.windows === 0 || b < m.scene.start_s - this.slack || a > m.scene.end_s + this.slack) {
@@ -36,14 +38,14 @@ export class SceneIndex {
             if (node.index * span > last || (node.index + 1) * span <= first) continue;
             for (const id of node.chunks) {
                 const c = m.chunks[id];
-                if (c.start_s <= b + this.slack && c.end_s >= a - this.slack) chosen.add(id);
+                if ((c.layer ?? 0) < layers && c.start_s <= b + this.slack && c.end_s >= a - this.slack) chosen.add(id);
             }
         }
         return [...chosen].map((id) => m.chunks[id]).sort((x, y) => x.offset - y.offset);
     }
 
-    /** Chunks needed to show time t. */
-    chunksFor(t) {
-        return this.chunksForInterval(t, t);
+    /** Chunks needed to show time t with the first `layers` layers (default: all). */
+    chunksFor(t, layers = this.layerCount) {
+        return this.chunksForInterval(t, t, layers);
     }
 }

@@ -292,6 +292,14 @@ function drawBuffered(playback, ranges) {
     }
 }
 
+/** "2/3 layers (33.3 dB)": the layers drawn at t and what the manifest says they show. */
+function quality(manifest, stats) {
+    if (stats.layerCount <= 1) return 'full';
+    if (stats.layers === 0) return `loading the base of ${stats.layerCount} layers`;
+    const db = manifest.layers[stats.layers - 1]?.psnr_db;
+    return `${stats.layers}/${stats.layerCount} layers (${db == null ? 'full' : `${db.toFixed(1)} dB`})`;
+}
+
 /** Refresh the overlay and the controls (a few times a second is enough). */
 function showState(playback, stream, fps) {
     const stats = stream.stats();
@@ -300,6 +308,7 @@ function showState(playback, stream, fps) {
     $('o-chunks').textContent = String(stats.shown.length);
     $('o-loaded').textContent = String(stats.ready);
     $('o-bytes').textContent = stats.bytes.toLocaleString('en');
+    $('o-quality').textContent = quality(stream.index.manifest, stats);
     $('o-state').textContent = stats.error ? `${playback.state} (${stats.error})` : playback.state;
     $('play').textContent = playback.playing ? 'pause' : 'play';
     $('time').textContent = clock(playback.t);

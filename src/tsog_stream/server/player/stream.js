@@ -2,6 +2,10 @@
 // Chunks are chosen from the manifest (manifest.js), fetched once each, checked against the
 // manifest's SHA-256, handed to the engine as a ".sog" gsplat asset, and given the TSOG time
 // evaluation (tsog.js). Works against tsog serve's /v1 API and any static origin alike.
+// A stream with quality layers is played adaptively (adapt.js, the Python client's rules):
+// the base layer at t first (the first picture), then as many layers as the link keeps up
+// with; a frame shows the most layers whose chunks for t have all arrived.
+import { HORIZON_S, REPLAN_S, Throughput, chooseLayers, layersShown, startupAllowance } from './adapt.js';
 import { SceneIndex } from './manifest.js';
 import { readZip } from './zip.js';
 import { chunkUniforms, createTextures, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
@@ -51,10 +55,45 @@ export class ChunkStream {
         this.bytes = 0;
         this.error = null;
         this.bufferedFor = null; // {version, ranges}: buffered() recomputed when chunks change
+        this.throughput = new Throughput();
+        this.opened = this.throughput.clock();
+        // adaptation: when the first picture came, when playback started, the layers fetched
+        this.adapt = { firstAt: null, startedAt: null, deadline: null, level: 0, replannedAt: 0 };
+        this.shownLayers = 0;
+        if (this.index.layerCount > 1) this.horizon = Math.max(this.horizon, HORIZON_S);
+    }
+
+    /** True when chunk `id` has arrived (or failed: playback must not hang on it). */
+    arrived(id) {
+        const c = this.chunks.get(id);
+        return c !== undefined && (c.state === 'ready' || c.state === 'failed');
+    }
+
+    /** Layers to fetch for t: the base before the first picture, every layer when paused
+     * (a still at full quality), else the adaptation's choice. */
+    layersFor(playing) {
+        if (this.adapt.firstAt === null) return 1;
+        return playing ? Math.max(this.adapt.level, 1) : this.index.layerCount;
+    }
+
+    /** While playing, revisit the layers kept every REPLAN_S (chooseLayers). */
+    replan(t, playing) {
+        const now = this.throughput.clock();
+        if (!playing || this.adapt.startedAt === null || now - this.adapt.replannedAt < REPLAN_S) return;
+        this.adapt.replannedAt = now;
+        const level = chooseLayers(this.index, t, this.index.manifest.scene.end_s, {
+            speed: 1, rate: this.throughput.estimate, have: (id) => this.arrived(id),
+            current: this.adapt.level, allowance: 0,
+        });
+        if (level !== this.adapt.level) {
+            this.adapt.level = level;
+            this.planned = null;
+        }
     }
 
     /** Called every frame: plan for t when it changed, start loads, drop, show, set time. */
     update(t, playing, loop = false) {
+        this.replan(t, playing);
         if (!this.planned || this.planned[0] !== t || this.planned[1] !== playing || this.planned[2] !== loop) {
             this.plan(t, playing, loop);
         }
@@ -72,26 +111,35 @@ export class ChunkStream {
         return out;
     }
 
-    /** What t needs, then (playing) what the horizon needs, in time order and within
+    /** What t needs (its base first), then (playing) what the horizon needs, base layers
+     * first and enhancements once the horizon's base is in, in time order and within
      * AHEAD_BYTES; drop the rest (see dropUnwanted). */
     plan(t, playing, loop = false) {
         this.planned = [t, playing, loop];
-        const needed = this.index.chunksFor(t);
+        const layers = this.layersFor(playing);
+        const byLayer = (x, y) => (x.layer ?? 0) - (y.layer ?? 0);
+        const needed = this.index.chunksFor(t, layers).sort(byLayer);
         const intervals = this.aheadIntervals(t, loop);
         const ahead = [];
         if (playing) {
-            let bytes = 0;
-            for (const [a, b] of intervals) {
-                const part = this.index.chunksForInterval(a, b).sort((x, y) => x.start_s - y.start_s);
-                for (const c of part) {
-                    bytes += c.length;
-                    if (bytes > AHEAD_BYTES) break;
-                    ahead.push(c);
+            const base = intervals.flatMap(([a, b]) => this.index.chunksForInterval(a, b, 1));
+            const top = base.every((c) => this.arrived(c.id)) ? layers : 1;
+            const part = [];
+            for (let layer = 0; layer < top; layer++) {
+                for (const [a, b] of intervals) {
+                    const mine = this.index.chunksForInterval(a, b, layer + 1).filter((c) => (c.layer ?? 0) === layer);
+                    part.push(...mine.sort((x, y) => x.start_s - y.start_s));
                 }
+            }
+            let bytes = 0;
+            for (const c of part) {
+                bytes += c.length;
+                if (bytes > AHEAD_BYTES) break;
+                ahead.push(c);
             }
         }
         this.wanted = [...new Set([...needed, ...ahead].map((c) => c.id))];
-        this.shown = new Set(needed.map((c) => c.id));
+        this.shown = new Set(this.index.chunksFor(t, 1).map((c) => c.id));
         for (const id of this.wanted) {
             if (!this.chunks.has(id)) this.chunks.set(id, { info: this.index.manifest.chunks[id], state: 'queued' });
         }
@@ -156,9 +204,15 @@ export class ChunkStream {
         c.abort = new AbortController();
         const url = this.chunkUrl(c.info);
         this.fetchLog.push(url);
-        const response = await fetch(url, { signal: c.abort.signal });
-        if (!response.ok) throw new Error(`HTTP ${response.status}`);
-        const buffer = await response.arrayBuffer();
+        this.throughput.started();
+        let buffer = new ArrayBuffer(0);
+        try {
+            const response = await fetch(url, { signal: c.abort.signal });
+            if (!response.ok) throw new Error(`HTTP ${response.status}`);
+            buffer = await response.arrayBuffer();
+        } finally {
+            this.throughput.finished(buffer.byteLength);
+        }
         this.bytes += buffer.byteLength;
         if (buffer.byteLength !== c.info.length) {
             throw new Error(`${buffer.byteLength} bytes, the manifest says ${c.info.length}`);
@@ -204,8 +258,11 @@ export class ChunkStream {
         return entity;
     }
 
-    /** Enable exactly the chunks of chunks_for(t) and give them t (only when it changed). */
+    /** Enable exactly the chunks of chunks_for(t) with the most layers that have all arrived
+     * (the base's, while it is still arriving) and give them t (only when it changed). */
     show(t) {
+        this.shownLayers = layersShown(this.index, t, (id) => this.arrived(id));
+        this.shown = new Set(this.index.chunksFor(t, Math.max(this.shownLayers, 1)).map((c) => c.id));
         for (const [id, c] of this.chunks) {
             if (c.state !== 'ready') continue;
             const on = this.shown.has(id);
@@ -239,14 +296,29 @@ export class ChunkStream {
         c.entity = c.asset = c.textures = null;
     }
 
-    /** True when every chunk that t needs is ready (or failed: playback must not hang). The
-     * plan made for t already holds those chunks. */
+    /** True when t can be drawn: its base layer has arrived (chunks that failed count, so
+     * playback does not hang) and, the first time, the startup wait is over: the layers the
+     * link keeps up with for t (or the allowance after the first picture, whichever first). */
     covered(t) {
-        const needed = this.planned?.[0] === t ? this.shown : this.index.chunksFor(t).map((c) => c.id);
-        return [...needed].every((id) => {
-            const c = this.chunks.get(id);
-            return c && (c.state === 'ready' || c.state === 'failed');
-        });
+        if (!this.index.chunksFor(t, 1).every((c) => this.arrived(c.id))) return false;
+        const adapt = this.adapt;
+        const now = this.throughput.clock();
+        if (adapt.firstAt === null) {
+            adapt.firstAt = now;
+            const allowance = startupAllowance(now - this.opened);
+            adapt.level = chooseLayers(this.index, t, this.index.manifest.scene.end_s, {
+                speed: 1, rate: this.throughput.estimate, have: (id) => this.arrived(id), current: 0, allowance,
+            });
+            adapt.deadline = now + allowance;
+            this.planned = null;
+        }
+        if (adapt.startedAt === null) {
+            const ready = this.index.chunksFor(t, adapt.level).every((c) => this.arrived(c.id));
+            if (!ready && now < adapt.deadline) return false;
+            adapt.startedAt = now;
+            adapt.replannedAt = now;
+        }
+        return true;
     }
 
     /** Time ranges [start, end] whose every needed chunk is loaded, merged: between two
@@ -285,6 +357,12 @@ export class ChunkStream {
             shown: [...this.shown],
             error: this.error,
             bytes: this.bytes,
+            layers: this.shownLayers,
+            layerCount: this.index.layerCount,
+            level: this.adapt.level,
+            firstPictureS: this.adapt.firstAt === null ? null : this.adapt.firstAt - this.opened,
+            startupS: this.adapt.startedAt === null ? null : this.adapt.startedAt - this.opened,
+            throughput: this.throughput.estimate,
         };
     }
 }

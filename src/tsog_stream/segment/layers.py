@@ -1,0 +1,184 @@
+"""Quality layers: the Gaussians that matter most for the picture first.
+
+A layered stream stores the Gaussians of each group a chunk is cut from (a node's time slice)
+in layers of decreasing importance (opacity x linear size), each layer its own standalone
+chunks; a viewer on a slow link draws the base layer at once and adds layers as bytes arrive.
+Shares are taken per group, so every moment of the scene has its own most important Gaussians
+in the base (a clip whose first seconds hold only faint sparks still opens on a picture).
+Where the layers are cut is measured: the CPU renderer draws the scene from its opening view at
+a few times with the most important share of each group and with everything, and each cut is
+the smallest share whose picture reaches that layer's PSNR target. See
+docs/design/segmenter.md ("Quality layers").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import InputError
+from ..model import Gaussians, Scene
+from ..opacity import logit_to_alpha
+from ..render import render, to_uint8
+from ..render.camera import from_capture
+from ..render.metrics import mse, psnr_from_mse
+from ..schemas.cameras import CaptureCamera
+from ..temporal import time_range
+
+LAYER_TARGETS_DB = (25.0, 33.0, 38.0, 42.0, 45.0, 48.0, 50.0)
+"""PSNR (against all layers) that layers 0, 1, ... reach with the layers below them: the base
+is a recognisable picture, the second one good enough to play on at half the full bitrate."""
+MAX_LAYERS = len(LAYER_TARGETS_DB) + 1
+AUTO_LAYERS = 3
+"""Layers of a scene big enough to layer when ``--layers`` is not given (base, middle, rest)."""
+LAYERED_MIN_GAUSSIANS = 16384
+"""Layers are chosen (``--layers`` not given) when a frame shows at least this many Gaussians
+on average (about 0.5 MB: 4 s at 1 Mbit/s); below it a whole frame arrives quickly anyway."""
+AUTO_MAX_FRACTION = 0.75
+"""Without ``--layers``, a cut needing more than this share of the Gaussians is not made (the
+layer above it would add too little to be worth a request)."""
+MEASURE_TIMES = 3
+MEASURE_WIDTH = 256
+"""Times sampled, and width in pixels of the renders, when cutting layers."""
+FRACTIONS: tuple[float, ...] = (0.02, 0.03, 0.05, 0.07, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3)
+FRACTIONS += (0.35, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+"""Shares of the Gaussians (most important first) a cut may be made at."""
+F64 = npt.NDArray[np.float64]
+Ints = npt.NDArray[np.int64]
+
+
+def importance(gaussians: Gaussians) -> F64:
+    """How much each Gaussian contributes to a picture: alpha x sqrt(area of its two largest
+    axes). Measured against alpha alone and alpha x area or x volume^(1/3) on the real
+    captures: the best picture for a given share of Gaussians (docs/design/segmenter.md)."""
+    alpha = logit_to_alpha(gaussians.opacities)
+    axes = np.sort(np.exp(gaussians.scales.astype(np.float64)), axis=1)
+    weights: F64 = alpha * np.sqrt(axes[:, 1] * axes[:, 2])
+    return weights
+
+
+def top_share(weights: F64, groups: Sequence[Ints], share: float) -> Ints:
+    """The most important ``share`` of each group (at least one of a non-empty group), sorted."""
+    keep = [g[np.argsort(-weights[g], kind="stable")[: math.ceil(share * g.size)]] for g in groups]
+    return np.sort(np.concatenate(keep)) if keep else np.zeros(0, np.int64)
+
+
+@dataclass(frozen=True)
+class LayerPlan:
+    """Where layers are cut: layers 0..k hold the most important ``shares[k]`` of each group,
+    and the PSNR measured with them (None for the last layer, the full scene)."""
+
+    shares: tuple[float, ...]
+    psnr_db: tuple[float | None, ...]
+    why: str = ""
+
+    @property
+    def layers(self) -> int:
+        """Number of layers."""
+        return len(self.shares)
+
+    @classmethod
+    def single(cls, why: str = "") -> LayerPlan:
+        """Today's layout: one layer holding everything."""
+        return cls((1.0,), (None,), why)
+
+    def assign(self, weights: F64, groups: Sequence[Ints]) -> Ints:
+        """The layer of each Gaussian of ``groups`` given its importance (ties by index)."""
+        layer = np.zeros(weights.size, np.int64)
+        for g in groups:
+            order = g[np.argsort(-weights[g], kind="stable")]
+            cuts = [math.ceil(share * g.size) for share in self.shares]
+            layer[order] = np.searchsorted(np.asarray(cuts), np.arange(g.size), "right")
+        return layer
+
+
+def check_layers(layers: int | None) -> None:
+    """Refuse a layer count outside 1..MAX_LAYERS."""
+    if layers is not None and not 1 <= layers <= MAX_LAYERS:
+        raise InputError(f"expected 1 to {MAX_LAYERS} layers, got {layers}", where="--layers")
+
+
+def _times(scene: Scene) -> list[float]:
+    """Centres of MEASURE_TIMES equal parts of the scene's time range."""
+    assert scene.timeline is not None
+    first, last = time_range(scene.timeline)
+    return [first + (k + 0.5) * (last - first) / MEASURE_TIMES for k in range(MEASURE_TIMES)]
+
+
+def plan_layers(
+    scene: Scene, groups: Sequence[Ints], view: CaptureCamera | None, layers: int | None
+) -> LayerPlan:
+    """Cut ``scene``, stored as ``groups`` (index arrays, one per node time slice), into
+    ``layers`` quality layers (None: choose, see LAYERED_MIN_GAUSSIANS and AUTO_MAX_FRACTION),
+    measuring each cut's picture from ``view``."""
+    check_layers(layers)
+    if layers == 1:
+        return LayerPlan.single("one layer asked for (--layers 1)")
+    if scene.timeline is None or view is None or len(scene) < 2:
+        return LayerPlan.single("one layer: nothing visible to measure layers on")
+    times = _times(scene)
+    shown = np.mean([len(scene.at(t)) for t in times])
+    if layers is None and shown < LAYERED_MIN_GAUSSIANS:
+        return LayerPlan.single(
+            f"one layer: a frame shows {shown:.0f} Gaussians (layered from {LAYERED_MIN_GAUSSIANS})"
+        )
+    quality = _quality_of_share(scene, groups, view, times)
+    limit = 1.0 if layers else AUTO_MAX_FRACTION
+    shares: list[float] = []
+    psnr: list[float | None] = []
+    for target in LAYER_TARGETS_DB[: (layers or AUTO_LAYERS) - 1]:
+        share, reached = _smallest_share(quality, target, shares[-1] if shares else 0.0)
+        if share > limit or share >= 1.0:
+            break
+        shares.append(share)
+        psnr.append(reached)
+    if not shares:
+        return LayerPlan.single("one layer: no share of the Gaussians reaches the base target")
+    why = ", ".join(f"{f:.0%}: {p:.1f} dB" for f, p in zip(shares, psnr, strict=True) if p)
+    return LayerPlan((*shares, 1.0), (*psnr, None), f"{len(shares) + 1} layers ({why})")
+
+
+def _quality_of_share(
+    scene: Scene, groups: Sequence[Ints], view: CaptureCamera, times: list[float]
+) -> Callable[[float], float]:
+    """PSNR (mean squared error over the sampled times) of the most important ``share`` of
+    each group against everything, rendered from ``view``; cached per share."""
+    camera = from_capture(view, MEASURE_WIDTH)
+    full = [to_uint8(render(scene.at(t), camera)) for t in times]
+    weights = importance(scene.gaussians)
+    cache: dict[float, float] = {}
+
+    def quality(share: float) -> float:
+        if share not in cache:
+            part = scene.subset(top_share(weights, groups, share))
+            errors = [
+                mse(to_uint8(render(part.at(t), camera)), f)
+                for t, f in zip(times, full, strict=True)
+            ]
+            cache[share] = psnr_from_mse(float(np.mean(errors)))
+        return cache[share]
+
+    return quality
+
+
+def _smallest_share(
+    quality: Callable[[float], float], target: float, above: float
+) -> tuple[float, float]:
+    """The smallest share of FRACTIONS above ``above`` whose picture reaches ``target`` dB
+    (bisection: quality grows with the share), and its PSNR; (1.0, inf) when none does (a
+    layer needing every Gaussian is no layer)."""
+    grid = [f for f in FRACTIONS if f > above]
+    lo, hi = 0, len(grid)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if quality(grid[mid]) >= target:
+            hi = mid
+        else:
+            lo = mid + 1
+    if lo == len(grid):
+        return 1.0, math.inf
+    return grid[lo], quality(grid[lo])

@@ -1,0 +1,214 @@
+"""A slow link on loopback: a TCP relay with a bandwidth (token bucket) and an added latency.
+
+Put in front of any origin (``tsog serve``, nginx) it makes the link a viewer would have: every
+byte the origin sends goes through one shared bucket at ``bandwidth`` bits per second (one link,
+however many connections), and every byte the viewer sends reaches the origin ``latency``
+seconds late (so each request's round trip grows by ``latency``). ``tsog play --bandwidth``,
+the tests and ``benchmarks/bench_progressive.py`` measure through it. Loopback only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import re
+from collections import deque
+from dataclasses import dataclass
+from types import TracebackType
+
+from ..errors import InputError
+
+PIECE = 16 * 1024
+"""Bytes relayed at a time: the bucket's grain (a piece leaves once the link has carried it)."""
+BURST = 16 * 1024
+"""Bytes an idle link may send at once (the bucket's depth)."""
+MAX_CONNECTIONS = 256
+"""Connections relayed at once; more are closed on arrival (a bound, not a tuning)."""
+LOOPBACK = "127.0.0.1"
+_RATE = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*([kmg]?)(bit|bps|b/s|b)(?:/s)?\s*$", re.IGNORECASE)
+_DELAY = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(ms|s)\s*$", re.IGNORECASE)
+_PREFIX = {"": 1.0, "k": 1e3, "m": 1e6, "g": 1e9}
+
+
+def parse_bandwidth(text: str) -> float:
+    """'20Mbit', '500kbit', '1.5 Mbps', '2MB/s' (bytes) -> bits per second."""
+    m = _RATE.match(text)
+    if not m:
+        raise InputError(
+            f"expected a rate like 20Mbit, 500kbit or 2MB/s, got {text!r}", where="--bandwidth"
+        )
+    number, prefix, unit = m.groups()
+    bits = float(number) * _PREFIX[prefix.lower()] * (8.0 if unit in ("B", "B/s") else 1.0)
+    if not (math.isfinite(bits) and bits > 0):
+        raise InputError(f"must be a positive rate, got {text!r}", where="--bandwidth")
+    return bits
+
+
+def parse_latency(text: str) -> float:
+    """'50ms', '0.2s' -> seconds."""
+    m = _DELAY.match(text)
+    if not m:
+        raise InputError(f"expected a delay like 50ms or 0.2s, got {text!r}", where="--latency")
+    seconds = float(m.group(1)) / (1000.0 if m.group(2).lower() == "ms" else 1.0)
+    if not math.isfinite(seconds) or seconds > 60:
+        raise InputError(f"must be at most 60 s, got {text!r}", where="--latency")
+    return seconds
+
+
+@dataclass(frozen=True)
+class LinkShape:
+    """A link: ``bandwidth_bps`` bits per second from the origin, ``latency_s`` added to every
+    request's way there."""
+
+    bandwidth_bps: float
+    latency_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.bandwidth_bps) and self.bandwidth_bps > 0):
+            raise InputError(f"bandwidth must be positive, got {self.bandwidth_bps}")
+        if not (math.isfinite(self.latency_s) and 0 <= self.latency_s <= 60):
+            raise InputError(f"latency must be 0-60 s, got {self.latency_s}")
+
+    def describe(self) -> str:
+        """'1 Mbit/s, 50 ms' style."""
+        return f"{self.bandwidth_bps / 1e6:g} Mbit/s, {self.latency_s * 1000:g} ms"
+
+
+class _Bucket:
+    """The shared link: a virtual clock of when it is next free (a token bucket of depth BURST)."""
+
+    def __init__(self, bytes_per_s: float) -> None:
+        self.rate = bytes_per_s
+        self.free_at = 0.0
+
+    async def carry(self, size: int) -> None:
+        """Return once ``size`` more bytes have crossed the link (pieces cross in call order)."""
+        now = asyncio.get_running_loop().time()
+        self.free_at = max(self.free_at, now - BURST / self.rate) + size / self.rate
+        await asyncio.sleep(max(0.0, self.free_at - now))
+
+
+class ThrottledRelay:
+    """Relays 127.0.0.1:``port`` to ``upstream`` through a :class:`LinkShape`."""
+
+    def __init__(self, upstream_port: int, shape: LinkShape, upstream_host: str = LOOPBACK):
+        self.upstream = (upstream_host, upstream_port)
+        self.shape = shape
+        self.port = 0
+        self.bytes_down = 0
+        self.connections = 0
+        self._bucket = _Bucket(shape.bandwidth_bps / 8.0)
+        self._server: asyncio.Server | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+
+    async def start(self) -> ThrottledRelay:
+        """Listen on a free loopback port."""
+        self._server = await asyncio.start_server(self._relay, LOOPBACK, 0)
+        self.port = int(self._server.sockets[0].getsockname()[1])
+        return self
+
+    def url(self, path: str = "/") -> str:
+        """The relay's URL for ``path`` on the origin."""
+        return f"http://{LOOPBACK}:{self.port}{path}"
+
+    async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """One viewer connection: requests delayed to the origin, answers through the bucket."""
+        if len(self._tasks) >= MAX_CONNECTIONS:
+            writer.close()
+            return
+        task = asyncio.current_task()
+        assert task is not None
+        self._tasks.add(task)
+        self.connections += 1
+        try:
+            up_reader, up_writer = await asyncio.open_connection(*self.upstream)
+        except (OSError, asyncio.CancelledError):
+            self._tasks.discard(task)
+            writer.close()
+            return
+        with contextlib.suppress(asyncio.CancelledError):  # closing the relay ends it quietly
+            await self._pump(reader, writer, up_reader, up_writer)
+        self._tasks.discard(task)
+
+    async def _pump(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        up_reader: asyncio.StreamReader,
+        up_writer: asyncio.StreamWriter,
+    ) -> None:
+        """Both directions of one connection until either ends; then both are closed."""
+        try:
+            pumps = [
+                asyncio.ensure_future(self._delayed(reader, up_writer)),
+                asyncio.ensure_future(self._throttled(up_reader, writer)),
+            ]
+            _, waiting = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+            for pump in waiting:
+                pump.cancel()
+            await asyncio.gather(*pumps, return_exceptions=True)
+        finally:
+            for w in (writer, up_writer):
+                w.close()
+                with contextlib.suppress(OSError, asyncio.CancelledError):
+                    await w.wait_closed()
+
+    async def _delayed(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """Viewer -> origin, each piece ``latency_s`` after it arrived, in order."""
+        loop = asyncio.get_running_loop()
+        due: deque[tuple[float, bytes]] = deque()
+        arrived = asyncio.Event()
+
+        async def forward() -> None:
+            while True:
+                while not due:
+                    arrived.clear()
+                    await arrived.wait()
+                when, piece = due.popleft()
+                await asyncio.sleep(max(0.0, when - loop.time()))
+                if not piece:
+                    writer.write_eof()
+                    return
+                writer.write(piece)
+                await writer.drain()
+
+        sender = asyncio.ensure_future(forward())
+        try:
+            while True:
+                piece = await reader.read(PIECE)
+                due.append((loop.time() + self.shape.latency_s, piece))
+                arrived.set()
+                if not piece:
+                    break
+            await sender
+        finally:
+            sender.cancel()
+            await asyncio.gather(sender, return_exceptions=True)
+
+    async def _throttled(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """Origin -> viewer, each piece once the shared link has carried it."""
+        while piece := await reader.read(PIECE):
+            await self._bucket.carry(len(piece))
+            writer.write(piece)
+            self.bytes_down += len(piece)
+            await writer.drain()
+
+    async def aclose(self) -> None:
+        """Stop listening and cut every relayed connection."""
+        if self._server is not None:
+            self._server.close()
+        tasks = list(self._tasks)
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if self._server is not None:
+            await self._server.wait_closed()
+
+    async def __aenter__(self) -> ThrottledRelay:
+        return await self.start()
+
+    async def __aexit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()

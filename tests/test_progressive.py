@@ -1,0 +1,399 @@
+"""Progressive and adaptive streaming (issue 19): quality layers in the container, the shaped
+loopback link, and the adaptive playback through it, against a real server."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tsog_stream.client import StreamClient
+from tsog_stream.client.adaptive import (
+    Throughput,
+    choose_layers,
+    delay_needed,
+    layers_shown,
+    startup_allowance,
+)
+from tsog_stream.container.stream_index import StreamIndex, unpacked_index
+from tsog_stream.errors import InputError, MetaError
+from tsog_stream.io.splatv import read_splatv
+from tsog_stream.render import from_capture, render, to_uint8
+from tsog_stream.render.metrics import psnr
+from tsog_stream.schemas.manifest import Manifest, dump_manifest, parse_manifest
+from tsog_stream.segment.layers import LAYER_TARGETS_DB, LayerPlan, importance, top_share
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import make_app, start_server
+from tsog_stream.server.link import LinkShape, ThrottledRelay, parse_bandwidth, parse_latency
+from tsog_stream.synthetic import SceneSpec, generate_scene
+from tsog_stream.throttled_play import play_through_link
+
+HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"
+HANABI_S = 4.0
+"""The real fireworks clip of tests/data (24k Gaussians), read as 4 s."""
+
+
+@pytest.fixture(scope="module")
+def scene_files(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The real clip with three quality layers and with one."""
+    folder = tmp_path_factory.mktemp("progressive")
+    loaded = read_splatv(samples / HANABI, duration_s=HANABI_S)
+    out = {}
+    for name, layers in (("layered", 3), ("single", 1)):
+        out[name] = folder / f"{name}.tsogs"
+        options = SegmentOptions(window_s=1.0, layers=layers)
+        segment_scene(loaded.scene, out[name], options, cameras=loaded.cameras)
+    return out
+
+
+def _open(path: Path) -> StreamIndex:
+    async def run() -> StreamIndex:
+        async with await StreamClient.open(path) as client:
+            return client.index
+
+    return asyncio.run(run())
+
+
+def test_layers_are_cut_where_the_measured_picture_reaches_its_targets(
+    scene_files: dict[str, Path],
+) -> None:
+    manifest = _open(scene_files["layered"]).manifest
+    layers = manifest.layers
+    assert [layer.index for layer in layers] == [0, 1, 2]
+    assert sum(layer.gaussians for layer in layers) == manifest.scene.stored
+    assert sum(layer.bytes for layer in layers) == manifest.payload_bytes
+    assert layers[-1].psnr_db is None
+    for layer, target in zip(layers[:-1], LAYER_TARGETS_DB, strict=False):
+        assert layer.psnr_db is not None and layer.psnr_db >= target
+    assert {c.layer for c in manifest.chunks} == {0, 1, 2}
+    # chunks are written layer by layer: every base chunk before any enhancement
+    layer_by_offset = [c.layer for c in sorted(manifest.chunks, key=lambda c: c.offset)]
+    assert layer_by_offset == sorted(layer_by_offset)
+
+
+def test_all_layers_show_the_single_layer_frame_and_fewer_show_less(
+    scene_files: dict[str, Path],
+) -> None:
+    async def run() -> None:
+        async with (
+            await StreamClient.open(scene_files["layered"]) as layered,
+            await StreamClient.open(scene_files["single"]) as single,
+        ):
+            view = layered.index.manifest.view
+            assert view is not None
+            camera = from_capture(view, 160)
+            for t in (0.4, 2.0, 3.0):
+                whole = await single.frame_at(t)
+                counts = [len(await layered.frame_at(t, layers=k)) for k in (1, 2, 3)]
+                assert counts[0] < counts[1] < counts[2] == len(whole)
+                full = await layered.frame_at(t)
+                same = psnr(to_uint8(render(full, camera)), to_uint8(render(whole, camera)))
+                assert same > 40.0, (t, same)  # the same Gaussians, coded in other chunks
+
+    asyncio.run(run())
+
+
+def test_the_recorded_quality_is_what_the_decoded_base_shows(
+    scene_files: dict[str, Path],
+) -> None:
+    """The index's PSNR (measured on the source at segment time) against the decoded stream's
+    base-layer frames at the same times and view."""
+
+    async def run() -> None:
+        async with await StreamClient.open(scene_files["layered"]) as client:
+            m = client.index.manifest
+            assert m.view is not None
+            camera = from_capture(m.view, 256)
+            times = [(k + 0.5) * (m.scene.end_s - m.scene.start_s) / 3 for k in range(3)]
+            errors = []
+            for t in times:
+                base = to_uint8(render(await client.frame_at(t, layers=1), camera))
+                full = to_uint8(render(await client.frame_at(t), camera))
+                errors.append(np.mean((base / 255.0 - full / 255.0) ** 2))
+            measured = -10 * math.log10(float(np.mean(errors)))
+            recorded = m.layers[0].psnr_db
+            assert recorded is not None and abs(measured - recorded) < 1.5, (measured, recorded)
+
+    asyncio.run(run())
+
+
+def test_one_layer_writes_the_index_as_before(scene_files: dict[str, Path]) -> None:
+    raw = dump_manifest(_open(scene_files["single"]).manifest)
+    data = json.loads(raw)
+    assert "layers" not in data
+    assert all("layer" not in c for c in data["chunks"])
+    layered = json.loads(dump_manifest(_open(scene_files["layered"]).manifest))
+    assert all(c.get("layer", 0) == c["layer"] for c in layered["chunks"] if "layer" in c)
+    assert all("layer" not in c for c in layered["chunks"] if c["offset"] < 20000)  # base
+
+
+def test_a_small_scene_stays_one_layer_unless_asked(tmp_path: Path) -> None:
+    scene = generate_scene(SceneSpec(background=300, objects=2, per_object=50, sh_bands=0))
+    auto, asked = tmp_path / "auto.tsogs", tmp_path / "asked.tsogs"
+    report = segment_scene(scene, auto, SegmentOptions(window_s=1.0))
+    assert report.layers == [] and "one layer" in report.layers_why
+    assert segment_scene(scene, asked, SegmentOptions(window_s=1.0, layers=2)).layers
+    with pytest.raises(InputError, match="--layers"):
+        segment_scene(scene, tmp_path / "bad.tsogs", SegmentOptions(layers=9))
+
+
+def _manifest_with_layers(layers: list[dict[str, object]], chunk_layer: int) -> bytes:
+    box = {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}
+    chunk = {
+        "id": 0, "file": "chunks/000000.sog", "offset": 16384, "length": 10, "sha256": "0" * 64,
+        "count": 1, "level": 0, "node": 0, "start_s": 0.0, "end_s": 1.0, "bbox": box,
+        "layer": chunk_layer,
+    }  # fmt: skip
+    scene = {
+        "gaussians": 1, "stored": 1, "start_s": 0.0, "end_s": 1.0, "timeline_type": 2,
+        "temporal": {}, "sh_bands": 0, "bbox": box,
+    }  # fmt: skip
+    doc = {
+        "generator": "t", "policy": "hybrid", "window_s": 1.0, "max_pixels": 4096,
+        "scene": scene, "chunks": [chunk], "payload_bytes": 10, "layers": layers,
+        "nodes": [{"level": 0, "index": 0, "start_s": 0.0, "end_s": 1.0, "chunks": [0]}],
+    }  # fmt: skip
+    return json.dumps(doc).encode()
+
+
+@pytest.mark.parametrize(
+    ("layers", "chunk_layer", "message"),
+    [
+        ([], 1, "layer 1 of 1"),
+        ([{"index": 0, "gaussians": 1, "bytes": 10, "psnr_db": None}], 2, "layer 2 of 1"),
+        ([{"index": 1, "gaussians": 1, "bytes": 10, "psnr_db": None}], 0, "has index 1"),
+        ([{"index": 0, "gaussians": -1, "bytes": 10, "psnr_db": None}], 0, "gaussians"),
+        ([{"index": 0, "gaussians": 1, "bytes": 10, "psnr_db": float("nan")}], 0, "psnr"),
+    ],
+)
+def test_an_index_with_inconsistent_layers_is_refused(
+    layers: list[dict[str, object]], chunk_layer: int, message: str
+) -> None:
+    with pytest.raises(MetaError, match=message):
+        parse_manifest(_manifest_with_layers(layers, chunk_layer))
+
+
+def test_layer_plan_assigns_the_most_important_share_of_each_group() -> None:
+    plan = LayerPlan((0.25, 0.5, 1.0), (20.0, 30.0, None))
+    weights = np.array([0.1, 0.9, 0.5, 0.7, 0.2, 0.3, 0.8, 0.0, 0.05, 0.01])
+    groups = [np.arange(8), np.arange(8, 10)]
+    layer = plan.assign(weights, groups)
+    # group one: 2 of 8 in the base, 2 more in layer 1; group two: its best one in the base
+    assert layer.tolist() == [2, 0, 1, 1, 2, 2, 0, 2, 0, 2]
+    assert top_share(weights, groups, 0.25).tolist() == [1, 6, 8]
+
+
+# --- the adaptation's decisions, on a hand-made index --------------------------------------
+
+
+def _index(chunks: list[tuple[int, float, float, int]]) -> StreamIndex:
+    """(layer, start_s, end_s, length) per chunk, one window of 10 s, three layers."""
+    box = {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}
+    entries, offset = [], 16384
+    for i, (layer, start, end, length) in enumerate(chunks):
+        entries.append(
+            {
+                "id": i,
+                "file": f"chunks/{i:06d}.sog",
+                "offset": offset,
+                "length": length,
+                "sha256": "0" * 64,
+                "count": 1,
+                "level": 0,
+                "node": 0,
+                "start_s": start,
+                "end_s": end,
+                "bbox": box,
+                "layer": layer,
+            }
+        )
+        offset += length
+    manifest = Manifest.model_validate(
+        {
+            "generator": "t", "policy": "hybrid", "window_s": 10.0, "max_pixels": 4096,
+            "scene": {
+                "gaussians": 3, "stored": 3, "start_s": 0.0, "end_s": 10.0, "timeline_type": 2,
+                "temporal": {}, "sh_bands": 0, "bbox": box,
+            },
+            "nodes": [{"level": 0, "index": 0, "start_s": 0.0, "end_s": 10.0,
+                       "chunks": list(range(len(entries)))}],
+            "chunks": entries, "payload_bytes": offset - 16384,
+            "layers": [
+                {"index": k, "gaussians": 1, "bytes": 1, "psnr_db": None if k == 2 else 20.0}
+                for k in range(3)
+            ],
+        }
+    )  # fmt: skip
+    return unpacked_index(dump_manifest(manifest), where="test")
+
+
+def test_delay_needed_is_the_worst_lateness_in_due_order() -> None:
+    index = _index([(0, 0.0, 10.0, 100), (0, 5.0, 10.0, 1000)])
+    chunks = index.manifest.chunks
+    # 100 B due now, then 1000 B due 5 s later: at 100 B/s the second is 6 s late
+    assert delay_needed(chunks, 0.0, 1.0, 100.0) == pytest.approx(6.0)
+    assert delay_needed(chunks, 0.0, 2.0, 100.0) == pytest.approx(8.5)  # twice as fast
+    assert delay_needed([], 0.0, 1.0, 100.0) == -math.inf
+    assert delay_needed(chunks, 0.0, 1.0, 0.0) == math.inf
+
+
+def test_startup_takes_the_layers_that_arrive_within_the_allowance() -> None:
+    index = _index([(0, 0.0, 10.0, 100), (1, 0.0, 10.0, 300), (2, 0.0, 10.0, 3000)])
+
+    def pick(allowance: float) -> int:
+        # throughput 1000 B/s (x SAFETY): base 0.12 s, two layers 0.47 s, three 4 s
+        return choose_layers(
+            index, 0.0, 10.0, speed=1.0, rate=1000.0, have=lambda cid: False, current=0,
+            allowance=allowance,
+        )  # fmt: skip
+
+    assert [pick(a) for a in (0.0, 0.5, 2.0, 5.0)] == [1, 2, 2, 3]
+    assert startup_allowance(0.4) == 2.0 and startup_allowance(4.0) == 6.0
+
+
+def test_playing_keeps_what_can_still_arrive_and_drops_to_the_base_when_it_cannot() -> None:
+    index = _index([(0, 0.0, 10.0, 100), (1, 0.0, 10.0, 300), (2, 0.0, 10.0, 3000)])
+
+    def has_base(cid: int) -> bool:
+        return cid == 0
+
+    def keep(rate: float, current: int, have: Callable[[int], bool] = has_base) -> int:
+        return choose_layers(
+            index, 0.0, 10.0, speed=1.0, rate=rate, have=have, current=current, allowance=0.0
+        )
+
+    assert keep(1000.0, 2) == 3  # 3300 B in 10 s at 850 B/s: 3.9 s, within 0.8 of the rest
+    assert keep(350.0, 2) == 2  # the third layer's 3300 B would not arrive before the end
+    assert keep(30.0, 2) == 1  # even the second layer's 300 B would not
+    assert keep(1000.0, 3, lambda cid: False) == 3  # base due now: 0.12 s late at worst
+    assert keep(50.0, 3, lambda cid: False) == 1  # the base itself would be late
+
+
+def test_layers_shown_counts_complete_layers_only() -> None:
+    index = _index([(0, 0.0, 10.0, 100), (1, 0.0, 10.0, 300), (1, 0.0, 10.0, 10)])
+    assert layers_shown(index, 1.0, lambda cid: False) == 0
+    assert layers_shown(index, 1.0, lambda cid: cid == 0) == 1
+    assert layers_shown(index, 1.0, lambda cid: cid in (0, 1)) == 1  # layer 1 half there
+    assert layers_shown(index, 1.0, lambda cid: True) == 3
+
+
+def test_throughput_counts_busy_time_once_for_parallel_requests() -> None:
+    now = [0.0]
+    meter = Throughput(lambda: now[0])
+    meter.started()
+    meter.started()  # two requests share the link from t = 0
+    now[0] = 1.0
+    meter.finished(500)
+    now[0] = 2.0
+    meter.finished(1500)
+    assert meter.estimate is not None
+    # 500 B over the first busy second, then 1500 B over the next: EWMA of 500 and 1500
+    assert meter.estimate == pytest.approx(500 + 0.3 * (1500 - 500))
+
+
+# --- the shaped link ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "bits"),
+    [("20Mbit", 20e6), ("500kbit", 5e5), ("1.5 Mbps", 1.5e6), ("2MB/s", 16e6), ("8bit", 8.0)],
+)
+def test_bandwidths_parse_in_bits_per_second(text: str, bits: float) -> None:
+    assert parse_bandwidth(text) == pytest.approx(bits)
+
+
+@pytest.mark.parametrize("text", ["", "20", "fast", "-1Mbit", "0Mbit", "1e999Mbit", "nan"])
+def test_a_bad_bandwidth_is_refused(text: str) -> None:
+    with pytest.raises(InputError, match="--bandwidth"):
+        parse_bandwidth(text)
+
+
+def test_latencies_parse_and_are_bounded() -> None:
+    assert parse_latency("50ms") == pytest.approx(0.05)
+    assert parse_latency("0.2s") == pytest.approx(0.2)
+    for bad in ("50", "-5ms", "61s", "soon"):
+        with pytest.raises(InputError, match="--latency"):
+            parse_latency(bad)
+
+
+async def _timed_get(url: str, nbytes: int) -> float:
+    """Seconds to GET the first ``nbytes`` of ``url`` over a fresh connection (raw HTTP/1.1)."""
+    host, rest = url.removeprefix("http://").split("/", 1)
+    name, port = host.split(":")
+    began = time.monotonic()
+    reader, writer = await asyncio.open_connection(name, int(port))
+    request = f"GET /{rest} HTTP/1.1\r\nHost: {host}\r\nRange: bytes=0-{nbytes - 1}\r\n"
+    writer.write((request + "Connection: close\r\n\r\n").encode())
+    body = await asyncio.wait_for(reader.read(), timeout=30)
+    writer.close()
+    assert b" 206 " in body.split(b"\r\n", 1)[0] and len(body) > nbytes
+    return time.monotonic() - began
+
+
+def test_the_link_carries_its_bandwidth_shared_and_adds_its_latency(tmp_path: Path) -> None:
+    blob = tmp_path / "blob.bin"
+    blob.write_bytes(np.random.default_rng(0).bytes(600_000))
+
+    async def run() -> tuple[float, float, float, float]:
+        runner, port = await start_server(make_app(tmp_path))
+        try:
+            async with ThrottledRelay(port, LinkShape(4e6, 0.0)) as relay:
+                one = await _timed_get(relay.url("/files/blob.bin"), 250_000)  # 0.5 s of link
+                two = await asyncio.gather(
+                    *[_timed_get(relay.url("/files/blob.bin"), 250_000) for _ in range(2)]
+                )
+            async with ThrottledRelay(port, LinkShape(1e9, 0.2)) as relay:
+                small = await _timed_get(relay.url("/files/blob.bin"), 100)
+            return one, max(two), small, relay.bytes_down
+        finally:
+            await runner.cleanup()
+
+    one, both, small, _ = asyncio.run(run())
+    assert 0.45 < one < 0.75, one  # 250 kB at 500 kB/s
+    assert 0.9 < both < 1.4, both  # two at once share the one link
+    assert 0.2 <= small < 0.45, small  # the added round trip, at a bandwidth that costs nothing
+
+
+def test_adaptive_playback_over_half_the_bitrate_starts_sooner_and_never_stalls(
+    scene_files: dict[str, Path],
+) -> None:
+    """Through the real server and the shaped link: adaptive playback draws a first picture
+    well before full quality alone can, then plays without a stall on the layers the link
+    keeps up with; full quality alone at the same link waits for everything."""
+    path = scene_files["layered"]
+    size = path.stat().st_size
+    rate = 0.5 * size * 8 / HANABI_S  # half the full-quality bitrate
+
+    async def run(adaptive: bool) -> tuple[float, float, int, dict[int, int], float]:
+        report = await play_through_link(
+            path, LinkShape(rate, 0.02), start=1.0, duration=2.0, fps=10.0, adaptive=adaptive
+        )
+        s = report.stats
+        return s.first_picture_s, s.startup_s, s.stalls, s.layers_shown, report.worst_psnr
+
+    first, startup, stalls, shown, worst = asyncio.run(run(True))
+    full_first, _, _, full_shown, full_worst = asyncio.run(run(False))
+    assert first < 0.5 * full_first, (first, full_first)
+    assert stalls == 0
+    assert startup >= first
+    assert sum(shown.values()) == 21 and min(shown) >= 1
+    assert worst > 15.0  # a picture, not an empty frame (inf: all layers shown)
+    assert full_shown == {3: 21} and math.isinf(full_worst)
+
+
+def test_importance_orders_by_opacity_and_size() -> None:
+    scene = generate_scene(SceneSpec(background=50, objects=1, per_object=10, sh_bands=0))
+    g = scene.gaussians
+    weights = importance(g)
+    assert weights.shape == (len(g),) and np.all(weights >= 0)
+    bigger = g.scales.astype(np.float64) + 1.0  # every axis e times larger: sqrt(area) x e
+    from dataclasses import replace  # noqa: PLC0415
+
+    grown = importance(replace(g, scales=bigger.astype(np.float32)))
+    assert np.allclose(grown, weights * math.e, rtol=1e-5)
