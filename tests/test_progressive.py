@@ -8,11 +8,13 @@ import json
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tsog_stream.cli.main import main
 from tsog_stream.client import StreamClient
 from tsog_stream.client.adaptive import (
     Throughput,
@@ -24,6 +26,7 @@ from tsog_stream.client.adaptive import (
 from tsog_stream.container.stream_index import StreamIndex, unpacked_index
 from tsog_stream.errors import InputError, MetaError
 from tsog_stream.io.splatv import read_splatv
+from tsog_stream.model import Scene
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
 from tsog_stream.schemas.manifest import Manifest, dump_manifest, parse_manifest
@@ -254,7 +257,7 @@ def test_startup_takes_the_layers_that_arrive_within_the_allowance() -> None:
         )  # fmt: skip
 
     assert [pick(a) for a in (0.0, 0.5, 2.0, 5.0)] == [1, 2, 2, 3]
-    assert startup_allowance(0.4) == 2.0 and startup_allowance(4.0) == 6.0
+    assert startup_allowance(0.4) == 2.0 and startup_allowance(4.0) == 16.0
 
 
 def test_playing_keeps_what_can_still_arrive_and_drops_to_the_base_when_it_cannot() -> None:
@@ -393,7 +396,55 @@ def test_importance_orders_by_opacity_and_size() -> None:
     weights = importance(g)
     assert weights.shape == (len(g),) and np.all(weights >= 0)
     bigger = g.scales.astype(np.float64) + 1.0  # every axis e times larger: sqrt(area) x e
-    from dataclasses import replace  # noqa: PLC0415
-
     grown = importance(replace(g, scales=bigger.astype(np.float32)))
     assert np.allclose(grown, weights * math.e, rtol=1e-5)
+
+
+def test_a_bad_input_over_the_link_is_one_line_naming_it(
+    scene_files: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    junk = tmp_path / "junk.tsogs"
+    junk.write_bytes(np.random.default_rng(1).bytes(5000))
+    cut = tmp_path / "cut.tsogs"
+    cut.write_bytes(scene_files["layered"].read_bytes()[:30000])
+    cases = {
+        str(junk): f"tsog: error: {junk}: not a .tsogs container",
+        str(cut): f"tsog: error: {cut}: header says the file has",
+        str(tmp_path / "none.tsogs"): f"tsog: error: {tmp_path / 'none.tsogs'}: no such file",
+        "https://127.0.0.1:9/x.tsogs": "tsog: error: a shaped link relays plain http",
+    }
+    for target, start in cases.items():
+        assert main(["play", target, "--bandwidth", "50Mbit", "-q"]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(start) and err.count("\n") == 1, err
+    assert main(["play", str(junk), "--latency", "5ms", "-q"]) == 1
+    assert "give --bandwidth too" in capsys.readouterr().err
+
+
+def test_play_over_the_link_reports_what_a_viewer_saw(
+    scene_files: dict[str, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    target = str(scene_files["layered"])
+    args = ["play", target, "--start", "1", "--duration", "1", "--bandwidth", "2Mbit"]
+    assert main([*args, "--latency", "20ms", "-q"]) == 0
+    out = capsys.readouterr().out
+    for line in ("link:            2 Mbit/s, 20 ms", "first picture:", "layers shown:", "quality:"):
+        assert line in out, out
+    assert "0 frames late" in out
+
+
+def test_a_size_spread_skews_importance_like_a_capture_and_changes_only_sizes() -> None:
+    spec = SceneSpec(background=4000, objects=4, per_object=500, sh_bands=0, seed=5)
+    plain = generate_scene(spec)
+    spread = generate_scene(replace(spec, size_spread=1.0))
+    np.testing.assert_array_equal(plain.gaussians.means, spread.gaussians.means)
+    np.testing.assert_array_equal(plain.gaussians.opacities, spread.gaussians.opacities)
+    assert not np.array_equal(plain.gaussians.scales, spread.gaussians.scales)
+
+    def top_fifth(scene: Scene) -> float:
+        weights = np.sort(importance(scene.gaussians))[::-1]
+        return float(weights[: len(weights) // 5].sum() / weights.sum())
+
+    assert top_fifth(plain) < 0.45 and top_fifth(spread) > 0.55  # captures: 0.65-0.86
+    with pytest.raises(InputError, match="size_spread"):
+        SceneSpec(size_spread=-1.0)

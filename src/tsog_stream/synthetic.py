@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from math import comb
 
 import numpy as np
@@ -39,6 +39,10 @@ class SceneSpec:
     motion_order: int = 2
     dynamic: tuple[str, ...] = ("means",)
     seed: int = 0
+    size_spread: float = 0.0
+    """Log-sigma of a size factor drawn per Gaussian (0: sizes vary smoothly in space only).
+    At 0 the top 20 % of Gaussians hold 35 % of the scene's opacity x size; real captures are
+    far more skewed (65-86 %: yellow_clip2, spinach_4, coffee10), which 1.0 matches (64 %)."""
 
     def __post_init__(self) -> None:
         if self.sh_bands not in SH_COEFFS_BY_BANDS:
@@ -52,6 +56,8 @@ class SceneSpec:
             raise InputError(f"unknown dynamic attributes {sorted(unknown)}", where="dynamic")
         if self.duration <= 0 or self.fps <= 0:
             raise InputError("duration and fps must be positive", where="duration")
+        if not 0 <= self.size_spread <= 4:
+            raise InputError(f"must be 0-4, got {self.size_spread}", where="size_spread")
 
 
 def _static_attributes(rng: np.random.Generator, means: F64, sh_bands: int) -> Gaussians:
@@ -130,6 +136,17 @@ def _dynamic_coefficients(
 def generate_scene(spec: SceneSpec | None = None) -> Scene:
     """A seeded synthetic 4D scene; the same spec always gives the same arrays."""
     spec = spec or SceneSpec()
+    scene = _generate(spec)
+    if spec.size_spread == 0:
+        return scene
+    rng = np.random.default_rng([spec.seed, 1])  # its own stream: the rest is unchanged
+    factor = rng.normal(-(spec.size_spread**2) / 2, spec.size_spread, len(scene))[:, None]
+    g = replace(scene.gaussians, scales=(scene.gaussians.scales + factor).astype(np.float32))
+    return replace(scene, gaussians=g)
+
+
+def _generate(spec: SceneSpec) -> Scene:
+    """The scene of ``spec`` with sizes varying smoothly in space only."""
     rng = np.random.default_rng(spec.seed)
     background = _background_positions(rng, spec.background)
     obj = _objects(rng, spec)

@@ -20,7 +20,7 @@ from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
 from .client import Playback, PlayedFrame, PlayStats, StreamClient
-from .errors import InputError
+from .errors import InputError, TsogError
 from .model import Gaussians
 from .render import Camera, from_capture, render, to_uint8
 from .render.metrics import psnr
@@ -91,7 +91,10 @@ async def play_through_link(
         relay = ThrottledRelay(port, shape, host)
         async with relay:
             began = time.monotonic()
-            client = await StreamClient.open(relay.url(path))
+            try:
+                client = await StreamClient.open(relay.url(path))
+            except TsogError as exc:
+                raise _naming(exc, relay.url(path), os.fspath(target)) from None
             opened = time.monotonic() - began
             try:
                 playback = client.play(
@@ -103,6 +106,8 @@ async def play_through_link(
                     adaptive=adaptive,
                 )
                 samples = await _sampled(playback, playback.stats, fps, duration, on_frame)
+            except TsogError as exc:
+                raise _naming(exc, relay.url(path), os.fspath(target)) from None
             finally:
                 await client.aclose()
         m = client.index.manifest
@@ -112,6 +117,14 @@ async def play_through_link(
         async with await StreamClient.open(f"http://{host}:{port}{path}") as direct:
             report.quality = await _compare(direct, samples)
     return report
+
+
+def _naming(exc: TsogError, relayed: str, target: str) -> TsogError:
+    """``exc`` naming the target the user gave rather than the relay URL it was read through."""
+    if exc.where is not None and exc.where.startswith(relayed):
+        exc.where = target + exc.where[len(relayed) :]
+        exc.args = (f"{exc.where}: {exc.message}",)
+    return exc
 
 
 async def _sampled(

@@ -274,11 +274,19 @@ class StreamClient:
         """The Gaussians visible at ``t`` with the first ``layers`` quality layers (None: all),
         fetching only the chunks that needs."""
         chunks = self.index.chunks_for(t, layers)
+        self._look_up(chunks)
+        return await self._frame(t, chunks)
+
+    def _look_up(self, chunks: Sequence[ChunkEntry]) -> None:
+        """Count the chunks a frame needs as cache hits or misses."""
         for c in chunks:
             if c.id in self.cache:
                 self.cache_stats.hits += 1
             else:
                 self.cache_stats.misses += 1
+
+    async def _frame(self, t: float, chunks: Sequence[ChunkEntry]) -> Gaussians:
+        """The Gaussians of ``chunks`` visible at ``t``."""
         scenes = await self.chunk_scenes(chunks)
         bands = self.index.manifest.scene.sh_bands
         return Gaussians.concat([s.at(t) for s in scenes], sh_bands=bands)
@@ -513,9 +521,12 @@ class StreamClient:
         for k in range(plan.count):
             t = plan.start + k * plan.step
             await self.prefetch(t, min(plan.horizon, max(plan.end - t, 0.0)), wait=False)
+            chunks = self.index.chunks_for(t)
+            self._look_up(chunks)
             asked = time.monotonic()
-            frame = await self.frame_at(t)
+            await self.chunk_scenes(chunks)  # the wait is for data, not for evaluating it
             wait = time.monotonic() - asked
+            frame = await self._frame(t, chunks)
             if k == 0:
                 stats.startup_s = wait
             elif wait > budget:
@@ -574,14 +585,16 @@ class StreamClient:
             ahead = min(horizon, max(plan.end - t, 0.0))
             if self._prefetch_due(t, ahead, 1):  # enhancements once the base is in
                 self._prefetch_due(t, ahead, level)
+            base = self.index.chunks_for(t, 1)
+            self._look_up(base)
             asked = time.monotonic()
-            await self.chunk_scenes(self.index.chunks_for(t, 1))
+            await self.chunk_scenes(base)
             wait = time.monotonic() - asked
             if k > 0 and wait > plan.budget:
                 stats.stalls += 1
                 stats.stall_s += wait - plan.budget
             shown = max(layers_shown(self.index, t, self.cache.__contains__), 1)
-            frame = await self.frame_at(t, shown)
+            frame = await self._frame(t, self.index.chunks_for(t, shown))
             stats.layers_shown[shown] = stats.layers_shown.get(shown, 0) + 1
             self._count(stats, k, began, before)
             yield PlayedFrame(k, t, frame, wait, shown)

@@ -4,7 +4,7 @@
 
 export const EWMA_WEIGHT = 0.3;
 export const SAFETY = 0.85;
-export const STARTUP_FACTOR = 1.5;
+export const STARTUP_FACTOR = 4.0;
 export const STARTUP_MIN_S = 2.0;
 export const UPGRADE_MARGIN = 0.8;
 export const BASE_LATE_S = 0.5;
