@@ -218,7 +218,7 @@ def table(clip: Clip, rows: list[dict[str, Any]]) -> str:
             + f" | {full_first:.2f} s | {sum(r['full']['stalls'] for r in cell)} | "
             f"{first / full_first:.2f}x |"
         )
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines)
 
 
 def chart(results: list[tuple[Clip, list[dict[str, Any]]]]) -> None:
@@ -226,13 +226,14 @@ def chart(results: list[tuple[Clip, list[dict[str, Any]]]]) -> None:
     colours = [(31, 119, 180), (214, 39, 40)]
     series = []
     for (clip, rows), colour in zip(results, colours, strict=True):
-        for side, label, dim in (("adaptive", "first picture", 1.0), ("full", "full alone", 0.5)):
+        short = clip.name.split(" ")[0].split("_")[0]
+        for side, label, dim in (("adaptive", "adaptive", 1.0), ("full", "full alone", 0.5)):
             points = [
                 (f, statistics.fmean(r[side]["first_picture_s"] for r in rows if r["factor"] == f))
                 for f in FACTORS
             ]
             tint = tuple(int(c * dim + 255 * (1 - dim)) for c in colour)
-            series.append(Series(f"{clip.name}: {label}", tint, points))  # type: ignore[arg-type]
+            series.append(Series(f"{short}: {label}", tint, points))  # type: ignore[arg-type]
     image = line_chart(
         "Time to the first picture over a shaped link (50 ms)",
         ("link bandwidth / full-quality bitrate", "seconds"),
