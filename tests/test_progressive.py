@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -146,23 +147,57 @@ def test_a_small_scene_stays_one_layer_unless_asked(tmp_path: Path) -> None:
         segment_scene(scene, tmp_path / "bad.tsogs", SegmentOptions(layers=9))
 
 
-def _manifest_with_layers(layers: list[dict[str, object]], chunk_layer: int) -> bytes:
-    box = {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}
-    chunk = {
-        "id": 0, "file": "chunks/000000.sog", "offset": 16384, "length": 10, "sha256": "0" * 64,
-        "count": 1, "level": 0, "node": 0, "start_s": 0.0, "end_s": 1.0, "bbox": box,
-        "layer": chunk_layer,
-    }  # fmt: skip
+BOX = {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}
+THREE_LAYERS = [
+    {"index": k, "gaussians": 1, "bytes": 1, "psnr_db": None if k == 2 else 20.0} for k in range(3)
+]
+
+
+def _one_window(
+    chunks: list[tuple[int, float, float, int]], layers: list[dict[str, Any]], window_s: float
+) -> dict[str, Any]:
+    """An index document of one window holding ``chunks`` ((layer, start_s, end_s, length)
+    each, back to back from byte 16384) and ``layers``."""
+    entries, offset = [], 16384
+    for i, (layer, start, end, length) in enumerate(chunks):
+        entries.append(
+            {
+                "id": i,
+                "file": f"chunks/{i:06d}.sog",
+                "offset": offset,
+                "length": length,
+                "sha256": "0" * 64,
+                "count": 1,
+                "level": 0,
+                "node": 0,
+                "start_s": start,
+                "end_s": end,
+                "bbox": BOX,
+                "layer": layer,
+            }
+        )
+        offset += length
     scene = {
-        "gaussians": 1, "stored": 1, "start_s": 0.0, "end_s": 1.0, "timeline_type": 2,
-        "temporal": {}, "sh_bands": 0, "bbox": box,
+        "gaussians": len(chunks), "stored": len(chunks), "start_s": 0.0, "end_s": window_s,
+        "timeline_type": 2, "temporal": {}, "sh_bands": 0, "bbox": BOX,
     }  # fmt: skip
-    doc = {
-        "generator": "t", "policy": "hybrid", "window_s": 1.0, "max_pixels": 4096,
-        "scene": scene, "chunks": [chunk], "payload_bytes": 10, "layers": layers,
-        "nodes": [{"level": 0, "index": 0, "start_s": 0.0, "end_s": 1.0, "chunks": [0]}],
+    node = {
+        "level": 0,
+        "index": 0,
+        "start_s": 0.0,
+        "end_s": window_s,
+        "chunks": list(range(len(entries))),
+    }
+    return {
+        "generator": "t", "policy": "hybrid", "window_s": window_s, "max_pixels": 4096,
+        "scene": scene, "nodes": [node], "chunks": entries, "payload_bytes": offset - 16384,
+        "layers": layers,
     }  # fmt: skip
-    return json.dumps(doc).encode()
+
+
+def _manifest_with_layers(layers: list[dict[str, Any]], chunk_layer: int) -> bytes:
+    """Index JSON of one chunk in layer ``chunk_layer`` and the given ``layers``."""
+    return json.dumps(_one_window([(chunk_layer, 0.0, 1.0, 10)], layers, 1.0)).encode()
 
 
 @pytest.mark.parametrize(
@@ -176,7 +211,7 @@ def _manifest_with_layers(layers: list[dict[str, object]], chunk_layer: int) -> 
     ],
 )
 def test_an_index_with_inconsistent_layers_is_refused(
-    layers: list[dict[str, object]], chunk_layer: int, message: str
+    layers: list[dict[str, Any]], chunk_layer: int, message: str
 ) -> None:
     with pytest.raises(MetaError, match=message):
         parse_manifest(_manifest_with_layers(layers, chunk_layer))
@@ -197,42 +232,7 @@ def test_layer_plan_assigns_the_most_important_share_of_each_group() -> None:
 
 def _index(chunks: list[tuple[int, float, float, int]]) -> StreamIndex:
     """(layer, start_s, end_s, length) per chunk, one window of 10 s, three layers."""
-    box = {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}
-    entries, offset = [], 16384
-    for i, (layer, start, end, length) in enumerate(chunks):
-        entries.append(
-            {
-                "id": i,
-                "file": f"chunks/{i:06d}.sog",
-                "offset": offset,
-                "length": length,
-                "sha256": "0" * 64,
-                "count": 1,
-                "level": 0,
-                "node": 0,
-                "start_s": start,
-                "end_s": end,
-                "bbox": box,
-                "layer": layer,
-            }
-        )
-        offset += length
-    manifest = Manifest.model_validate(
-        {
-            "generator": "t", "policy": "hybrid", "window_s": 10.0, "max_pixels": 4096,
-            "scene": {
-                "gaussians": 3, "stored": 3, "start_s": 0.0, "end_s": 10.0, "timeline_type": 2,
-                "temporal": {}, "sh_bands": 0, "bbox": box,
-            },
-            "nodes": [{"level": 0, "index": 0, "start_s": 0.0, "end_s": 10.0,
-                       "chunks": list(range(len(entries)))}],
-            "chunks": entries, "payload_bytes": offset - 16384,
-            "layers": [
-                {"index": k, "gaussians": 1, "bytes": 1, "psnr_db": None if k == 2 else 20.0}
-                for k in range(3)
-            ],
-        }
-    )  # fmt: skip
+    manifest = Manifest.model_validate(_one_window(chunks, THREE_LAYERS, 10.0))
     return unpacked_index(dump_manifest(manifest), where="test")
 
 

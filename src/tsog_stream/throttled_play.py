@@ -88,28 +88,26 @@ async def play_through_link(
 ) -> LinkPlayReport:
     """Play ``target`` in real time through a link of ``shape``, sampling shown frames."""
     async with _origin(os.fspath(target)) as (host, port, path):
-        relay = ThrottledRelay(port, shape, host)
-        async with relay:
+        async with ThrottledRelay(port, shape, host) as relay:
+            relayed = relay.url(path)
             began = time.monotonic()
             try:
-                client = await StreamClient.open(relay.url(path))
+                client = await StreamClient.open(relayed)
+                opened = time.monotonic() - began
+                try:
+                    playback = client.play(
+                        start,
+                        speed=speed,
+                        fps=fps,
+                        duration=duration,
+                        realtime=True,
+                        adaptive=adaptive,
+                    )
+                    samples = await _sampled(playback, playback.stats, fps, duration, on_frame)
+                finally:
+                    await client.aclose()
             except TsogError as exc:
-                raise _naming(exc, relay.url(path), os.fspath(target)) from None
-            opened = time.monotonic() - began
-            try:
-                playback = client.play(
-                    start,
-                    speed=speed,
-                    fps=fps,
-                    duration=duration,
-                    realtime=True,
-                    adaptive=adaptive,
-                )
-                samples = await _sampled(playback, playback.stats, fps, duration, on_frame)
-            except TsogError as exc:
-                raise _naming(exc, relay.url(path), os.fspath(target)) from None
-            finally:
-                await client.aclose()
+                raise _naming(exc, relayed, os.fspath(target)) from None
         m = client.index.manifest
         length = m.scene.end_s - m.scene.start_s
         bitrate = client.index.size * 8 / length if length > 0 else math.inf

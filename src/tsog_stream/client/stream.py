@@ -193,6 +193,11 @@ class _Job:
     every queued base chunk goes before any enhancement; a frame being shown ranks first."""
 
 
+def _due_rank(t: float) -> Callable[[ChunkEntry], Rank]:
+    """A prefetch's rank of a chunk from ``t`` on: its layer, then the second it is due."""
+    return lambda c: (float(c.layer), max(c.start_s, t))
+
+
 def _settle_failed(futures: dict[int, asyncio.Future[Scene]], exc: BaseException) -> None:
     """Fail the unsettled futures with ``exc`` (an error) or cancel them (a cancellation)."""
     for fut in futures.values():
@@ -301,7 +306,7 @@ class StreamClient:
         the chunk is fetched again, and the error raised, when a frame needs it).
         """
         chunks = due_order(self.index.chunks_for_interval(t, t + max(horizon, 0.0), layers), t)
-        futures = self._schedule(chunks, rank=lambda c: (float(c.layer), max(c.start_s, t)))
+        futures = self._schedule(chunks, rank=_due_rank(t))
         if wait:
             await asyncio.gather(*futures.values())
         return len(futures)
@@ -312,11 +317,7 @@ class StreamClient:
         waits for one due later read with it); True when all are already here."""
         chunks = self.index.chunks_for_interval(t, t + max(horizon, 0.0), layers)
         missing = due_order([c for c in chunks if c.id not in self.cache], t)
-        self._schedule(
-            missing,
-            rank=lambda c: (float(c.layer), max(c.start_s, t)),
-            apart=lambda c: (c.layer, max(c.start_s, t)),
-        )
+        self._schedule(missing, rank=_due_rank(t), apart=_due_rank(t))
         return not missing
 
     async def chunk_scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
@@ -514,8 +515,7 @@ class StreamClient:
 
     async def _play(self, plan: _PlayPlan, stats: PlayStats) -> AsyncIterator[PlayedFrame]:
         """The frames of :meth:`play`, updating ``stats`` as they are produced."""
-        requests, nbytes = self.source.stats.requests, self.source.stats.bytes
-        hits, misses = self.cache_stats.hits, self.cache_stats.misses
+        before = self._counters()
         began = time.monotonic()
         budget = plan.budget
         for k in range(plan.count):
@@ -528,19 +528,23 @@ class StreamClient:
             wait = time.monotonic() - asked
             frame = await self._frame(t, chunks)
             if k == 0:
-                stats.startup_s = wait
+                stats.startup_s = stats.first_picture_s = wait
             elif wait > budget:
                 stats.stalls += 1
                 stats.stall_s += wait - budget
-            stats.first_picture_s = stats.startup_s
             layers = self.index.layer_count
             stats.layers_shown[layers] = stats.layers_shown.get(layers, 0) + 1
-            self._count(stats, k, began, (requests, nbytes, hits, misses))
+            self._count(stats, k, began, before)
             yield PlayedFrame(k, t, frame, wait, layers)
             if plan.realtime:
                 await asyncio.sleep(
                     max(0.0, began + stats.startup_s + (k + 1) * budget - time.monotonic())
                 )
+
+    def _counters(self) -> tuple[int, int, int, int]:
+        """Requests, bytes, cache hits and misses so far (a playback counts from these)."""
+        stats = self.source.stats
+        return stats.requests, stats.bytes, self.cache_stats.hits, self.cache_stats.misses
 
     def _count(
         self, stats: PlayStats, k: int, began: float, before: tuple[int, int, int, int]
@@ -557,12 +561,7 @@ class StreamClient:
     async def _play_adaptive(self, plan: _PlayPlan, stats: PlayStats) -> AsyncIterator[PlayedFrame]:
         """The frames of an adaptive :meth:`play`: the base layer at the start as soon as it
         arrives (the first picture), then as many layers as the link keeps up with."""
-        before = (
-            self.source.stats.requests,
-            self.source.stats.bytes,
-            self.cache_stats.hits,
-            self.cache_stats.misses,
-        )
+        before = self._counters()
         began = time.monotonic()
         horizon = max(plan.horizon, HORIZON_S * plan.speed)
         await self.chunk_scenes(self.index.chunks_for(plan.start, 1))  # nothing shares the link

@@ -121,12 +121,13 @@ def plan_layers(
     if scene.timeline is None or view is None or len(scene) < 2:
         return LayerPlan.single("one layer: nothing visible to measure layers on")
     times = _times(scene)
-    shown = np.mean([len(scene.at(t)) for t in times])
+    frames = [scene.at(t) for t in times]
+    shown = np.mean([len(frame) for frame in frames])
     if layers is None and shown < LAYERED_MIN_GAUSSIANS:
         return LayerPlan.single(
             f"one layer: a frame shows {shown:.0f} Gaussians (layered from {LAYERED_MIN_GAUSSIANS})"
         )
-    quality = _quality_of_share(scene, groups, view, times)
+    quality = _quality_of_share(scene, groups, view, dict(zip(times, frames, strict=True)))
     limit = 1.0 if layers else AUTO_MAX_FRACTION
     shares: list[float] = []
     psnr: list[float | None] = []
@@ -143,12 +144,14 @@ def plan_layers(
 
 
 def _quality_of_share(
-    scene: Scene, groups: Sequence[Ints], view: CaptureCamera, times: list[float]
+    scene: Scene, groups: Sequence[Ints], view: CaptureCamera, frames: dict[float, Gaussians]
 ) -> Callable[[float], float]:
-    """PSNR (mean squared error over the sampled times) of the most important ``share`` of
-    each group against everything, rendered from ``view``; cached per share."""
+    """PSNR (mean squared error over the sampled times, ``frames`` the whole scene at each) of
+    the most important ``share`` of each group against everything, rendered from ``view``;
+    cached per share."""
     camera = from_capture(view, MEASURE_WIDTH)
-    full = [to_uint8(render(scene.at(t), camera)) for t in times]
+    times = list(frames)
+    full = [to_uint8(render(frame, camera)) for frame in frames.values()]
     weights = importance(scene.gaussians)
     cache: dict[float, float] = {}
 
