@@ -13,7 +13,6 @@ import asyncio
 import contextlib
 import math
 import re
-from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
 
@@ -23,6 +22,9 @@ PIECE = 16 * 1024
 """Bytes relayed at a time: the bucket's grain (a piece leaves once the link has carried it)."""
 BURST = 16 * 1024
 """Bytes an idle link may send at once (the bucket's depth)."""
+DELAYED_PIECES = 64
+"""Pieces of one connection held back for the latency at most (1 MiB): a viewer sending
+faster than the origin reads waits, it does not fill memory."""
 MAX_CONNECTIONS = 256
 """Connections relayed at once; more are closed on arrival (a bound, not a tuning)."""
 LOOPBACK = "127.0.0.1"
@@ -155,17 +157,14 @@ class ThrottledRelay:
                     await w.wait_closed()
 
     async def _delayed(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """Viewer -> origin, each piece ``latency_s`` after it arrived, in order."""
+        """Viewer -> origin, each piece ``latency_s`` after it arrived, in order; at most
+        DELAYED_PIECES wait at once (reading stops until the origin side catches up)."""
         loop = asyncio.get_running_loop()
-        due: deque[tuple[float, bytes]] = deque()
-        arrived = asyncio.Event()
+        due: asyncio.Queue[tuple[float, bytes]] = asyncio.Queue(DELAYED_PIECES)
 
         async def forward() -> None:
             while True:
-                while not due:
-                    arrived.clear()
-                    await arrived.wait()
-                when, piece = due.popleft()
+                when, piece = await due.get()
                 await asyncio.sleep(max(0.0, when - loop.time()))
                 if not piece:
                     writer.write_eof()
@@ -177,8 +176,7 @@ class ThrottledRelay:
         try:
             while True:
                 piece = await reader.read(PIECE)
-                due.append((loop.time() + self.shape.latency_s, piece))
-                arrived.set()
+                await due.put((loop.time() + self.shape.latency_s, piece))
                 if not piece:
                     break
             await sender
