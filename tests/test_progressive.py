@@ -4,6 +4,7 @@ loopback link, and the adaptive playback through it, against a real server."""
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import math
 import time
@@ -26,15 +27,24 @@ from tsog_stream.client.adaptive import (
 )
 from tsog_stream.container.stream_index import StreamIndex, unpacked_index
 from tsog_stream.errors import InputError, MetaError
+from tsog_stream.io.sequence import open_sequence
 from tsog_stream.io.splatv import read_splatv
-from tsog_stream.model import Scene
+from tsog_stream.model import Gaussians, Scene
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
 from tsog_stream.schemas.manifest import Manifest, dump_manifest, parse_manifest
 from tsog_stream.segment.layers import LAYER_TARGETS_DB, LayerPlan, importance, top_share
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import make_app, start_server
-from tsog_stream.server.link import LinkShape, ThrottledRelay, parse_bandwidth, parse_latency
+from tsog_stream.server.link import (
+    DELAYED_PIECES,
+    MAX_CONNECTIONS,
+    PIECE,
+    LinkShape,
+    ThrottledRelay,
+    parse_bandwidth,
+    parse_latency,
+)
 from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.throttled_play import play_through_link
 
@@ -135,6 +145,53 @@ def test_one_layer_writes_the_index_as_before(scene_files: dict[str, Path]) -> N
     layered = json.loads(dump_manifest(_open(scene_files["layered"]).manifest))
     assert all(c.get("layer", 0) == c["layer"] for c in layered["chunks"] if "layer" in c)
     assert all("layer" not in c for c in layered["chunks"] if c["offset"] < 20000)  # base
+
+
+MONKEY = "4d/pc_flipbook_monkey"
+"""Three real flipbook frames of tests/data (31658 Gaussians each, SOG)."""
+
+
+def test_a_frame_sequence_is_layered_frame_by_frame(samples: Path, tmp_path: Path) -> None:
+    """Each frame's most important Gaussians are its base (a share of every frame, not of
+    the sequence); every layer together is the one-layer frame; the measured PSNR is what
+    the decoded base shows."""
+    seq = open_sequence(samples / MONKEY, fps=30.0)
+    paths = {n: tmp_path / f"{n}.tsogs" for n in (1, 3)}
+    for n, path in paths.items():
+        segment_sequence(seq, path, SegmentOptions(layers=n))
+
+    async def run() -> None:
+        async with (
+            await StreamClient.open(paths[3]) as layered,
+            await StreamClient.open(paths[1]) as single,
+        ):
+            m = layered.index.manifest
+            assert [layer.index for layer in m.layers] == [0, 1, 2]
+            assert {c.layer for c in m.chunks} == {0, 1, 2}
+            assert single.index.layer_count == 1
+            assert m.view is not None
+            camera = from_capture(m.view, 256)
+            errors = []
+            for k, (count, _) in enumerate(seq.shapes):
+                t = (k + 0.5) / seq.fps
+                whole = await single.frame_at(t)
+                full = await layered.frame_at(t)
+                base = await layered.frame_at(t, layers=1)
+                assert len(whole) == len(full) == count
+                assert 0 < len(base) < len(await layered.frame_at(t, layers=2)) < count
+                same = psnr(to_uint8(render(full, camera)), to_uint8(render(whole, camera)))
+                assert same > 40.0, (t, same)
+                enhancing = [c for c in layered.index.chunks_for(t) if c.layer > 0]
+                rest = [s.at(t) for s in await layered.chunk_scenes(enhancing)]
+                least_in_base = importance(base).min()
+                assert least_in_base >= 0.9 * importance(Gaussians.concat(rest)).max()
+                shown = [to_uint8(render(g, camera)) for g in (base, full)]
+                errors.append(np.mean((shown[0] / 255.0 - shown[1] / 255.0) ** 2))
+            measured = -10 * math.log10(float(np.mean(errors)))
+            recorded = m.layers[0].psnr_db
+            assert recorded is not None and abs(measured - recorded) < 1.5, (measured, recorded)
+
+    asyncio.run(run())
 
 
 def test_a_small_scene_stays_one_layer_unless_asked(tmp_path: Path) -> None:
@@ -363,6 +420,86 @@ def test_the_link_carries_its_bandwidth_shared_and_adds_its_latency(tmp_path: Pa
     assert 0.2 <= small < 0.45, small  # the added round trip, at a bandwidth that costs nothing
 
 
+def _socket_buffers_max() -> int:
+    """The most bytes one loopback socket pair may hold in the kernel (send + receive)."""
+    total = 0
+    for name, fallback in (("tcp_wmem", 4 << 20), ("tcp_rmem", 6 << 20)):
+        try:
+            total += int(Path(f"/proc/sys/net/ipv4/{name}").read_text().split()[2])
+        except (OSError, IndexError, ValueError):
+            total += fallback
+    return total
+
+
+def test_a_viewer_flooding_the_link_is_held_back_not_buffered() -> None:
+    """Request bytes the origin does not read wait in the kernel and in the relay's bounded
+    queue: the viewer's writes stop, the relay does not take whatever it is sent."""
+    bound = 2 * _socket_buffers_max() + DELAYED_PIECES * PIECE + (2 << 20)
+    flood = bound + (64 << 20)
+
+    async def run() -> tuple[int, list[dict[str, Any]]]:
+        errors: list[dict[str, Any]] = []
+        asyncio.get_running_loop().set_exception_handler(lambda _, context: errors.append(context))
+        release = asyncio.Event()
+
+        async def never_read(_: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            await release.wait()
+            writer.close()
+
+        origin = await asyncio.start_server(never_read, "127.0.0.1", 0)
+        try:
+            async with ThrottledRelay(
+                origin.sockets[0].getsockname()[1], LinkShape(1e9, 0.01)
+            ) as relay:
+                _, writer = await asyncio.open_connection("127.0.0.1", relay.port)
+                block, sent = bytes(1 << 20), 0
+                while sent < flood:
+                    writer.write(block)
+                    try:
+                        await asyncio.wait_for(writer.drain(), timeout=1.0)
+                    except TimeoutError:
+                        break
+                    sent += len(block)
+                writer.transport.abort()
+            gc.collect()  # a relay task whose failure nobody read reports it when collected
+            return sent, errors
+        finally:
+            release.set()
+            origin.close()
+
+    sent, errors = asyncio.run(run())
+    assert sent < bound, (sent, bound)
+    assert errors == []
+
+
+def test_connections_beyond_the_bound_are_closed_on_arrival() -> None:
+    async def run() -> tuple[int, int]:
+        runner, port = await start_server(make_app(Path(".")))
+        try:
+            async with ThrottledRelay(port, LinkShape(1e9, 0.0)) as relay:
+                held = [
+                    await asyncio.open_connection("127.0.0.1", relay.port)
+                    for _ in range(MAX_CONNECTIONS + 8)
+                ]
+
+                async def closed(reader: asyncio.StreamReader) -> bool:
+                    try:
+                        return await asyncio.wait_for(reader.read(), timeout=1.0) == b""
+                    except TimeoutError:
+                        return False  # relayed: open, waiting for a request
+
+                ends = await asyncio.gather(*[closed(reader) for reader, _ in held])
+                for _, writer in held:
+                    writer.close()
+                return sum(ends), relay.connections
+        finally:
+            await runner.cleanup()
+
+    closed, relayed = asyncio.run(run())
+    assert closed == 8
+    assert relayed == MAX_CONNECTIONS
+
+
 def test_adaptive_playback_over_half_the_bitrate_starts_sooner_and_never_stalls(
     scene_files: dict[str, Path],
 ) -> None:
@@ -388,6 +525,36 @@ def test_adaptive_playback_over_half_the_bitrate_starts_sooner_and_never_stalls(
     assert sum(shown.values()) == 21 and min(shown) >= 1
     assert worst > 15.0  # a picture, not an empty frame (inf: all layers shown)
     assert full_shown == {3: 21} and math.isinf(full_worst)
+
+
+def test_a_playback_queues_the_base_then_its_layers_then_one_more(
+    scene_files: dict[str, Path],
+) -> None:
+    """What adaptive playback queues for [t, t + ahead] keeping two layers: the base alone
+    until it is in; the second layer once it is; and the third once both are (the spare link
+    fetches the next layer before the plan counts on it)."""
+    t, ahead = 1.0, 2.0
+
+    async def run() -> list[set[int]]:
+        async with await StreamClient.open(scene_files["layered"]) as client:
+
+            def layers(n: int) -> set[int]:
+                return {c.id for c in client.index.chunks_for_interval(t, t + ahead, n)}
+
+            queued = []
+            for have in (0, 1, 2):
+                if have:
+                    await client.prefetch(t, ahead, layers=have)
+                client._prefetch_layers(t, ahead, 2)
+                queued.append(set(client._pending))
+                await asyncio.gather(*[job.futures[cid] for cid, job in client._pending.items()])
+                assert all(cid in client.cache for cid in layers(have + 1))
+            return [*queued, layers(1), layers(2), layers(3)]
+
+    got = asyncio.run(run())
+    queued, (base, two, three) = got[:3], got[3:]
+    assert queued == [base, two - base, three - two]
+    assert base and two - base and three - two
 
 
 def test_importance_orders_by_opacity_and_size() -> None:

@@ -320,6 +320,14 @@ class StreamClient:
         self._schedule(missing, rank=_due_rank(t), apart=_due_rank(t))
         return not missing
 
+    def _prefetch_layers(self, t: float, horizon: float, level: int) -> None:
+        """Queue [t, t + horizon]: the base first, the ``level`` layers kept once it is in,
+        and, once those are in too, one layer more: a link with room to spare fetches the
+        next layer before the plan counts on it (the plan then takes it on, as it is here)."""
+        for layers in (1, level, min(level + 1, self.index.layer_count)):
+            if not self._prefetch_due(t, horizon, layers):
+                return
+
     async def chunk_scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
         """The decoded chunks, from the cache or fetched ahead of any queued prefetch
         (in-flight fetches are shared)."""
@@ -569,8 +577,7 @@ class StreamClient:
         allowance = startup_allowance(stats.first_picture_s)
         level = self._plan_level(plan, plan.start, allowance, current=0)
         wanted = self._schedule(self.index.chunks_for(plan.start, level), urgent=True)
-        if self._prefetch_due(plan.start, horizon, 1):
-            self._prefetch_due(plan.start, horizon, level)
+        self._prefetch_layers(plan.start, horizon, level)
         if wanted:
             await asyncio.wait(list(wanted.values()), timeout=allowance)
         playing = time.monotonic()
@@ -581,9 +588,7 @@ class StreamClient:
             if time.monotonic() - replanned >= REPLAN_S:
                 level = self._plan_level(plan, t, 0.0, current=level)
                 replanned = time.monotonic()
-            ahead = min(horizon, max(plan.end - t, 0.0))
-            if self._prefetch_due(t, ahead, 1):  # enhancements once the base is in
-                self._prefetch_due(t, ahead, level)
+            self._prefetch_layers(t, min(horizon, max(plan.end - t, 0.0)), level)
             base = self.index.chunks_for(t, 1)
             self._look_up(base)
             asked = time.monotonic()

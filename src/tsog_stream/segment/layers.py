@@ -86,6 +86,15 @@ class LayerPlan:
         """Today's layout: one layer holding everything."""
         return cls((1.0,), (None,), why)
 
+    def sizes(self, group_sizes: Sequence[int]) -> list[int]:
+        """Gaussians of each layer when groups of ``group_sizes`` are cut (as :meth:`assign`)."""
+        out = [0] * self.layers
+        for n in group_sizes:
+            cuts = [0, *(math.ceil(share * n) for share in self.shares)]
+            for k in range(self.layers):
+                out[k] += cuts[k + 1] - cuts[k]
+        return out
+
     def assign(self, weights: F64, groups: Sequence[Ints]) -> Ints:
         """The layer of each Gaussian of ``groups`` given its importance (ties by index)."""
         layer = np.zeros(weights.size, np.int64)
@@ -94,6 +103,9 @@ class LayerPlan:
             cuts = [math.ceil(share * g.size) for share in self.shares]
             layer[order] = np.searchsorted(np.asarray(cuts), np.arange(g.size), "right")
         return layer
+
+
+ONE_LAYER_ASKED = LayerPlan.single("one layer asked for (--layers 1)")
 
 
 def check_layers(layers: int | None) -> None:
@@ -110,17 +122,22 @@ def _times(scene: Scene) -> list[float]:
 
 
 def plan_layers(
-    scene: Scene, groups: Sequence[Ints], view: CaptureCamera | None, layers: int | None
+    scene: Scene,
+    groups: Sequence[Ints],
+    view: CaptureCamera | None,
+    layers: int | None,
+    times: Sequence[float] = (),
 ) -> LayerPlan:
-    """Cut ``scene``, stored as ``groups`` (index arrays, one per node time slice), into
-    ``layers`` quality layers (None: choose, see LAYERED_MIN_GAUSSIANS and AUTO_MAX_FRACTION),
-    measuring each cut's picture from ``view``."""
+    """Cut ``scene``, stored as ``groups`` (index arrays, one per node time slice or frame),
+    into ``layers`` quality layers (None: choose, see LAYERED_MIN_GAUSSIANS and
+    AUTO_MAX_FRACTION), measuring each cut's picture from ``view`` at ``times`` (none given:
+    MEASURE_TIMES spread over the scene)."""
     check_layers(layers)
     if layers == 1:
-        return LayerPlan.single("one layer asked for (--layers 1)")
+        return ONE_LAYER_ASKED
     if scene.timeline is None or view is None or len(scene) < 2:
         return LayerPlan.single("one layer: nothing visible to measure layers on")
-    times = _times(scene)
+    times = list(times) or _times(scene)
     frames = [scene.at(t) for t in times]
     shown = np.mean([len(frame) for frame in frames])
     if layers is None and shown < LAYERED_MIN_GAUSSIANS:

@@ -7,6 +7,7 @@ scene and options give a byte-identical container whatever the worker count.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import multiprocessing
 import os
 import signal
@@ -36,13 +37,20 @@ from ..container.writer import ContainerFile
 from ..errors import InputError
 from ..framing import dense_core, opening_view
 from ..io.sequence import FrameSequence
-from ..model import Gaussians, Scene
+from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..morton import morton_order
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .layers import LayerPlan, check_layers, importance, plan_layers
+from .layers import (
+    MEASURE_TIMES,
+    ONE_LAYER_ASKED,
+    LayerPlan,
+    check_layers,
+    importance,
+    plan_layers,
+)
 from .layout import (
     Choice,
     Lifespans,
@@ -251,7 +259,7 @@ def chunk_jobs(
             if members.size == 0 and layers > 1:
                 continue
             ordered = members[morton_order(scene.gaussians.means[members])]
-            parts = -(-ordered.size // max_count)
+            parts = max(1, -(-ordered.size // max_count))  # an empty frame is one empty chunk
             jobs.extend(ChunkJob(key, run, layer) for run in np.array_split(ordered, parts))
     return jobs
 
@@ -578,13 +586,65 @@ def segment_scene(
     return replace(report, layout=choice)
 
 
-def _sequence_parts(seq: FrameSequence, per_window: int, max_count: int) -> Iterator[Part]:
-    """Parts of a frame sequence, one window of frames in memory at a time."""
+def _sequence_parts(
+    seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan
+) -> Iterator[Part]:
+    """Parts of a frame sequence, one window of frames in memory at a time: each window's
+    chunks layer by layer, each frame's most important Gaussians in its base."""
     for w, first in enumerate(range(0, seq.count, per_window)):
         scene = seq.read(first, min(seq.count, first + per_window)).scene
-        order = morton_order(scene.gaussians.means)
-        for run in np.array_split(order, max(1, -(-len(order) // max_count))):
-            yield Part(NodeKey(0, w), scene.subset(run))
+        layer_of = None
+        if layering.layers > 1:
+            layer_of = layering.assign(importance(scene.gaussians), _frame_groups(scene))
+        window = [(NodeKey(0, w), np.arange(len(scene)))]
+        for job in chunk_jobs(scene, window, max_count, layer_of):
+            yield Part(job.key, scene.subset(job.indices), job.layer)
+
+
+def _frame_groups(scene: Scene) -> list[Ints]:
+    """Index arrays of each frame of a frame-sequence scene (its frames are contiguous)."""
+    assert scene.timeline is not None
+    cut = np.flatnonzero(np.diff(scene.timeline.t0)) + 1
+    return np.split(np.arange(len(scene)), cut)
+
+
+def _sequence_chunks(
+    seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan
+) -> int:
+    """How many chunks :func:`_sequence_parts` yields (for progress), from the frames' sizes."""
+    total = 0
+    for first in range(0, seq.count, per_window):
+        sizes = layering.sizes([c for c, _ in seq.shapes[first : first + per_window]])
+        runs = [-(-size // max_count) for size in sizes]
+        total += max(1, sum(runs)) if layering.layers == 1 else sum(runs)
+    return total
+
+
+def _sequence_layers(
+    seq: FrameSequence, view: CaptureCamera | None, layers: int | None
+) -> LayerPlan:
+    """The layers of a frame sequence, measured on MEASURE_TIMES frames spread over it (each
+    frame its own group, as when the chunks are cut)."""
+    check_layers(layers)
+    if layers == 1:
+        return ONE_LAYER_ASKED
+    picks = _spread(seq.count, MEASURE_TIMES)
+    frames = [seq.read(k, k + 1).scene for k in picks]
+    timelines = [f.timeline for f in frames if f.timeline is not None]
+    sample = Scene(
+        Gaussians.concat([f.gaussians for f in frames]),
+        Timeline(
+            TimelineType.FRAME,
+            np.concatenate([tl.t0 for tl in timelines]),
+            np.concatenate([tl.t1 for tl in timelines]),
+            fps=seq.fps,
+            scene_length=seq.count / seq.fps,
+        ),
+    )
+    bounds = np.cumsum([0, *(len(f) for f in frames)])
+    groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds)]
+    times = [(k + 0.5) / seq.fps for k in picks]
+    return plan_layers(sample, groups, view, layers, times)
 
 
 def segment_sequence(
@@ -610,10 +670,6 @@ def segment_sequence(
     window_s = per_window / seq.fps
     options = replace(options, window_s=window_s, policy=choice.chosen.layout.policy)
     windows = -(-seq.count // per_window)
-    counts = [
-        sum(c for c, _ in seq.shapes[i : i + per_window]) for i in range(0, seq.count, per_window)
-    ]
-    total = sum(max(1, -(-c // max_count)) for c in counts)
     plan = Plan(0.0, seq.count / seq.fps, window_s, windows, {}, 0)
     fields: dict[str, Any] = {
         "gaussians": seq.gaussians,
@@ -623,17 +679,18 @@ def segment_sequence(
         "temporal": {},
         "sh_bands": SH_BANDS_BY_COEFFS[seq.sh_coeffs],
     }
-    parts = _sequence_parts(seq, per_window, max_count)
+    views = Views.of(_sampled_frames(seq), cameras)
+    layering = _sequence_layers(seq, views.view, options.layers)
     report = _write_container(
         path,
-        parts,
-        total=total,
+        _sequence_parts(seq, per_window, max_count, layering),
+        total=_sequence_chunks(seq, per_window, max_count, layering),
         plan=plan,
         scene_fields=fields,
         options=options,
         on_chunk=on_chunk,
-        views=Views.of(_sampled_frames(seq), cameras),
-        layering=LayerPlan.single("one layer: frame sequences are not layered"),
+        views=views,
+        layering=layering,
     )
     return replace(report, layout=choice)
 
@@ -642,11 +699,17 @@ VIEW_FRAMES = 5
 """Frames of a sequence (evenly spread) whose Gaussians the opening view frames."""
 
 
+def _spread(count: int, n: int) -> list[int]:
+    """At most ``n`` frame numbers of ``count`` spread evenly, first and last included."""
+    return sorted({round(k) for k in np.linspace(0, count - 1, min(n, count))})
+
+
 def _sampled_frames(seq: FrameSequence) -> Gaussians:
     """The Gaussians of a few frames spread over the sequence: a first frame alone can be a
     launching rocket whose explosion fills the later frames."""
-    picks = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(VIEW_FRAMES, seq.count))})
-    return Gaussians.concat([seq.read(k, k + 1).scene.gaussians for k in picks])
+    return Gaussians.concat(
+        [seq.read(k, k + 1).scene.gaussians for k in _spread(seq.count, VIEW_FRAMES)]
+    )
 
 
 def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Choice:

@@ -25,6 +25,8 @@ BURST = 16 * 1024
 DELAYED_PIECES = 64
 """Pieces of one connection held back for the latency at most (1 MiB): a viewer sending
 faster than the origin reads waits, it does not fill memory."""
+CLOSE_S = 1.0
+"""Seconds a closing connection may take to hand over what it was given."""
 MAX_CONNECTIONS = 256
 """Connections relayed at once; more are closed on arrival (a bound, not a tuning)."""
 LOOPBACK = "127.0.0.1"
@@ -91,6 +93,16 @@ class _Bucket:
         await asyncio.sleep(max(0.0, self.free_at - now))
 
 
+async def _close(writer: asyncio.StreamWriter, cut: bool) -> None:
+    """Close one side: cut at once, or flush what is written for at most CLOSE_S (a peer
+    that stopped reading does not hold the connection open)."""
+    if not cut:
+        writer.close()
+        with contextlib.suppress(OSError, TimeoutError, asyncio.CancelledError):
+            await asyncio.wait_for(writer.wait_closed(), CLOSE_S)
+    writer.transport.abort()
+
+
 class ThrottledRelay:
     """Relays 127.0.0.1:``port`` to ``upstream`` through a :class:`LinkShape`."""
 
@@ -141,20 +153,21 @@ class ThrottledRelay:
         up_writer: asyncio.StreamWriter,
     ) -> None:
         """Both directions of one connection until either ends; then both are closed."""
+        pumps = [
+            asyncio.ensure_future(self._delayed(reader, up_writer)),
+            asyncio.ensure_future(self._throttled(up_reader, writer)),
+        ]
+        closing = False
         try:
-            pumps = [
-                asyncio.ensure_future(self._delayed(reader, up_writer)),
-                asyncio.ensure_future(self._throttled(up_reader, writer)),
-            ]
-            _, waiting = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
-            for pump in waiting:
+            await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+        except asyncio.CancelledError:
+            closing = True  # the relay is closing: cut, do not wait for peers to read
+            raise
+        finally:  # the pumps end (and are reaped) with the connection
+            for pump in pumps:
                 pump.cancel()
             await asyncio.gather(*pumps, return_exceptions=True)
-        finally:
-            for w in (writer, up_writer):
-                w.close()
-                with contextlib.suppress(OSError, asyncio.CancelledError):
-                    await w.wait_closed()
+            await asyncio.gather(*(_close(w, closing) for w in (writer, up_writer)))
 
     async def _delayed(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Viewer -> origin, each piece ``latency_s`` after it arrived, in order; at most
