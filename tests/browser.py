@@ -52,6 +52,7 @@ SHOW_STATIC = """async (url) => {
     const entity = new pc.Entity('reference');
     entity.addComponent('gsplat', { asset });
     p.stream.root.parent.addChild(entity);
+    p.redraw();
 }"""
 
 

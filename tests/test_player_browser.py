@@ -180,6 +180,35 @@ def test_two_times_differ_where_objects_moved_and_match_where_static(
     assert np.all(diff[~moved] == 0), "the static background must render identically"
 
 
+COUNT_RENDERS = """() => { const app = window.tsogPlayer.app, render = app.render.bind(app);
+    window.__renders = 0; app.render = () => { window.__renders++; render(); }; }"""
+
+
+def _renders_within(page: PlayerPage, seconds: float) -> int:
+    """Pictures the page drew in the next ``seconds`` (from a count set to 0 now)."""
+    page.js("window.__renders = 0")
+    time.sleep(seconds)
+    return int(page.js("window.__renders"))
+
+
+def test_a_still_picture_is_not_redrawn_and_a_change_is(base: str, open_page: Any) -> None:
+    """Paused and settled, the page draws nothing (the CPU is left to decoding); moving the
+    camera or the time draws again, and playing draws every frame."""
+    page = open_page(f"{base}/play/centre?t=1.3&paused&{VIEW}")
+    page.frame()
+    page.js(COUNT_RENDERS)
+    assert _renders_within(page, 1.0) == 0
+    page.js("window.tsogPlayer.controls.orbit(40, 0)")
+    assert _renders_within(page, 0.5) > 0
+    assert _renders_within(page, 1.5) < 3  # settled again (a sort may land just after)
+    page.seek(1.6)
+    page.js("window.__renders = 0")
+    page.js("window.tsogPlayer.playback.playing = true")
+    playing = _renders_within(page, 1.0)
+    frames = page.js("window.tsogPlayer.app.frame")
+    assert playing >= 5, (playing, frames)
+
+
 def test_scrubbing_fetches_only_the_chunks_for_t(facts: Facts, base: str, open_page: Any) -> None:
     first, then = SCRUB
     needed = facts.needed

@@ -10,6 +10,7 @@ import { UP_CHOICES, capturePose, pivotDistance, sceneUp, upRotation } from './v
 const $ = (id) => document.getElementById(id);
 
 const DEFAULT_FRAME_S = 1 / 30; // a frame step when the scene has no frame rate
+const SETTLE_MS = 250; // frames drawn after a change, before the splats' own state (loading, sorting) takes over
 
 /** The page's configuration (written by the server) and its query: t, paused, the camera
  * (camera=N, pose=tx,ty,tz,yaw,pitch,distance[,fov], or the older yaw/pitch/distance), up. */
@@ -316,6 +317,40 @@ function showState(playback, stream, fps) {
     drawBuffered(playback, stream.buffered());
 }
 
+/** True while the splat sort of a view is under way or its result not yet drawn. */
+function sortUnderWay(app) {
+    let busy = false;
+    app.renderer.gsplatDirector?.camerasMap.forEach((cameraData) => cameraData.layersMap.forEach((layerData) => {
+        const sorter = layerData.gsplatManager?.cpuSorter;
+        if (sorter && (sorter.jobsInFlight > 0 || sorter.pendingSorted)) busy = true;
+    }));
+    return busy;
+}
+
+/** Draw only when what is seen may have changed (time, camera, the chunks drawn, the canvas)
+ * and until the splats are loaded and sorted for it: a still picture costs nothing to keep,
+ * so the chunks still decoding get the CPU (where a software GPU draws too). Returns the
+ * per-frame check; `redraw()` asks for a picture after a change made from outside. */
+function drawOnChange(app, camera, stream) {
+    app.autoRender = false;
+    let seen = '';
+    let settleUntil = 0;
+    const redraw = () => { settleUntil = performance.now() + SETTLE_MS; };
+    app.systems.gsplat.on('frame:ready', (_camera, _layer, ready, loading) => {
+        if (!ready || loading > 0) app.renderNextFrame = true;
+    });
+    const check = (t) => {
+        const { width, height } = app.graphicsDevice;
+        const key = `${t}|${camera.getWorldTransform().data.join()}|${camera.camera.fov}|${stream.changes}|${width}x${height}`;
+        if (key !== seen) {
+            seen = key;
+            redraw();
+        }
+        if (performance.now() < settleUntil || sortUnderWay(app)) app.renderNextFrame = true;
+    };
+    return { check, redraw };
+}
+
 async function main() {
     const config = readConfig();
     const fetchLog = [];
@@ -337,6 +372,7 @@ async function main() {
         preset.index = config.view.camera;
         $('camera').value = String(config.view.camera);
     }
+    const drawing = drawOnChange(app, camera, stream);
     let fps = 0;
     let sinceShown = 1;
     app.on('update', (dt) => {
@@ -344,6 +380,7 @@ async function main() {
         stream.update(playback.t, playback.playing, playback.loop);
         playback.buffering = !stream.covered(playback.t);
         controls.update(dt);
+        drawing.check(playback.t);
         fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;
         sinceShown += dt;
         if (sinceShown >= 0.2) {
@@ -351,7 +388,7 @@ async function main() {
             showState(playback, stream, fps);
         }
     });
-    Object.assign(window.tsogPlayer, { pc, app, camera, controls, stream, playback, manifest, views });
+    Object.assign(window.tsogPlayer, { pc, app, camera, controls, stream, playback, manifest, views, redraw: drawing.redraw });
     app.start();
 }
 

@@ -60,6 +60,7 @@ export class ChunkStream {
         // adaptation: when the first picture came, when playback started, the layers fetched
         this.adapt = { firstAt: null, startedAt: null, deadline: null, level: 0, replannedAt: 0 };
         this.shownLayers = 0;
+        this.changes = 0; // bumped whenever what is drawn changes (the page redraws on it)
         if (this.index.layerCount > 1) this.horizon = Math.max(this.horizon, HORIZON_S);
     }
 
@@ -112,7 +113,8 @@ export class ChunkStream {
     }
 
     /** What t needs (its base first), then (playing) what the horizon needs, base layers
-     * first and enhancements once the horizon's base is in, in time order and within
+     * first, enhancements once the horizon's base is in (one layer beyond the kept ones once
+     * those are in), in time order and within
      * AHEAD_BYTES; drop the rest (see dropUnwanted). */
     plan(t, playing, loop = false) {
         this.planned = [t, playing, loop];
@@ -122,8 +124,10 @@ export class ChunkStream {
         const intervals = this.aheadIntervals(t, loop);
         const ahead = [];
         if (playing) {
-            const base = intervals.flatMap(([a, b]) => this.index.chunksForInterval(a, b, 1));
-            const top = base.every((c) => this.arrived(c.id)) ? layers : 1;
+            const inFor = (n) => intervals.every(([a, b]) => this.index.chunksForInterval(a, b, n).every((c) => this.arrived(c.id)));
+            // the base first; the layers kept once it is in; one more once those are in too
+            // (a link with room to spare fetches the next layer before the plan counts on it)
+            const top = !inFor(1) ? 1 : inFor(layers) ? Math.min(layers + 1, this.index.layerCount) : layers;
             const part = [];
             for (let layer = 0; layer < top; layer++) {
                 for (const [a, b] of intervals) {
@@ -266,12 +270,16 @@ export class ChunkStream {
         for (const [id, c] of this.chunks) {
             if (c.state !== 'ready') continue;
             const on = this.shown.has(id);
-            if (c.entity.enabled !== on) c.entity.enabled = on;
+            if (c.entity.enabled !== on) {
+                c.entity.enabled = on;
+                this.changes += 1;
+            }
             if (on && c.layout && c.time !== t) {
                 for (const [name, value] of Object.entries(timeUniforms(c.layout, t))) {
                     c.entity.gsplat.setParameter(name, value);
                 }
                 c.time = t;
+                this.changes += 1;
             }
         }
     }
@@ -286,6 +294,7 @@ export class ChunkStream {
 
     /** Free the entity, the asset and the textures of a chunk. */
     release(c) {
+        if (c.entity) this.changes += 1;
         c.entity?.destroy();
         if (c.asset) {
             this.app.assets.remove(c.asset);
