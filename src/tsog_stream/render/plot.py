@@ -40,14 +40,16 @@ def _ticks(low: float, high: float) -> list[float]:
 
 
 def _y_range(values: Sequence[float]) -> tuple[float, float]:
-    """The dB range shown: the finite values with some room; 0-100 when none is finite."""
+    """The range shown: the finite values with some room (not below 0 when none is
+    negative: seconds and bytes have no negative axis); 0-100 when none is finite."""
     finite = [v for v in values if math.isfinite(v)]
     if not finite:
         return 0.0, 100.0
     low, high = min(finite), max(finite)
     pad = max(1.0, 0.08 * (high - low))
     step = nice_step(high - low + 2 * pad)
-    return math.floor((low - pad) / step) * step, math.ceil((high + pad) / step) * step
+    bottom = math.floor((low - pad) / step) * step
+    return (max(bottom, 0.0) if low >= 0 else bottom), math.ceil((high + pad) / step) * step
 
 
 @dataclass(frozen=True)
