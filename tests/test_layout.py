@@ -37,7 +37,7 @@ def test_independent_frames_get_one_chunk_per_frame() -> None:
     choice = choose_layout(life, Costs(per_gaussian=6.7, per_chunk=5000.0, max_count=1 << 24))
     chosen = choice.chosen
     assert chosen.layout.window_s == pytest.approx(1 / 30)
-    assert "one chunk per frame" in choice.reason and not choice.explicit
+    assert "a window per frame" in choice.reason and not choice.explicit
     assert chosen.meets_target and chosen.overfetch < SEEK_TARGET
     assert chosen.chunks == 50
 
@@ -103,7 +103,7 @@ def test_a_flipbook_is_stored_one_frame_per_chunk_and_no_larger_than_its_frames(
     out = tmp_path / "fw.tsogs"
     assert main(["segment", str(frames), "-o", str(out), "-q"]) == 0
     printed = capsys.readouterr()
-    assert "one chunk per frame" in printed.out and "warning" not in printed.err
+    assert "a window per frame" in printed.out and "warning" not in printed.err
     seq = open_sequence(frames)
     own = [len(bundle_bytes(encode_chunk(seq.read(k, k + 1).scene))) for k in range(seq.count)]
     assert out.stat().st_size <= sum(own) + PREFIX_SIZE

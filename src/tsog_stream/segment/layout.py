@@ -396,7 +396,7 @@ def _reason(
         return f"as asked: {fetch}"
     one_frame = life.fps is not None and abs(best.layout.window_s * life.fps - 1) < 1e-6
     if one_frame and not life.carries_over:
-        return f"one chunk per frame: no Gaussian carries over between frames ({fetch})"
+        return f"a window per frame: no Gaussian carries over between frames ({fetch})"
     if meeting:
         return (
             f"{fetch} (target {SEEK_TARGET:g}x) with the smallest file of the {len(meeting)} "
