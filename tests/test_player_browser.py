@@ -10,7 +10,7 @@ from __future__ import annotations
 import base64
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
@@ -23,9 +23,11 @@ from helpers import nginx_origin
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
+from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Scene, TimelineType
 from tsog_stream.schemas.manifest import ChunkEntry
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import Privacy, make_app
 from tsog_stream.signing import sign_url
 from tsog_stream.synthetic import SceneSpec, generate_scene
@@ -83,10 +85,17 @@ def root(tmp_path_factory: pytest.TempPathFactory, scenes: dict[str, Scene]) -> 
         reader.unpack(root / "static" / "centre")
     (root / "paid").mkdir()
     (root / "paid" / "show.tsogs").write_bytes((root / "centre.tsogs").read_bytes())
+    frames = root / "frames-folder"
+    frames.mkdir()
+    for k in range(3):  # three unrelated frames: a flipbook, stored a window per frame
+        still = generate_scene(replace(SCENES["centre"], seed=20 + k)).at(1.0)
+        (frames / f"frame_{k:03d}.sog").write_bytes(bundle_bytes(encode_chunk(Scene(still))))
+    segment_sequence(open_sequence(frames, fps=FLIPBOOK_FPS), root / "flipbook.tsogs")
     return root
 
 
-FRAME_TIMES = [("centre", 1.3), ("spans", 2.45), ("frames", 1.75)]
+FLIPBOOK_FPS = 2.0  # 3 frames over 1.5 s: the negative control 0.4 s later is the next frame
+FRAME_TIMES = [("centre", 1.3), ("spans", 2.45), ("frames", 1.75), ("flipbook", 0.3)]
 OTHER_TIME = 0.4  # the negative control: the export this much later
 SCRUB = (0.5, 2.5)  # the second needs one more chunk (2.0-2.94 s), not the one before it
 ORIGIN_T = 2.2
@@ -155,6 +164,25 @@ def test_frame_at_t_matches_the_engine_render_of_tsog_frame(
     other = page.show_static(facts.exports[scene, round(t + OTHER_TIME, 2)])
     assert off_fraction(gpu, other) > 10 * MAX_FRACTION_OFF
     assert mean_difference(gpu, other) > 4 * MAX_MEAN_DIFFERENCE
+
+
+READY_LAYOUTS = (
+    "[...window.tsogPlayer.stream.chunks.values()].filter((c) => c.state === 'ready')"
+    ".map((c) => Boolean(c.layout || c.textures))"
+)
+"""Page expression: per loaded chunk, whether its time is evaluated (timeline textures)."""
+
+
+def test_a_flipbook_frame_is_drawn_as_its_plain_sog(base: str, open_page: Any) -> None:
+    """A frame of a sequence stored a window per frame is enabled only within its frame, so
+    the page draws it without evaluating time (no timeline textures, no modifier); the
+    picture is checked against the export in the test above."""
+    page = open_page(f"{base}/play/flipbook?t=0.3&paused&{VIEW}")
+    plain = page.js(READY_LAYOUTS)
+    assert plain and not any(plain)
+    timed = open_page(f"{base}/play/frames?t=1.75&paused&{VIEW}")  # several frames a window
+    evaluated = timed.js(READY_LAYOUTS)
+    assert evaluated and all(evaluated)
 
 
 def test_two_times_differ_where_objects_moved_and_match_where_static(

@@ -8,7 +8,7 @@
 import { HORIZON_S, REPLAN_S, Throughput, chooseLayers, layersShown, startupAllowance } from './adapt.js';
 import { SceneIndex } from './manifest.js';
 import { readZip } from './zip.js';
-import { chunkUniforms, createTextures, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
+import { chunkUniforms, createTextures, isWholeFrame, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
 
 const MAX_LOADING = 4;
 /** Media seconds fetched ahead while playing, at least (as the Python client's play()): two
@@ -226,6 +226,7 @@ export class ChunkStream {
         const files = await readZip(buffer);
         const meta = JSON.parse(new TextDecoder().decode(files.get('meta.json')));
         c.layout = readLayout(meta);
+        if (c.layout && isWholeFrame(c.layout, c.info, this.index.manifest)) c.layout = null;
         if (c.layout) {
             c.textures = await createTextures(pc, this.app.graphicsDevice, c.layout, files, `chunk-${c.info.id}`);
         }

@@ -42,6 +42,18 @@ export function readLayout(meta) {
     return { type: timeline.type, secondsPerUnit: fps ? 1 / fps : 1, layers, terms, channels };
 }
 
+/** True when a chunk holds one frame without motion and the stream has a window per frame
+ * (a frame sequence stored per frame): the page enables it exactly while t is in that frame
+ * (chunksFor picks one window), so evaluating its time on the GPU changes nothing and it is
+ * drawn as the plain SOG it also is: no timeline images to decode, no modifier, no uniforms. */
+export function isWholeFrame(layout, info, manifest) {
+    const fps = manifest.scene.fps;
+    const windowPerFrame = fps > 0 && Math.abs(manifest.window_s * fps - 1) < 1e-6;
+    const frames = layout.layers[0];
+    return windowPerFrame && info.level === 0 && layout.type === TYPES.FRAME
+        && Object.keys(layout.terms).length === 0 && frames.mins[0] === frames.maxs[0];
+}
+
 /** GLSL of the sum over orders k of layer_k * dt^k for one attribute. */
 function polynomial(attr, layerIds) {
     const body = layerIds.map((id) => `\tp *= tsogDt;\n\ts += p * tsogLayer(${id});`).join('\n');
