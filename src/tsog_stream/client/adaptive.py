@@ -143,9 +143,10 @@ def startup_allowance(first_picture_s: float) -> float:
 
 def layers_shown(index: StreamIndex, t: float, have: Callable[[int], bool]) -> int:
     """The most layers whose every chunk for ``t`` has arrived (0: not even the base)."""
+    chunks = index.chunks_for(t)  # every layer's, chosen once (a frame asks this each time)
     shown = 0
-    for layers in range(1, index.layer_count + 1):
-        if not all(have(c.id) for c in index.chunks_for(t, layers) if c.layer == layers - 1):
+    for layer in range(index.layer_count):
+        if not all(have(c.id) for c in chunks if c.layer == layer):
             break
-        shown = layers
+        shown = layer + 1
     return shown

@@ -621,15 +621,19 @@ def _sequence_chunks(
 
 
 def _sequence_layers(
-    seq: FrameSequence, view: CaptureCamera | None, layers: int | None
+    seq: FrameSequence,
+    sampled: dict[int, Scene],
+    view: CaptureCamera | None,
+    layers: int | None,
 ) -> LayerPlan:
     """The layers of a frame sequence, measured on MEASURE_TIMES frames spread over it (each
-    frame its own group, as when the chunks are cut)."""
+    frame its own group, as when the chunks are cut), taken from ``sampled`` (the frames
+    :func:`_sampled_frames` read: MEASURE_TIMES spread frames are among VIEW_FRAMES ones)."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
     picks = _spread(seq.count, MEASURE_TIMES)
-    frames = [seq.read(k, k + 1).scene for k in picks]
+    frames = [sampled[k] for k in picks]
     timelines = [f.timeline for f in frames if f.timeline is not None]
     sample = Scene(
         Gaussians.concat([f.gaussians for f in frames]),
@@ -679,8 +683,9 @@ def segment_sequence(
         "temporal": {},
         "sh_bands": SH_BANDS_BY_COEFFS[seq.sh_coeffs],
     }
-    views = Views.of(_sampled_frames(seq), cameras)
-    layering = _sequence_layers(seq, views.view, options.layers)
+    sampled = _sampled_frames(seq)
+    views = Views.of(Gaussians.concat([frame.gaussians for frame in sampled.values()]), cameras)
+    layering = _sequence_layers(seq, sampled, views.view, options.layers)
     report = _write_container(
         path,
         _sequence_parts(seq, per_window, max_count, layering),
@@ -704,12 +709,11 @@ def _spread(count: int, n: int) -> list[int]:
     return sorted({round(k) for k in np.linspace(0, count - 1, min(n, count))})
 
 
-def _sampled_frames(seq: FrameSequence) -> Gaussians:
-    """The Gaussians of a few frames spread over the sequence: a first frame alone can be a
-    launching rocket whose explosion fills the later frames."""
-    return Gaussians.concat(
-        [seq.read(k, k + 1).scene.gaussians for k in _spread(seq.count, VIEW_FRAMES)]
-    )
+def _sampled_frames(seq: FrameSequence) -> dict[int, Scene]:
+    """A few frames spread over the sequence, by number, read once for the opening view (a
+    first frame alone can be a launching rocket whose explosion fills the later frames) and
+    for measuring the layers."""
+    return {k: seq.read(k, k + 1).scene for k in _spread(seq.count, VIEW_FRAMES)}
 
 
 def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Choice:

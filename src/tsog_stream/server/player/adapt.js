@@ -96,10 +96,11 @@ export function startupAllowance(firstPictureS) {
 
 /** The most layers whose every chunk for t has arrived (0: not even the base). */
 export function layersShown(index, t, have) {
+    const chunks = index.chunksFor(t); // every layer's, chosen once (a frame asks this each time)
     let shown = 0;
-    for (let layers = 1; layers <= index.layerCount; layers++) {
-        if (!index.chunksFor(t, layers).every((c) => (c.layer ?? 0) !== layers - 1 || have(c.id))) break;
-        shown = layers;
+    for (let layer = 0; layer < index.layerCount; layer++) {
+        if (!chunks.every((c) => (c.layer ?? 0) !== layer || have(c.id))) break;
+        shown = layer + 1;
     }
     return shown;
 }

@@ -124,14 +124,15 @@ export class ChunkStream {
         const intervals = this.aheadIntervals(t, loop);
         const ahead = [];
         if (playing) {
-            const inFor = (n) => intervals.every(([a, b]) => this.index.chunksForInterval(a, b, n).every((c) => this.arrived(c.id)));
+            const spans = intervals.map(([a, b]) => this.index.chunksForInterval(a, b)); // every layer's
+            const inFor = (n) => spans.every((span) => span.every((c) => (c.layer ?? 0) >= n || this.arrived(c.id)));
             // the base first; the layers kept once it is in; one more once those are in too
             // (a link with room to spare fetches the next layer before the plan counts on it)
             const top = !inFor(1) ? 1 : inFor(layers) ? Math.min(layers + 1, this.index.layerCount) : layers;
             const part = [];
             for (let layer = 0; layer < top; layer++) {
-                for (const [a, b] of intervals) {
-                    const mine = this.index.chunksForInterval(a, b, layer + 1).filter((c) => (c.layer ?? 0) === layer);
+                for (const span of spans) {
+                    const mine = span.filter((c) => (c.layer ?? 0) === layer);
                     part.push(...mine.sort((x, y) => x.start_s - y.start_s));
                 }
             }
