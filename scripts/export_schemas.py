@@ -10,13 +10,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from tsog_stream.schemas import meta_json_schema_text
+from tsog_stream.schemas import meta_json_schema_text, sh_bands_json_schema_text
 from tsog_stream.schemas.manifest import manifest_json_schema_text
 
 ROOT = Path(__file__).resolve().parent.parent
 SCHEMAS = {
     ROOT / "docs" / "schema" / "meta.schema.json": meta_json_schema_text,
     ROOT / "docs" / "schema" / "manifest.schema.json": manifest_json_schema_text,
+    ROOT / "docs" / "schema" / "sh-bands.schema.json": sh_bands_json_schema_text,
 }
 
 

@@ -99,6 +99,17 @@ class PlayerPage:
         error = self.js("window.tsogPlayer.error ?? null")
         assert error is None, error
 
+    def wait_all_layers(self) -> None:
+        """Until every layer at the playhead is drawn, each base chunk with its SH bands."""
+        self.page.wait_for_function(
+            """() => { const s = window.tsogPlayer.stream;
+                return s.error || s.stats().layers === s.index.layerCount && [...s.shown].every(
+                    (id) => !s.bandsOf.has(id) || s.chunks.get(id)?.withBands); }""",
+            timeout=LOAD_TIMEOUT_MS,
+        )
+        error = self.js("window.tsogPlayer.stream.error")
+        assert error is None, error
+
     def seek(self, t: float) -> None:
         """Drag the scrub bar to t (an input event, as a user's drag sends) and wait."""
         self.js(

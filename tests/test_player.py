@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import base64
 import hashlib
+import io
 import json
 import re
+import subprocess
 import time
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -256,3 +260,33 @@ def test_traversal_is_refused(port: int, path: str) -> None:
     assert OUTSIDE not in r.body
     assert r.headers["Content-Type"].startswith("application/json")
     assert b"import" not in r.body and b"def " not in r.body
+
+
+ZIP_WRITER = """
+import { readFileSync } from 'node:fs';
+import { readZip, writeZip } from '%(player)s/zip.js';
+const input = JSON.parse(readFileSync(0, 'utf8'));
+const files = new Map(input.map(([name, text]) => [name, new TextEncoder().encode(text)]));
+const buffer = writeZip(files);
+const back = await readZip(buffer);
+if ([...back.keys()].join() !== [...files.keys()].join()) throw new Error('readZip differs');
+process.stdout.write(Buffer.from(buffer).toString('base64'));
+"""
+
+
+def test_the_pages_zip_writer_makes_archives_any_reader_opens() -> None:
+    """The page rebuilds a base chunk with its SH bands as a zip of its own (stream.js): the
+    archive is read back by the page's reader and by Python's, CRCs checked."""
+    files = [("means_l.webp", "x" * 1000), ("shN_labels.webp", "é" * 7), ("meta.json", "{}")]
+    done = subprocess.run(
+        ["node", "--input-type=module", "-e", ZIP_WRITER % {"player": PLAYER_DIR.as_posix()}],
+        input=json.dumps(files),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    with zipfile.ZipFile(io.BytesIO(base64.b64decode(done.stdout))) as archive:
+        assert archive.testzip() is None
+        assert [(i.filename, archive.read(i).decode()) for i in archive.infolist()] == files

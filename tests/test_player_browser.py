@@ -49,7 +49,12 @@ SCENES: dict[str, SceneSpec] = {
     "centre": all_dynamic(TimelineType.CENTER_SCALE, seed=3),
     "spans": all_dynamic(TimelineType.START_DURATION, seed=4),
     "frames": SceneSpec(TimelineType.FRAME, background=600, objects=3, per_object=150, seed=5),
+    "sh": replace(all_dynamic(TimelineType.CENTER_SCALE, seed=3), sh_bands=3),
 }
+SH_GAIN = 6.0
+LAYERED = {"sh": 3}
+"""Scenes stored with quality layers: the base without its SH bands, which come in their own
+chunks (the page rebuilds the base's SOG with them)."""
 # The GPU-evaluated frame against the engine's render of the static SOG that `tsog frame`
 # exports: the two differ only by the export's own re-quantisation (new codebooks, 8-bit alpha).
 # Measured on these scenes: mean 0.01-0.09 levels, at most 0.013 % of pixels off by > 16; the
@@ -71,7 +76,10 @@ def mean_difference(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def scenes() -> dict[str, Scene]:
-    return {name: generate_scene(spec) for name, spec in SCENES.items()}
+    out = {name: generate_scene(spec) for name, spec in SCENES.items()}
+    g = out["sh"].gaussians  # view-dependent colour strong enough to see: a DC-only base fails
+    out["sh"] = replace(out["sh"], gaussians=replace(g, shN=SH_GAIN * g.shN))
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +87,8 @@ def root(tmp_path_factory: pytest.TempPathFactory, scenes: dict[str, Scene]) -> 
     """Each scene segmented (1 s windows), one also unpacked, one private copy."""
     root = tmp_path_factory.mktemp("browser")
     for name, scene in scenes.items():
-        segment_scene(scene, root / f"{name}.tsogs", SegmentOptions(window_s=1.0, policy="hybrid"))
+        options = SegmentOptions(window_s=1.0, policy="hybrid", layers=LAYERED.get(name))
+        segment_scene(scene, root / f"{name}.tsogs", options)
     (root / "static").mkdir()
     with open_stream(root / "centre.tsogs") as reader:
         reader.unpack(root / "static" / "centre")
@@ -95,7 +104,7 @@ def root(tmp_path_factory: pytest.TempPathFactory, scenes: dict[str, Scene]) -> 
 
 
 FLIPBOOK_FPS = 2.0  # 3 frames over 1.5 s: the negative control 0.4 s later is the next frame
-FRAME_TIMES = [("centre", 1.3), ("spans", 2.45), ("frames", 1.75), ("flipbook", 0.3)]
+FRAME_TIMES = [("centre", 1.3), ("spans", 2.45), ("frames", 1.75), ("flipbook", 0.3), ("sh", 1.3)]
 OTHER_TIME = 0.4  # the negative control: the export this much later
 SCRUB = (0.5, 2.5)  # the second needs one more chunk (2.0-2.94 s), not the one before it
 ORIGIN_T = 2.2
@@ -155,6 +164,7 @@ def test_frame_at_t_matches_the_engine_render_of_tsog_frame(
     facts: Facts, base: str, open_page: Any, scene: str, t: float
 ) -> None:
     page = open_page(f"{base}/play/{scene}?t={t}&paused&{VIEW}")
+    page.wait_all_layers()
     gpu = page.frame()
     static = page.show_static(facts.exports[scene, t])
     assert (static.sum(axis=2) > 60).mean() > 0.02, "the reference frame is nearly empty"

@@ -40,15 +40,18 @@ class SeekCost:
 def seek_cost(
     index: StreamIndex, t: float, chunks: Sequence[ChunkEntry], scenes: Sequence[Scene]
 ) -> SeekCost:
-    """The cost of showing ``t`` from the chunks it needs, decoded (requests = coalesced
-    adjacent ranges)."""
+    """The cost of showing ``t`` from the chunks it needs, ``scenes`` those of Gaussians
+    decoded (requests = coalesced adjacent ranges; an SH-band chunk's bytes count with its
+    host's)."""
     visible = 0
     visible_bytes = 0.0
-    for chunk, scene in zip(chunks, scenes, strict=True):
+    bands = {c.sh_of: c.length for c in chunks if c.sh_of is not None}
+    hosts = [c for c in chunks if c.holds_gaussians]
+    for chunk, scene in zip(hosts, scenes, strict=True):
         _, mask = evaluate_all(scene, t)
         n = int(np.count_nonzero(mask))
         visible += n
-        visible_bytes += chunk.length * n / max(1, chunk.count)
+        visible_bytes += (chunk.length + bands.get(chunk.id, 0)) * n / max(1, chunk.count)
     fetched = sum(c.length for c in chunks)
     requests = len(coalesce(index.chunk_range(c) for c in chunks))
     return SeekCost(

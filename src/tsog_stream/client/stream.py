@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from types import TracebackType
 
 from ..codec.chunk import decode_chunk_bytes
+from ..codec.sh_bands import ShBands, decode_sh_bands_bytes
 from ..container.ranges import ByteRange, coalesce
 from ..container.sources import ByteSource
 from ..container.stream_index import StreamIndex, verify_chunk
@@ -45,6 +46,8 @@ from .unpacked import pack, unpack
 from .verify import VerifyReport, verify_stream
 
 MiB = 1 << 20
+Decoded = Scene | ShBands
+"""What a chunk decodes to: Gaussians, or the SH bands of another chunk's Gaussians."""
 Rank = tuple[float, float]
 URGENT: Rank = (-math.inf, 0.0)
 REPLAN_S = 0.5
@@ -70,8 +73,10 @@ def _check_playback(
             raise InputError("expected a finite number, positive for speed and fps", where=name)
 
 
-def scene_nbytes(scene: Scene) -> int:
+def scene_nbytes(scene: Decoded) -> int:
     """Memory held by a decoded chunk's arrays (the cache's measure of size)."""
+    if isinstance(scene, ShBands):
+        return scene.nbytes
     g = scene.gaussians
     n = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
     if scene.timeline is not None:
@@ -99,12 +104,12 @@ class SceneCache:
     def __init__(self, max_bytes: int) -> None:
         self.max_bytes = max_bytes
         self.nbytes = 0
-        self._items: OrderedDict[int, tuple[Scene, int]] = OrderedDict()
+        self._items: OrderedDict[int, tuple[Decoded, int]] = OrderedDict()
 
     def __contains__(self, chunk_id: int) -> bool:
         return chunk_id in self._items
 
-    def get(self, chunk_id: int) -> Scene | None:
+    def get(self, chunk_id: int) -> Decoded | None:
         """The chunk if cached (and mark it recently used)."""
         item = self._items.get(chunk_id)
         if item is None:
@@ -112,7 +117,7 @@ class SceneCache:
         self._items.move_to_end(chunk_id)
         return item[0]
 
-    def put(self, chunk_id: int, scene: Scene) -> None:
+    def put(self, chunk_id: int, scene: Decoded) -> None:
         """Add a chunk, evicting the least recently used ones beyond the byte budget."""
         if chunk_id in self._items:
             return
@@ -186,7 +191,7 @@ class _Job:
     """One queued fetch: a run of chunks read with one request, and their futures."""
 
     group: list[ChunkEntry]
-    futures: dict[int, asyncio.Future[Scene]]
+    futures: dict[int, asyncio.Future[Decoded]]
     started: bool = False
     rank: Rank = (0.0, 0.0)
     """Fetched in rank order (then in order queued): (layer, second due) for a prefetch, so
@@ -198,7 +203,7 @@ def _due_rank(t: float) -> Callable[[ChunkEntry], Rank]:
     return lambda c: (float(c.layer), max(c.start_s, t))
 
 
-def _settle_failed(futures: dict[int, asyncio.Future[Scene]], exc: BaseException) -> None:
+def _settle_failed(futures: dict[int, asyncio.Future[Decoded]], exc: BaseException) -> None:
     """Fail the unsettled futures with ``exc`` (an error) or cancel them (a cancellation)."""
     for fut in futures.values():
         if fut.done():
@@ -329,13 +334,24 @@ class StreamClient:
                 return
 
     async def chunk_scenes(self, chunks: Sequence[ChunkEntry]) -> list[Scene]:
-        """The decoded chunks, from the cache or fetched ahead of any queued prefetch
-        (in-flight fetches are shared)."""
+        """The decoded chunks of Gaussians among ``chunks``, each with its SH bands where its
+        SH-band chunk is among them too, from the cache or fetched ahead of any queued
+        prefetch (in-flight fetches are shared)."""
         found = {c.id: s for c in chunks if (s := self.cache.get(c.id)) is not None}
         futures = self._schedule([c for c in chunks if c.id not in found], urgent=True)
         for cid, fut in futures.items():
             found[cid] = await fut
-        return [found[c.id] for c in chunks]
+        bands = {c.sh_of: found[c.id] for c in chunks if c.sh_of is not None}
+        return [
+            self._with_bands(c, found[c.id], bands.get(c.id)) for c in chunks if c.holds_gaussians
+        ]
+
+    def _with_bands(self, chunk: ChunkEntry, scene: Decoded, bands: Decoded | None) -> Scene:
+        """A decoded chunk of Gaussians with its decoded SH bands, if given."""
+        where = f"{self.source.name} chunk {chunk.id}"
+        if not isinstance(scene, Scene) or not (bands is None or isinstance(bands, ShBands)):
+            raise InputError("the index pairs a chunk of Gaussians with another", where=where)
+        return scene if bands is None else bands.attach(scene, where=where)
 
     def _schedule(
         self,
@@ -344,7 +360,7 @@ class StreamClient:
         urgent: bool = False,
         rank: Callable[[ChunkEntry], Rank] | None = None,
         apart: Callable[[ChunkEntry], object] | None = None,
-    ) -> dict[int, asyncio.Future[Scene]]:
+    ) -> dict[int, asyncio.Future[Decoded]]:
         """Futures of the given chunks, queueing coalesced fetches for those not under way.
 
         Fetches wait in one queue served by at most ``concurrency`` workers, so a prefetch of
@@ -376,7 +392,7 @@ class StreamClient:
         self._start_workers()
         for c in chunks:
             if c.id not in out and (s := self.cache.get(c.id)) is not None:
-                done: asyncio.Future[Scene] = loop.create_future()
+                done: asyncio.Future[Decoded] = loop.create_future()
                 done.set_result(s)
                 out[c.id] = done
         return out
@@ -439,7 +455,8 @@ class StreamClient:
             for c, body in zip(group, bodies, strict=True):
                 where = f"{self.source.name} chunk {c.id}"
                 data = verify_chunk(c, body, where=where)
-                scene = await asyncio.to_thread(decode_chunk_bytes, data, where=where)
+                decode = decode_chunk_bytes if c.holds_gaussians else decode_sh_bands_bytes
+                scene: Decoded = await asyncio.to_thread(decode, data, where=where)
                 self.cache.put(c.id, scene)
                 futures[c.id].set_result(scene)
         except BaseException as exc:
@@ -457,8 +474,16 @@ class StreamClient:
         return verify_chunk(chunk, body, where=f"{self.source.name} chunk {chunk.id}")
 
     async def chunk_scene(self, chunk_id: int) -> Scene:
-        """One chunk, decoded (through the cache)."""
-        [scene] = await self.chunk_scenes([self.index.chunk(chunk_id)])
+        """One chunk of Gaussians, decoded (through the cache), with its SH bands where they
+        are a chunk of their own; an SH-band chunk's id is refused (it holds no Gaussians)."""
+        chunk = self.index.chunk(chunk_id)
+        if chunk.sh_of is not None:
+            raise InputError(
+                f"chunk {chunk_id} holds the SH bands of chunk {chunk.sh_of}, not Gaussians "
+                "(read that chunk: its bands come with it)"
+            )
+        bands = self.index.bands_of.get(chunk_id)
+        [scene] = await self.chunk_scenes([chunk] if bands is None else [chunk, bands])
         return scene
 
     async def seek_cost(self, t: float) -> SeekCost:

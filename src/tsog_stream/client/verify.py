@@ -12,11 +12,14 @@ import numpy as np
 
 from ..codec.bundle import read_bundle, unnamed_entries
 from ..codec.chunk import checked_images, decode_chunk, read_meta
+from ..codec.sh_bands import decode_sh_bands, read_sh_meta
 from ..container.header import HEADER_SIZE
 from ..container.ranges import ByteRange
 from ..container.sources import ByteSource
 from ..container.stream_index import StreamIndex
 from ..errors import TsogError
+from ..model import Gaussians, Scene
+from ..schemas import ChunkMeta, ShBandsMeta
 from ..schemas.manifest import ChunkEntry
 from ..temporal import lifespans
 from .fetchers import ChunkFetcher, RangeFetcher
@@ -62,9 +65,17 @@ def check_chunk(
             shown = ", ".join(unnamed[:5]) + (" ..." if len(unnamed) > 5 else "")
             return [(Check.DECODE, f"entries not named by meta.json (never read): {shown}")]
         files = read_bundle(data, where=where)
-        meta = read_meta(files, where=where)
+        meta: ChunkMeta | ShBandsMeta = (
+            read_meta(files, where=where)
+            if chunk.holds_gaussians
+            else read_sh_meta(files, where=where)
+        )
         _, sizes = checked_images(meta, files, where=where)
-        scene = decode_chunk(files, where=where)
+        if chunk.holds_gaussians:
+            scene = decode_chunk(files, where=where)
+        else:
+            decode_sh_bands(files, where=where)
+            scene = Scene(Gaussians.empty())  # bands only: nothing is visible in time
     except TsogError as exc:
         return [(Check.DECODE, str(exc))]
     out: list[tuple[Check, str]] = []

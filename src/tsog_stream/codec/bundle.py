@@ -15,7 +15,7 @@ from collections.abc import Mapping
 
 from ..constants import META_JSON
 from ..errors import SogError
-from ..schemas import listed_files, parse_meta
+from ..schemas import listed_files, parse_any_meta
 
 FIXED_DATE = (1980, 1, 1, 0, 0, 0)
 MAX_ENTRIES = 4096
@@ -97,8 +97,9 @@ def _scan(data: bytes, where: str, *, read_named: bool) -> tuple[dict[str, bytes
 
 
 def named_files(meta_json: bytes, *, where: str) -> list[str]:
-    """The image files a ``meta.json`` names (it is validated on the way)."""
-    return [name for _, name in listed_files(parse_meta(meta_json, where=where))]
+    """The image files a ``meta.json`` (a chunk's or an SH-band chunk's) names (it is
+    validated on the way)."""
+    return [name for _, name in listed_files(parse_any_meta(meta_json, where=where))]
 
 
 def _read_entry(archive: zipfile.ZipFile, info: zipfile.ZipInfo, total: int, where: str) -> bytes:

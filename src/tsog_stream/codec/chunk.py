@@ -17,7 +17,14 @@ from .._version import __version__
 from ..errors import InputError, SogError
 from ..model import Scene
 from ..morton import morton_order
-from ..schemas import ChunkMeta, check_image_sizes, dump_meta, listed_files, parse_meta
+from ..schemas import (
+    ChunkMeta,
+    ShBandsMeta,
+    check_image_sizes,
+    dump_meta,
+    listed_files,
+    parse_meta,
+)
 from .bundle import read_bundle
 from .layout import image_size
 from .precision import QUALITY_MAX, Budgets
@@ -116,7 +123,7 @@ def read_meta(files: Mapping[str, bytes], *, where: str) -> ChunkMeta:
 
 
 def checked_images(
-    meta: ChunkMeta, files: Mapping[str, bytes], *, where: str
+    meta: ChunkMeta | ShBandsMeta, files: Mapping[str, bytes], *, where: str
 ) -> tuple[dict[str, bytes], dict[str, tuple[int, int]]]:
     """The WebP bytes of every image the meta lists, and their sizes, checked before decoding.
 
@@ -147,7 +154,7 @@ def _check_budget(sizes: Mapping[str, tuple[int, int]], where: str) -> None:
             )
 
 
-def _check_plausible_count(meta: ChunkMeta, image_bytes: int, where: str) -> None:
+def _check_plausible_count(meta: ChunkMeta | ShBandsMeta, image_bytes: int, where: str) -> None:
     """Refuse a count over the read budget, or far beyond what the image bytes can describe
     (a decompression bomb)."""
     budget = C.pixel_budget()

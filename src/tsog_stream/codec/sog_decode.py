@@ -39,7 +39,7 @@ _LOGIT_OF_BYTE = alpha_to_logit(np.arange(256) / 255.0)
 """The opacity logit of each stored alpha byte."""
 
 
-def _decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
+def decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
     """(N, K, 3) SH rest coefficients from the palette; labels past the palette give zeros."""
     coeffs = C.SH_COEFFS_BY_BANDS[int(shn.bands)]
     centroid_image = images[shn.files[0]]
@@ -61,7 +61,7 @@ def decode_sog(meta: Any, decoder: ImageDecoder) -> Callable[[], Gaussians]:
     count = int(meta.count)
     shn = meta.shN
     rest = (
-        decoder.then(shn.files, lambda images: _decode_sh(shn, images, count))
+        decoder.then(shn.files, lambda images: decode_sh(shn, images, count))
         if shn is not None
         else None
     )

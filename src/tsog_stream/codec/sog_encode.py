@@ -69,7 +69,7 @@ def _sh_rest(gaussians: Gaussians) -> npt.NDArray[np.float32]:
     return np.ascontiguousarray(gaussians.shN.transpose(0, 2, 1).reshape(n, 3 * k))
 
 
-def _encode_sh_palette(
+def encode_sh_palette(
     gaussians: Gaussians, width: int, height: int, seed: int, note: Progress
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Palette (k-means on f_rest), its codebook, the centroid image and the label image."""
@@ -152,6 +152,6 @@ def encode_sog(
     }
     if gaussians.sh_bands > 0 and len(gaussians) > 0:
         note("SH palette")
-        sh_images, meta["shN"] = _encode_sh_palette(gaussians, width, height, seed, note)
+        sh_images, meta["shN"] = encode_sh_palette(gaussians, width, height, seed, note)
         images.update(sh_images)
     return SogParts(images, meta)

@@ -69,6 +69,11 @@ class StreamIndex:
         return min(math.floor(min(max(x, 0.0), float(windows))), windows - 1)
 
     @cached_property
+    def bands_of(self) -> dict[int, ChunkEntry]:
+        """The SH-band chunk of each chunk whose bands are split off, by the host's id."""
+        return {c.sh_of: c for c in self.manifest.chunks if c.sh_of is not None}
+
+    @cached_property
     def layer_count(self) -> int:
         """Quality layers of the stream (1 for an index without ``layers``)."""
         return max(len(self.manifest.layers), 1)

@@ -8,15 +8,19 @@ Parse with :func:`parse_meta`, write with :func:`dump_meta`; both raise
 from __future__ import annotations
 
 from .sog_meta import MeansMeta, QuatsMeta, ScalesMeta, Sh0Meta, ShNMeta, SogMeta
-from .tsog_meta import ChunkMeta, TemporalAttributeMeta, TimelineMeta
+from .tsog_meta import ChunkMeta, ShBandsMeta, TemporalAttributeMeta, TimelineMeta
 from .validate import (
     check_image_sizes,
     dump_meta,
+    dump_sh_meta,
     listed_files,
     meta_document,
     meta_json_schema,
     meta_json_schema_text,
+    parse_any_meta,
     parse_meta,
+    parse_sh_meta,
+    sh_bands_json_schema_text,
 )
 
 __all__ = [
@@ -25,15 +29,20 @@ __all__ = [
     "QuatsMeta",
     "ScalesMeta",
     "Sh0Meta",
+    "ShBandsMeta",
     "ShNMeta",
     "SogMeta",
     "TemporalAttributeMeta",
     "TimelineMeta",
     "check_image_sizes",
     "dump_meta",
+    "dump_sh_meta",
     "listed_files",
     "meta_document",
     "meta_json_schema",
     "meta_json_schema_text",
+    "parse_any_meta",
     "parse_meta",
+    "parse_sh_meta",
+    "sh_bands_json_schema_text",
 ]

@@ -108,6 +108,18 @@ class ChunkEntry:
     layer: Annotated[
         NonNegInt, Field(description="quality layer (0: the base; absent in the JSON when 0)")
     ] = 0
+    sh_of: Annotated[
+        NonNegInt | None,
+        Field(
+            description="an SH-band chunk: the id of the chunk whose bands beyond DC it holds, "
+            "texel for texel (absent for a chunk of Gaussians)"
+        ),
+    ] = None
+
+    @property
+    def holds_gaussians(self) -> bool:
+        """False for an SH-band chunk (its count is its host's Gaussians, not more of them)."""
+        return self.sh_of is None
 
 
 class Layer(_Model):
@@ -159,6 +171,7 @@ class Manifest(_Model):
             if not _CHUNK_FILE.fullmatch(chunk.file):
                 raise ValueError(f"chunks[{i}].file {chunk.file!r} is not chunks/NNNNNN.sog")
         _check_layers(self.layers, self.chunks)
+        _check_sh_chunks(self.chunks, self.scene.sh_bands)
         for j, node in enumerate(self.nodes):
             for c in node.chunks:
                 if c >= len(self.chunks):
@@ -179,6 +192,33 @@ def _check_layers(layers: list[Layer], chunks: list[ChunkEntry]) -> None:
             raise ValueError(f"chunks[{chunk.id}] is in layer {chunk.layer} of {count}")
 
 
+def _check_sh_chunks(chunks: list[ChunkEntry], sh_bands: int) -> None:
+    """An SH-band chunk names an earlier chunk of Gaussians of the same node, count and
+    interval, in a lower layer, that no other SH-band chunk names, in a scene with SH bands
+    (docs/spec.md §8.7)."""
+    hosts: set[int] = set()
+    for chunk in chunks:
+        host_id = chunk.sh_of
+        if host_id is None:
+            continue
+        where = f"chunks[{chunk.id}].sh_of"
+        if sh_bands == 0:
+            raise ValueError(f"{where}: the scene has no SH bands beyond DC")
+        if host_id >= chunk.id:
+            raise ValueError(f"{where} is {host_id}: the host must be an earlier chunk")
+        host = chunks[host_id]
+        if host.sh_of is not None or host_id in hosts:
+            raise ValueError(f"{where}: chunk {host_id} already has bands or is bands itself")
+        fields = ("count", "level", "node", "start_s", "end_s")
+        differ = [f for f in fields if getattr(host, f) != getattr(chunk, f)]
+        if differ or host.layer >= chunk.layer:
+            raise ValueError(
+                f"{where}: chunk {host_id} differs in {', '.join(differ) or 'nothing'} and is "
+                f"in layer {host.layer}, not below {chunk.layer}"
+            )
+        hosts.add(host_id)
+
+
 def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manifest:
     """Validate index JSON; a bad document raises MetaError naming the field.
 
@@ -197,13 +237,16 @@ def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manife
 
 def dump_manifest(manifest: Manifest) -> bytes:
     """Compact, deterministic JSON of the index; a single-layer index is written as before
-    layers existed (no ``layers``, no chunk ``layer``), a base chunk never names its layer."""
+    layers existed (no ``layers``, no chunk ``layer``), a base chunk never names its layer and
+    a chunk of Gaussians has no ``sh_of``."""
     data = manifest.model_dump(mode="json")
     if not data["layers"]:
         del data["layers"]
     for chunk in data["chunks"]:
         if chunk["layer"] == 0:
             del chunk["layer"]
+        if chunk["sh_of"] is None:
+            del chunk["sh_of"]
     return json.dumps(data, separators=(",", ":"), sort_keys=False).encode()
 
 

@@ -1,18 +1,20 @@
 """Pydantic models of the TSOG additions to ``meta.json``: ``timeline`` and ``temporal``.
 
 A TSOG chunk's meta is a SOG v2 meta (:class:`~.sog_meta.SogMeta`) plus two optional keys
-(docs/spec.md, "meta.json"; paper section 3). :class:`ChunkMeta` is the whole document.
+(docs/spec.md, "meta.json"; paper section 3). :class:`ChunkMeta` is the whole document;
+:class:`ShBandsMeta` is the meta of an SH-band chunk (the higher bands of another chunk).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BeforeValidator, Field, model_validator
+from pydantic import AfterValidator, BeforeValidator, Field, StrictInt, model_validator
 
 from ..constants import (
     MAX_TEMPORAL_ORDER,
+    SOG_VERSION,
     STORED_CHANNELS,
     TEMPORAL_CHANNELS,
     TIMELINE_L,
@@ -21,12 +23,15 @@ from ..constants import (
 )
 from ..model import TimelineType
 from .sog_meta import (
+    MAX_COUNT,
     FileName,
     Files2,
     FiniteFloat,
     FrozenModel,
+    ShNMeta,
     SogMeta,
     Vec2,
+    check_json_value,
     check_ranges,
     custom_error,
     describe,
@@ -291,3 +296,30 @@ def _iter_files(meta: ChunkMeta) -> Iterator[tuple[str, str]]:
     for attr, entry in (meta.temporal or {}).items():
         for i, name in enumerate(entry.files):
             yield f"temporal.{attr}.files[{i}]", name
+
+
+class ShBandsMeta(FrozenModel):
+    """An SH-band chunk's ``meta.json``: the bands beyond DC of the Gaussians of the chunk it
+    belongs to (the index's ``sh_of``), texel for texel in that chunk's order. Not a
+    standalone SOG: it has no positions; readers add its ``shN`` to its host's Gaussians
+    (docs/spec.md, "SH-band chunks")."""
+
+    version: Literal[2] = Field(description=f"Format version; always {SOG_VERSION}.")
+    asset: Annotated[dict[str, Any], AfterValidator(check_json_value)] | None = Field(
+        default=None, description='Informational, e.g. {"generator": "tsog-stream"}.'
+    )
+    count: StrictInt = Field(ge=1, le=MAX_COUNT, description="Gaussians of the host chunk.")
+    shN: ShNMeta = Field(description="The host's higher SH bands, as a SOG v2 shN.")
+
+    @model_validator(mode="after")
+    def _distinct_files(self) -> ShBandsMeta:
+        """The centroid and label images are two files."""
+        if self.shN.files[0] == self.shN.files[1]:
+            raise field_error(
+                "shN.files[1]", f"expected a distinct file name, found {self.shN.files[1]!r} again"
+            )
+        return self
+
+    def listed_files(self) -> list[tuple[str, str]]:
+        """(field path, file name) of the centroid and label images."""
+        return [("shN.files[0]", self.shN.files[0]), ("shN.files[1]", self.shN.files[1])]

@@ -21,7 +21,9 @@ from ..constants import (
 )
 from ..errors import MetaError
 from .sog_meta import DOCUMENT, describe, validate_into
-from .tsog_meta import ChunkMeta
+from .tsog_meta import ChunkMeta, ShBandsMeta
+
+AnyMeta = ChunkMeta | ShBandsMeta
 
 KEY_ORDER = (
     "version",
@@ -39,6 +41,7 @@ KEY_ORDER = (
 )
 """Top-level key order written by :func:`dump_meta` (splat-transform's order, then ours)."""
 
+CENTROIDS_FIELD = "shN.files[0]"
 MAX_CENTROID_ROWS = SH_PALETTE_MAX // SH_CENTROIDS_PER_ROW
 """Rows of the largest shN centroid image (a 65536-entry palette)."""
 
@@ -75,11 +78,8 @@ def _load_json(text: str, where: str) -> Any:
         raise MetaError(f"expected valid JSON, found {exc}", field=DOCUMENT, where=where) from None
 
 
-def parse_meta(data: bytes | str | Mapping[str, Any], *, where: str = "meta.json") -> ChunkMeta:
-    """Validate a ``meta.json`` (bytes, text or an already-parsed mapping) into a ChunkMeta.
-
-    Raises MetaError naming the first failing field; ``where`` names the file in messages.
-    """
+def _document(data: bytes | str | Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The JSON object of a ``meta.json`` (bytes, text or a mapping), with a version key."""
     if isinstance(data, bytes | bytearray | memoryview):
         data = _decode_text(data, where)
     document = _load_json(data, where) if isinstance(data, str) else data
@@ -92,7 +92,57 @@ def parse_meta(data: bytes | str | Mapping[str, Any], *, where: str = "meta.json
             field="version",
             where=where,
         )
-    return validate_into(ChunkMeta, dict(document), where=where)
+    return dict(document)
+
+
+def _is_sh_bands(document: Mapping[str, Any]) -> bool:
+    """True for the meta of an SH-band chunk: bands without positions."""
+    return "means" not in document and "shN" in document
+
+
+def parse_meta(data: bytes | str | Mapping[str, Any], *, where: str = "meta.json") -> ChunkMeta:
+    """Validate a ``meta.json`` (bytes, text or an already-parsed mapping) into a ChunkMeta.
+
+    Raises MetaError naming the first failing field; ``where`` names the file in messages.
+    """
+    document = _document(data, where)
+    if _is_sh_bands(document):
+        raise MetaError(
+            "expected a SOG chunk, found the meta of an SH-band chunk (it has no positions: "
+            "read it with the chunk whose bands it holds)",
+            field="means",
+            where=where,
+        )
+    return validate_into(ChunkMeta, document, where=where)
+
+
+def parse_sh_meta(
+    data: bytes | str | Mapping[str, Any], *, where: str = "meta.json"
+) -> ShBandsMeta:
+    """Validate the ``meta.json`` of an SH-band chunk (MetaError naming the failing field)."""
+    document = _document(data, where)
+    if "means" in document:
+        raise MetaError(
+            "expected an SH-band chunk (bands only), found a SOG chunk's meta",
+            field="means",
+            where=where,
+        )
+    return validate_into(ShBandsMeta, document, where=where)
+
+
+def parse_any_meta(data: bytes | str | Mapping[str, Any], *, where: str = "meta.json") -> AnyMeta:
+    """A chunk's or an SH-band chunk's ``meta.json``, whichever it is (for readers of both,
+    such as the bundle reader)."""
+    document = _document(data, where)
+    if _is_sh_bands(document):
+        return validate_into(ShBandsMeta, document, where=where)
+    return validate_into(ChunkMeta, document, where=where)
+
+
+def dump_sh_meta(meta: ShBandsMeta) -> bytes:
+    """Compact UTF-8 JSON of an SH-band chunk's meta (absent ``asset`` omitted)."""
+    data = meta.model_dump(mode="json", exclude_none=True)
+    return json.dumps(data, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode()
 
 
 def meta_document(meta: ChunkMeta) -> dict[str, Any]:
@@ -118,7 +168,7 @@ def dump_meta(meta: ChunkMeta) -> bytes:
     return text.encode("utf-8")
 
 
-def listed_files(meta: ChunkMeta) -> list[tuple[str, str]]:
+def listed_files(meta: AnyMeta) -> list[tuple[str, str]]:
     """(field path, file name) of every image ``meta`` references, in canonical order.
 
     Order: means_l, means_u, quats, scales, sh0, shN centroids, shN labels, timeline l, u,
@@ -127,7 +177,7 @@ def listed_files(meta: ChunkMeta) -> list[tuple[str, str]]:
     return meta.listed_files()
 
 
-def _centroid_problem(meta: ChunkMeta, size: tuple[int, int]) -> str | None:
+def _centroid_problem(meta: AnyMeta, size: tuple[int, int]) -> str | None:
     """Why the shN centroid image has the wrong size for ``shN.bands``/``shN.count``, or None."""
     shn = meta.shN
     if shn is None:
@@ -144,7 +194,7 @@ def _centroid_problem(meta: ChunkMeta, size: tuple[int, int]) -> str | None:
 
 
 def check_image_sizes(
-    meta: ChunkMeta, sizes: Mapping[str, tuple[int, int]], *, where: str = "meta.json"
+    meta: AnyMeta, sizes: Mapping[str, tuple[int, int]], *, where: str = "meta.json"
 ) -> None:
     """Check decoded image sizes (file name -> (width, height)) against ``meta``.
 
@@ -154,13 +204,14 @@ def check_image_sizes(
     ``64*coeffs`` wide with at least ``ceil(shN.count / 64)`` rows. Images far larger than
     the count needs (over ``2 * count + 4096`` texels, or over 1024 centroid rows) are
     refused, so decoded memory stays proportional to the count. Raises MetaError whose
-    ``field`` names the offending ``files`` entry (or ``count``).
+    ``field`` names the offending ``files`` entry (or ``count``). The per-Gaussian images are
+    measured against the first listed one (means, or an SH-band chunk's labels).
     """
     files = listed_files(meta)
     for field, name in files:
         if name not in sizes:
             raise MetaError(f"expected an image {name!r}, found none", field=field, where=where)
-    first_field, first = files[0]
+    first_field, first = next((f, n) for f, n in files if f != CENTROIDS_FIELD)
     width, height = sizes[first]
     if meta.count > width * height:
         raise MetaError(
@@ -177,9 +228,9 @@ def check_image_sizes(
             field=first_field,
             where=where,
         )
-    for field, name in files[1:]:
+    for field, name in files:
         size = tuple(sizes[name])
-        if field == "shN.files[0]":
+        if field == CENTROIDS_FIELD:
             problem = _centroid_problem(meta, (size[0], size[1]))
         elif size != (width, height):
             found = f"{size[0]}x{size[1]}"
@@ -207,3 +258,16 @@ def meta_json_schema() -> dict[str, Any]:
 def meta_json_schema_text() -> str:
     """:func:`meta_json_schema` serialised deterministically (sorted keys, indent 2, newline)."""
     return json.dumps(meta_json_schema(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
+
+
+SH_BANDS_SCHEMA_ID = "https://tsog-stream.invalid/schema/sh-bands.schema.json"
+
+
+def sh_bands_json_schema_text() -> str:
+    """JSON Schema (2020-12) of an SH-band chunk's meta.json (docs/spec.md §8.7), as shipped
+    in docs/schema/, serialised like :func:`meta_json_schema_text`."""
+    schema = ShBandsMeta.model_json_schema()
+    schema["$schema"] = SCHEMA_DIALECT
+    schema["$id"] = SH_BANDS_SCHEMA_ID
+    schema["title"] = "TSOG SH-band chunk meta.json"
+    return json.dumps(schema, indent=2, sort_keys=True, ensure_ascii=False) + "\n"

@@ -7,7 +7,8 @@ Shares are taken per group, so every moment of the scene has its own most import
 in the base (a clip whose first seconds hold only faint sparks still opens on a picture).
 Where the layers are cut is measured: the CPU renderer draws the scene from its opening view at
 a few times with the most important share of each group and with everything, and each cut is
-the smallest share whose picture reaches that layer's PSNR target. See
+the smallest share whose picture reaches that layer's PSNR target (the base's measured with DC
+colour only where the scene has SH bands: they are stored in the next layer). See
 docs/design/segmenter.md ("Quality layers").
 """
 
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from ..codec.sh_bands import without_sh
 from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..opacity import logit_to_alpha
@@ -149,7 +151,8 @@ def plan_layers(
     shares: list[float] = []
     psnr: list[float | None] = []
     for target in LAYER_TARGETS_DB[: (layers or AUTO_LAYERS) - 1]:
-        share, reached = _smallest_share(quality, target, shares[-1] if shares else 0.0)
+        bare = not shares and scene.gaussians.sh_bands > 0  # the base is stored without SH
+        share, reached = _smallest_share(quality, target, shares[-1] if shares else 0.0, bare)
         if share > limit or share >= 1.0:
             break
         shares.append(share)
@@ -162,43 +165,45 @@ def plan_layers(
 
 def _quality_of_share(
     scene: Scene, groups: Sequence[Ints], view: CaptureCamera, frames: dict[float, Gaussians]
-) -> Callable[[float], float]:
+) -> Callable[[float, bool], float]:
     """PSNR (mean squared error over the sampled times, ``frames`` the whole scene at each) of
-    the most important ``share`` of each group against everything, rendered from ``view``;
-    cached per share."""
+    the most important ``share`` of each group (``bare``: with DC colour only, as a base whose
+    SH bands are split off) against everything, rendered from ``view``; cached."""
     camera = from_capture(view, MEASURE_WIDTH)
     times = list(frames)
     full = [to_uint8(render(frame, camera)) for frame in frames.values()]
     weights = importance(scene.gaussians)
-    cache: dict[float, float] = {}
+    cache: dict[tuple[float, bool], float] = {}
 
-    def quality(share: float) -> float:
-        if share not in cache:
+    def quality(share: float, bare: bool) -> float:
+        if (share, bare) not in cache:
             part = scene.subset(top_share(weights, groups, share))
+            if bare:
+                part = without_sh(part)
             errors = [
                 mse(to_uint8(render(part.at(t), camera)), f)
                 for t, f in zip(times, full, strict=True)
             ]
-            cache[share] = psnr_from_mse(float(np.mean(errors)))
-        return cache[share]
+            cache[share, bare] = psnr_from_mse(float(np.mean(errors)))
+        return cache[share, bare]
 
     return quality
 
 
 def _smallest_share(
-    quality: Callable[[float], float], target: float, above: float
+    quality: Callable[[float, bool], float], target: float, above: float, bare: bool
 ) -> tuple[float, float]:
-    """The smallest share of FRACTIONS above ``above`` whose picture reaches ``target`` dB
-    (bisection: quality grows with the share), and its PSNR; (1.0, inf) when none does (a
-    layer needing every Gaussian is no layer)."""
+    """The smallest share of FRACTIONS above ``above`` whose picture (``bare``: with DC colour
+    only) reaches ``target`` dB (bisection: quality grows with the share), and its PSNR;
+    (1.0, inf) when none does (a layer needing every Gaussian is no layer)."""
     grid = [f for f in FRACTIONS if f > above]
     lo, hi = 0, len(grid)
     while lo < hi:
         mid = (lo + hi) // 2
-        if quality(grid[mid]) >= target:
+        if quality(grid[mid], bare) >= target:
             hi = mid
         else:
             lo = mid + 1
     if lo == len(grid):
         return 1.0, math.inf
-    return grid[lo], quality(grid[lo])
+    return grid[lo], quality(grid[lo], bare)

@@ -25,6 +25,7 @@ from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
 from ..codec.precision import QUALITY_MAX
+from ..codec.sh_bands import encode_sh_bands, without_sh
 from ..constants import (
     DEFAULT_MAX_PIXELS,
     GENERATOR,
@@ -115,11 +116,13 @@ class Views:
 
 @dataclass(frozen=True)
 class ChunkJob:
-    """One chunk to encode: its node, its Gaussians (indices into the scene) and layer."""
+    """One chunk to encode: its node, its Gaussians (indices into the scene) and layer; for
+    an SH-band chunk, the id of the chunk whose bands it holds."""
 
     key: NodeKey
     indices: Ints
     layer: int = 0
+    sh_of: int | None = None
 
 
 @dataclass
@@ -264,6 +267,31 @@ def chunk_jobs(
     return jobs
 
 
+def with_sh_jobs(jobs: Sequence[ChunkJob], first_id: int = 0) -> list[ChunkJob]:
+    """``jobs`` (layer by layer, as :func:`chunk_jobs` orders them, the first to be chunk
+    ``first_id``) with the SH bands of every base chunk as a chunk of its own at the start of
+    layer 1: the base is stored with DC colour only, so the first picture waits for no SH
+    (codec/sh_bands.py)."""
+    base = [job for job in jobs if job.layer == 0]
+    bands = [ChunkJob(job.key, job.indices, 1, first_id + i) for i, job in enumerate(base)]
+    return [*base, *bands, *(job for job in jobs if job.layer > 0)]
+
+
+def split_sh(layering: LayerPlan, sh_bands: int) -> bool:
+    """True when base chunks store DC colour only and their bands go in SH-band chunks: a
+    layered stream of a scene with bands beyond DC."""
+    return layering.layers > 1 and sh_bands > 0
+
+
+def job_part(scene: Scene, job: ChunkJob, split: bool) -> Part:
+    """The part a job encodes: its Gaussians, without SH bands for a base chunk whose bands
+    are split off."""
+    part = scene.subset(job.indices)
+    if split and job.layer == 0:
+        part = without_sh(part)
+    return Part(job.key, part, job.layer, job.sh_of)
+
+
 def _by_slice(
     members: np.ndarray, start: np.ndarray | None, node_start: float, slice_s: float | None
 ) -> list[np.ndarray]:
@@ -276,8 +304,13 @@ def _by_slice(
     return np.split(members[order], cut)
 
 
-def encode_job_payload(scene: Scene, seed: int, quality: int = QUALITY_MAX) -> bytes:
-    """A chunk's standalone .sog bytes (run in worker processes)."""
+def encode_job_payload(
+    scene: Scene, seed: int, quality: int = QUALITY_MAX, sh_bands: bool = False
+) -> bytes:
+    """A chunk's standalone .sog bytes, or with ``sh_bands`` its SH-band chunk's bytes (run
+    in worker processes)."""
+    if sh_bands:
+        return bundle_bytes(encode_sh_bands(scene, seed=seed))
     return bundle_bytes(encode_chunk(scene, seed=seed, quality=quality))
 
 
@@ -327,11 +360,13 @@ def _interval(scene: Scene, node: tuple[float, float]) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class Part:
-    """One chunk to encode: its node, its Gaussians and its quality layer."""
+    """One chunk to encode: its node, its Gaussians and its quality layer (for an SH-band
+    chunk, the host's Gaussians and the host's id)."""
 
     key: NodeKey
     scene: Scene
     layer: int = 0
+    sh_of: int | None = None
 
 
 @dataclass(frozen=True)
@@ -344,13 +379,14 @@ class PartInfo:
     end_s: float
     bbox: Box
     layer: int
+    sh_of: int | None
 
 
 def describe_part(part: Part, plan: Plan) -> PartInfo:
     """A part's count, visible interval (clipped to its node) and bounding box."""
     start, end = _interval(part.scene, plan.node_interval(part.key))
     bbox = _bounds(part.scene, start, end)
-    return PartInfo(part.key, len(part.scene), start, end, bbox, part.layer)
+    return PartInfo(part.key, len(part.scene), start, end, bbox, part.layer, part.sh_of)
 
 
 def _encoded(
@@ -363,7 +399,9 @@ def _encoded(
     """
     if options.workers <= 1:
         for part in parts:
-            payload = encode_job_payload(part.scene, options.seed, options.quality)
+            payload = encode_job_payload(
+                part.scene, options.seed, options.quality, part.sh_of is not None
+            )
             yield describe_part(part, plan), payload
         return
     context = multiprocessing.get_context("spawn")
@@ -375,7 +413,13 @@ def _encoded(
         for part in parts:
             info = describe_part(part, plan)
             with _sigint_blocked():  # a worker started here inherits the block (see below)
-                job = pool.submit(encode_job_payload, part.scene, options.seed, options.quality)
+                job = pool.submit(
+                    encode_job_payload,
+                    part.scene,
+                    options.seed,
+                    options.quality,
+                    part.sh_of is not None,
+                )
             pending.append((info, job))
             del part
             if len(pending) >= options.workers:
@@ -470,6 +514,7 @@ def _write_container(
                     end_s=info.end_s,
                     bbox=info.bbox,
                     layer=info.layer,
+                    sh_of=info.sh_of,
                 )
             )
             keys.append(info.key)
@@ -499,7 +544,7 @@ def _write_container(
             }
         )
         size = out.finish(manifest)
-    stored = sum(e.count for e in entries)
+    stored = sum(e.count for e in entries if e.holds_gaussians)
     gaussians = int(scene_fields["gaussians"])
     per_window = [0] * plan.windows
     for e in entries:
@@ -523,13 +568,14 @@ def _write_container(
 
 
 def _layers(layering: LayerPlan, entries: Sequence[ChunkEntry]) -> list[Layer]:
-    """The index's layers (none for one layer): Gaussians, bytes and measured PSNR of each."""
+    """The index's layers (none for one layer): Gaussians (SH-band chunks hold none), bytes
+    and measured PSNR of each."""
     if layering.layers == 1:
         return []
     sizes, counts = [0] * layering.layers, [0] * layering.layers
     for e in entries:
         sizes[e.layer] += e.length
-        counts[e.layer] += e.count
+        counts[e.layer] += e.count if e.holds_gaussians else 0
     return [
         Layer(index=k, gaussians=count, bytes=size, psnr_db=psnr)
         for k, (count, size, psnr) in enumerate(zip(counts, sizes, layering.psnr_db, strict=True))
@@ -562,7 +608,10 @@ def segment_scene(
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), members)
     jobs = chunk_jobs(scene, groups, max_count, layer_of)
-    parts = (Part(job.key, scene.subset(job.indices), job.layer) for job in jobs)
+    split = split_sh(layering, scene.gaussians.sh_bands)
+    if split:
+        jobs = with_sh_jobs(jobs)
+    parts = (job_part(scene, job, split) for job in jobs)
     tl = scene.timeline
     fields: dict[str, Any] = {
         "gaussians": len(scene),
@@ -590,15 +639,22 @@ def _sequence_parts(
     seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan
 ) -> Iterator[Part]:
     """Parts of a frame sequence, one window of frames in memory at a time: each window's
-    chunks layer by layer, each frame's most important Gaussians in its base."""
+    chunks layer by layer, each frame's most important Gaussians in its base (and its SH
+    bands, if any, in SH-band chunks at the start of layer 1)."""
+    split = split_sh(layering, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
+    written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
         scene = seq.read(first, min(seq.count, first + per_window)).scene
         layer_of = None
         if layering.layers > 1:
             layer_of = layering.assign(importance(scene.gaussians), _frame_groups(scene))
         window = [(NodeKey(0, w), np.arange(len(scene)))]
-        for job in chunk_jobs(scene, window, max_count, layer_of):
-            yield Part(job.key, scene.subset(job.indices), job.layer)
+        jobs = chunk_jobs(scene, window, max_count, layer_of)
+        if split:
+            jobs = with_sh_jobs(jobs, written)
+        written += len(jobs)
+        for job in jobs:
+            yield job_part(scene, job, split)
 
 
 def _frame_groups(scene: Scene) -> list[Ints]:
@@ -613,10 +669,11 @@ def _sequence_chunks(
 ) -> int:
     """How many chunks :func:`_sequence_parts` yields (for progress), from the frames' sizes."""
     total = 0
+    split = split_sh(layering, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
     for first in range(0, seq.count, per_window):
         sizes = layering.sizes([c for c, _ in seq.shapes[first : first + per_window]])
         runs = [-(-size // max_count) for size in sizes]
-        total += max(1, sum(runs)) if layering.layers == 1 else sum(runs)
+        total += max(1, sum(runs)) if layering.layers == 1 else sum(runs) + split * runs[0]
     return total
 
 

@@ -375,6 +375,7 @@ async function main() {
     const drawing = drawOnChange(app, camera, stream);
     let fps = 0;
     let sinceShown = 1;
+    let layersOnShow = 0;
     app.on('update', (dt) => {
         playback.advance(dt);
         stream.update(playback.t, playback.playing, playback.loop);
@@ -383,8 +384,10 @@ async function main() {
         drawing.check(playback.t);
         fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;
         sinceShown += dt;
-        if (sinceShown >= 0.2) {
+        if (sinceShown >= 0.2 || stream.shownLayers !== layersOnShow) {
+            // a few times a second, and at once when the quality drawn changes
             sinceShown = 0;
+            layersOnShow = stream.shownLayers;
             showState(playback, stream, fps);
         }
     });

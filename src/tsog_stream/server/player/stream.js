@@ -4,10 +4,12 @@
 // evaluation (tsog.js). Works against tsog serve's /v1 API and any static origin alike.
 // A stream with quality layers is played adaptively (adapt.js, the Python client's rules):
 // the base layer at t first (the first picture), then as many layers as the link keeps up
-// with; a frame shows the most layers whose chunks for t have all arrived.
+// with; a frame shows the most layers whose chunks for t have all arrived. A base chunk whose
+// SH bands are a chunk of their own (sh_of) is drawn with DC colour, then redrawn with its
+// bands once they land: the page rebuilds its SOG with the bands' images (addBands).
 import { HORIZON_S, REPLAN_S, Throughput, chooseLayers, layersShown, startupAllowance } from './adapt.js';
 import { SceneIndex } from './manifest.js';
-import { readZip } from './zip.js';
+import { readZip, writeZip } from './zip.js';
 import { chunkUniforms, createTextures, isWholeFrame, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
 
 const MAX_LOADING = 4;
@@ -49,6 +51,8 @@ export class ChunkStream {
         this.root = new pc.Entity('tsog-chunks');
         parent.addChild(this.root);
         this.chunks = new Map(); // id -> {info, state, entity, layout, textures, abort}
+        // host id -> id of the chunk holding its SH bands beyond DC
+        this.bandsOf = new Map(manifest.chunks.filter((c) => c.sh_of != null).map((c) => [c.sh_of, c.id]));
         this.wanted = []; // ids in load priority: needed at t first, then ahead of t
         this.shown = new Set(); // ids drawn at t (exactly chunks_for(t))
         this.planned = null; // [t, playing] the plan was made for
@@ -162,10 +166,11 @@ export class ChunkStream {
             if (c.state === 'ready' || c.state === 'loading') spare.push(c);
             else this.forget(c);
         }
-        let kept = [...wanted].reduce((n, id) => n + (this.chunks.get(id)?.info.count ?? 0), 0);
+        const gaussians = (c) => (c?.info.sh_of == null ? c?.info.count ?? 0 : 0); // bands hold none
+        let kept = [...wanted].reduce((n, id) => n + gaussians(this.chunks.get(id)), 0);
         spare.sort((a, b) => this.distance(a, t, loop) - this.distance(b, t, loop));
         for (const c of spare) {
-            kept += c.info.count;
+            kept += gaussians(c);
             if (kept > this.keepGaussians) this.forget(c);
         }
     }
@@ -226,25 +231,71 @@ export class ChunkStream {
         if (digest !== null && digest !== c.info.sha256) throw new Error('SHA-256 differs from the manifest');
         const files = await readZip(buffer);
         const meta = JSON.parse(new TextDecoder().decode(files.get('meta.json')));
+        if (c.info.sh_of != null || this.bandsOf.has(c.info.id)) Object.assign(c, { files, meta });
+        if (c.info.sh_of != null) { // SH bands of another chunk: drawn with it, nothing alone
+            c.state = 'ready';
+            return this.joinBands(c.info.sh_of);
+        }
         c.layout = readLayout(meta);
         if (c.layout && isWholeFrame(c.layout, c.info, this.index.manifest)) c.layout = null;
         if (c.layout) {
             c.textures = await createTextures(pc, this.app.graphicsDevice, c.layout, files, `chunk-${c.info.id}`);
         }
         if (c.state === 'dropped') return this.release(c);
-        const name = url.split('?')[0].split('/').pop();
-        const asset = new pc.Asset(`chunk-${c.info.id}`, 'gsplat', { url, filename: name, contents: buffer });
-        c.asset = asset;
+        c.asset = await this.loadAsset(`chunk-${c.info.id}`, url, buffer);
+        if (c.state === 'dropped') return this.release(c);
+        c.entity = this.attach(c, c.asset);
+        c.state = 'ready';
+        return this.joinBands(c.info.id);
+    }
+
+    /** Start addBands for a host (a failure there is reported, the host stays drawn). */
+    joinBands(hostId) {
+        this.addBands(hostId).catch((err) => {
+            this.error = `SH bands of chunk ${hostId}: ${err.message ?? err}`;
+            console.error(this.error);
+        });
+    }
+
+    /** A gsplat asset of a chunk's SOG bytes, loaded by the engine. */
+    async loadAsset(name, url, contents) {
+        const filename = url.split('?')[0].split('/').pop();
+        const asset = new this.pc.Asset(name, 'gsplat', { url, filename, contents });
         await new Promise((resolve, reject) => {
             asset.once('load', resolve);
             asset.once('error', (err) => reject(new Error(String(err))));
             this.app.assets.add(asset);
             this.app.assets.load(asset);
         });
-        if (c.state === 'dropped') return this.release(c);
-        c.entity = this.attach(c, asset);
-        c.state = 'ready';
-        return undefined;
+        return asset;
+    }
+
+    /** Once a base chunk and its SH-band chunk have both arrived, redraw the base with its
+     * bands: its SOG rebuilt with the bands' shN images and meta (texel for texel the same
+     * Gaussians), swapped in for the DC-only one. */
+    async addBands(hostId) {
+        const host = this.chunks.get(hostId);
+        const bands = this.chunks.get(this.bandsOf.get(hostId));
+        if (host?.state !== 'ready' || bands?.state !== 'ready' || host.withBands) return;
+        host.withBands = true;
+        const files = new Map([...host.files].filter(([name]) => name !== 'meta.json'));
+        for (const name of bands.meta.shN.files) files.set(name, bands.files.get(name));
+        const meta = { ...host.meta, shN: bands.meta.shN };
+        files.set('meta.json', new TextEncoder().encode(JSON.stringify(meta)));
+        const url = `${this.chunkUrl(host.info).split('?')[0]}?sh`; // its own URL, the same file name
+        const asset = await this.loadAsset(`chunk-${hostId}-sh`, url, writeZip(files));
+        if (host.state !== 'ready') {
+            this.app.assets.remove(asset);
+            asset.unload();
+            return;
+        }
+        const old = { entity: host.entity, asset: host.asset };
+        Object.assign(host, { asset, entity: this.attach(host, asset), files: null, meta: null });
+        host.entity.enabled = old.entity.enabled;
+        old.entity.destroy();
+        this.app.assets.remove(old.asset);
+        old.asset.unload();
+        this.changes += 1;
     }
 
     /** An entity drawing the chunk, with the TSOG modifier and its uniforms when it has a timeline. */
@@ -270,7 +321,7 @@ export class ChunkStream {
         this.shownLayers = layersShown(this.index, t, (id) => this.arrived(id));
         this.shown = new Set(this.index.chunksFor(t, Math.max(this.shownLayers, 1)).map((c) => c.id));
         for (const [id, c] of this.chunks) {
-            if (c.state !== 'ready') continue;
+            if (c.state !== 'ready' || !c.entity) continue; // SH bands are drawn with their host
             const on = this.shown.has(id);
             if (c.entity.enabled !== on) {
                 c.entity.enabled = on;

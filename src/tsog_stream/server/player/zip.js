@@ -69,3 +69,70 @@ export async function readZip(buffer) {
     }
     return files;
 }
+
+/** CRC-32 (the zip polynomial) lookup table, built once. */
+const CRC_TABLE = (() => {
+    const table = new Uint32Array(256);
+    for (let n = 0; n < 256; n++) {
+        let c = n;
+        for (let k = 0; k < 8; k++) c = c & 1 ? 0xedb88320 ^ (c >>> 1) : c >>> 1;
+        table[n] = c >>> 0;
+    }
+    return table;
+})();
+
+function crc32(bytes) {
+    let c = 0xffffffff;
+    for (let i = 0; i < bytes.length; i++) c = CRC_TABLE[(c ^ bytes[i]) & 0xff] ^ (c >>> 8);
+    return (c ^ 0xffffffff) >>> 0;
+}
+
+/** An ArrayBuffer holding a zip of `files` (name -> Uint8Array, in the Map's order), every
+ * entry stored: how the page hands the engine a chunk it has put together itself. */
+export function writeZip(files) {
+    const names = new TextEncoder();
+    const entries = [...files].map(([name, bytes]) => ({ name: names.encode(name), bytes, crc: crc32(bytes) }));
+    const size = entries.reduce((n, e) => n + 30 + e.name.length + e.bytes.length + 46 + e.name.length, EOCD_SIZE);
+    const buffer = new ArrayBuffer(size);
+    const view = new DataView(buffer);
+    const out = new Uint8Array(buffer);
+    let at = 0;
+    const header = (magic, e, central, offset) => {
+        view.setUint32(at, magic, true);
+        const fields = central ? at + 6 : at + 4; // a central record has "made by" first
+        view.setUint16(fields, 20, true); // version needed
+        view.setUint16(fields + 2, 0, true); // flags
+        view.setUint16(fields + 4, STORED, true);
+        view.setUint16(fields + 6, 0, true); // time
+        view.setUint16(fields + 8, 0x21, true); // date: 1980-01-01
+        view.setUint32(fields + 10, e.crc, true);
+        view.setUint32(fields + 14, e.bytes.length, true);
+        view.setUint32(fields + 18, e.bytes.length, true);
+        view.setUint16(fields + 22, e.name.length, true);
+        view.setUint16(fields + 24, 0, true); // extra field
+        if (central) {
+            view.setUint16(at + 4, 20, true); // made by
+            view.setUint32(at + 42, offset, true);
+            out.set(e.name, at + 46);
+            at += 46 + e.name.length;
+        } else {
+            out.set(e.name, at + 30);
+            at += 30 + e.name.length;
+        }
+    };
+    const offsets = [];
+    for (const e of entries) {
+        offsets.push(at);
+        header(LOCAL, e, false, 0);
+        out.set(e.bytes, at);
+        at += e.bytes.length;
+    }
+    const central = at;
+    entries.forEach((e, i) => header(CENTRAL, e, true, offsets[i]));
+    view.setUint32(at, EOCD, true);
+    view.setUint16(at + 8, entries.length, true);
+    view.setUint16(at + 10, entries.length, true);
+    view.setUint32(at + 12, at - central, true);
+    view.setUint32(at + 16, central, true);
+    return buffer;
+}
