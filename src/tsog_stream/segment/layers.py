@@ -77,6 +77,9 @@ class LayerPlan:
     shares: tuple[float, ...]
     psnr_db: tuple[float | None, ...]
     why: str = ""
+    sh_apart: bool = False
+    """The base's SH bands beyond DC are stored in SH-band chunks of layer 1 (spec §8.7), so
+    the base is measured with DC colour only."""
 
     @property
     def layers(self) -> int:
@@ -129,11 +132,14 @@ def plan_layers(
     view: CaptureCamera | None,
     layers: int | None,
     times: Sequence[float] = (),
+    *,
+    sh_apart: bool = True,
 ) -> LayerPlan:
     """Cut ``scene``, stored as ``groups`` (index arrays, one per node time slice or frame),
     into ``layers`` quality layers (None: choose, see LAYERED_MIN_GAUSSIANS and
     AUTO_MAX_FRACTION), measuring each cut's picture from ``view`` at ``times`` (none given:
-    MEASURE_TIMES spread over the scene)."""
+    MEASURE_TIMES spread over the scene). With ``sh_apart`` a scene with SH bands beyond DC
+    keeps its base's bands apart (LayerPlan.sh_apart)."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
@@ -150,8 +156,9 @@ def plan_layers(
     limit = 1.0 if layers else AUTO_MAX_FRACTION
     shares: list[float] = []
     psnr: list[float | None] = []
+    sh_apart = sh_apart and scene.gaussians.sh_bands > 0
     for target in LAYER_TARGETS_DB[: (layers or AUTO_LAYERS) - 1]:
-        bare = not shares and scene.gaussians.sh_bands > 0  # the base is stored without SH
+        bare = sh_apart and not shares  # the base is stored without its SH bands
         share, reached = _smallest_share(quality, target, shares[-1] if shares else 0.0, bare)
         if share > limit or share >= 1.0:
             break
@@ -160,7 +167,10 @@ def plan_layers(
     if not shares:
         return LayerPlan.single("one layer: no share of the Gaussians reaches the base target")
     why = ", ".join(f"{f:.0%}: {p:.1f} dB" for f, p in zip(shares, psnr, strict=True) if p)
-    return LayerPlan((*shares, 1.0), (*psnr, None), f"{len(shares) + 1} layers ({why})")
+    bands = ", the base's SH bands apart" if sh_apart else ""
+    return LayerPlan(
+        (*shares, 1.0), (*psnr, None), f"{len(shares) + 1} layers ({why}{bands})", sh_apart
+    )
 
 
 def _quality_of_share(

@@ -89,6 +89,9 @@ class SegmentOptions:
     """Error budgets of the chunks' codes, 0..100 (codec/precision.py; 100: full precision)."""
     layers: int | None = None
     """Quality layers (segment/layers.py): None chooses by measurement, 1 is one layer."""
+    sh_apart: bool = True
+    """A layered stream keeps its base's SH bands in SH-band chunks (spec §8.7); False keeps
+    them in the base (the layout before them, for comparisons)."""
 
 
 @dataclass(frozen=True)
@@ -275,12 +278,6 @@ def with_sh_jobs(jobs: Sequence[ChunkJob], first_id: int = 0) -> list[ChunkJob]:
     base = [job for job in jobs if job.layer == 0]
     bands = [ChunkJob(job.key, job.indices, 1, first_id + i) for i, job in enumerate(base)]
     return [*base, *bands, *(job for job in jobs if job.layer > 0)]
-
-
-def split_sh(layering: LayerPlan, sh_bands: int) -> bool:
-    """True when base chunks store DC colour only and their bands go in SH-band chunks: a
-    layered stream of a scene with bands beyond DC."""
-    return layering.layers > 1 and sh_bands > 0
 
 
 def job_part(scene: Scene, job: ChunkJob, split: bool) -> Part:
@@ -603,12 +600,12 @@ def segment_scene(
     views = Views.of(scene.gaussians, cameras)
     groups = node_groups(scene, plan, options.slice_s)
     members = [g for _, g in groups]
-    layering = plan_layers(scene, members, views.view, options.layers)
+    layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
     layer_of = None
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), members)
     jobs = chunk_jobs(scene, groups, max_count, layer_of)
-    split = split_sh(layering, scene.gaussians.sh_bands)
+    split = layering.sh_apart
     if split:
         jobs = with_sh_jobs(jobs)
     parts = (job_part(scene, job, split) for job in jobs)
@@ -641,7 +638,7 @@ def _sequence_parts(
     """Parts of a frame sequence, one window of frames in memory at a time: each window's
     chunks layer by layer, each frame's most important Gaussians in its base (and its SH
     bands, if any, in SH-band chunks at the start of layer 1)."""
-    split = split_sh(layering, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
+    split = layering.sh_apart
     written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
         scene = seq.read(first, min(seq.count, first + per_window)).scene
@@ -669,7 +666,7 @@ def _sequence_chunks(
 ) -> int:
     """How many chunks :func:`_sequence_parts` yields (for progress), from the frames' sizes."""
     total = 0
-    split = split_sh(layering, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
+    split = layering.sh_apart
     for first in range(0, seq.count, per_window):
         sizes = layering.sizes([c for c, _ in seq.shapes[first : first + per_window]])
         runs = [-(-size // max_count) for size in sizes]
@@ -682,6 +679,7 @@ def _sequence_layers(
     sampled: dict[int, Scene],
     view: CaptureCamera | None,
     layers: int | None,
+    sh_apart: bool = True,
 ) -> LayerPlan:
     """The layers of a frame sequence, measured on MEASURE_TIMES frames spread over it (each
     frame its own group, as when the chunks are cut), taken from ``sampled`` (the frames
@@ -705,7 +703,7 @@ def _sequence_layers(
     bounds = np.cumsum([0, *(len(f) for f in frames)])
     groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds)]
     times = [(k + 0.5) / seq.fps for k in picks]
-    return plan_layers(sample, groups, view, layers, times)
+    return plan_layers(sample, groups, view, layers, times, sh_apart=sh_apart)
 
 
 def segment_sequence(
@@ -742,7 +740,7 @@ def segment_sequence(
     }
     sampled = _sampled_frames(seq)
     views = Views.of(Gaussians.concat([frame.gaussians for frame in sampled.values()]), cameras)
-    layering = _sequence_layers(seq, sampled, views.view, options.layers)
+    layering = _sequence_layers(seq, sampled, views.view, options.layers, options.sh_apart)
     report = _write_container(
         path,
         _sequence_parts(seq, per_window, max_count, layering),
