@@ -23,8 +23,16 @@ from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.schemas.manifest import Policy
-from tsog_stream.segment.plan import window_count
-from tsog_stream.segment.segmenter import SegmentOptions, SegmentReport, segment_scene
+from tsog_stream.segment.plan import NodeKey, Plan, window_count
+from tsog_stream.segment.segmenter import (
+    ChunkJob,
+    JobParts,
+    Part,
+    SegmentOptions,
+    SegmentReport,
+    _encoded,
+    segment_scene,
+)
 from tsog_stream.summary import chunk_summary
 from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.temporal import (
@@ -482,6 +490,28 @@ def test_same_input_gives_byte_identical_containers(tmp_path: Path) -> None:
     assert paths[1].read_bytes() == first
     assert paths[2].read_bytes() == first
     assert not list(tmp_path.glob(".*.tmp")), "temporary files left behind"
+
+
+def test_jobs_are_encoded_largest_first_and_written_in_order() -> None:
+    """With two workers the biggest job starts first (a scene whose biggest chunk comes last
+    kept one core idle while it encoded), and the payloads come out in job order, each the
+    one the in-order encoder makes."""
+    src = make_scene(TimelineType.CENTER_SCALE, background=300, objects=2, per_object=50, seed=4)
+    plan = Plan(0.0, 2.0, 2.0, 1, {}, 0)
+    cuts = [np.arange(0, 20), np.arange(20, 60), np.arange(60, len(src))]
+    jobs = [ChunkJob(NodeKey(0, 0), idx) for idx in cuts]
+    started: list[int] = []
+
+    def make(job: ChunkJob) -> Part:
+        started.append(next(i for i, j in enumerate(jobs) if j is job))
+        return Part(job.key, src.subset(job.indices))
+
+    options = SegmentOptions(workers=2)
+    parallel = list(_encoded(JobParts(jobs, make), plan, options))
+    assert started == [2, 1, 0]
+    serial = list(_encoded(JobParts(jobs, make), plan, replace(options, workers=1)))
+    assert [p for _, p in parallel] == [p for _, p in serial]
+    assert [info.count for info, _ in parallel] == [20, 40, len(src) - 60]
 
 
 def test_progress_reports_every_chunk(tmp_path: Path) -> None:

@@ -13,7 +13,7 @@ import os
 import signal
 from collections import deque
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -367,6 +367,18 @@ class Part:
 
 
 @dataclass(frozen=True)
+class JobParts:
+    """The parts of a scene in memory, known up front as jobs: they may be encoded in any
+    order (largest first, see :func:`_encoded_largest_first`) and are written in job order."""
+
+    jobs: Sequence[ChunkJob]
+    make: Callable[[ChunkJob], Part]
+
+    def __iter__(self) -> Iterator[Part]:
+        return (self.make(job) for job in self.jobs)
+
+
+@dataclass(frozen=True)
 class PartInfo:
     """What the index records of a part, computed before its arrays are handed to a worker."""
 
@@ -392,8 +404,12 @@ def _encoded(
     """(info, payload) in input order, with at most ``workers`` parts in flight.
 
     The parent keeps only each part's small :class:`PartInfo`, so peak memory is the part being
-    produced plus the ones being encoded, whatever the scene length.
+    produced plus the ones being encoded, whatever the scene length. Parts known up front
+    (:class:`JobParts`) are encoded largest first.
     """
+    if options.workers > 1 and isinstance(parts, JobParts):
+        yield from _encoded_largest_first(parts, plan, options)
+        return
     if options.workers <= 1:
         for part in parts:
             payload = encode_job_payload(
@@ -409,15 +425,7 @@ def _encoded(
         pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
         for part in parts:
             info = describe_part(part, plan)
-            with _sigint_blocked():  # a worker started here inherits the block (see below)
-                job = pool.submit(
-                    encode_job_payload,
-                    part.scene,
-                    options.seed,
-                    options.quality,
-                    part.sh_of is not None,
-                )
-            pending.append((info, job))
+            pending.append((info, _submit(pool, part, options)))
             del part
             if len(pending) >= options.workers:
                 done, fut = pending.popleft()
@@ -425,6 +433,54 @@ def _encoded(
         while pending:
             done, fut = pending.popleft()
             yield done, fut.result()
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _submit(pool: ProcessPoolExecutor, part: Part, options: SegmentOptions) -> Future[bytes]:
+    """Encode ``part`` in a worker (SIGINT held while one may be starting: a worker started
+    here inherits the block, see :func:`_sigint_blocked`)."""
+    with _sigint_blocked():
+        return pool.submit(
+            encode_job_payload, part.scene, options.seed, options.quality, part.sh_of is not None
+        )
+
+
+def _encoded_largest_first(
+    parts: JobParts, plan: Plan, options: SegmentOptions
+) -> Generator[tuple[PartInfo, bytes], None, None]:
+    """(info, payload) in job order, the jobs encoded largest first with at most ``workers``
+    in flight: a scene whose biggest chunk comes last no longer has one core encode it while
+    the other idles (measured: docs/design/segmenter.md, "Parallel encoding"). Payloads done
+    early wait, compressed, for their turn."""
+    jobs = parts.jobs
+    order = iter(sorted(range(len(jobs)), key=lambda i: (-jobs[i].indices.size, i)))
+    context = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(
+        max_workers=options.workers, mp_context=context, initializer=_ignore_interrupts
+    )
+    running: dict[Future[bytes], tuple[int, PartInfo]] = {}
+    finished: dict[int, tuple[PartInfo, bytes]] = {}
+
+    def start_next() -> None:
+        i = next(order, None)
+        if i is not None:
+            part = parts.make(jobs[i])
+            running[_submit(pool, part, options)] = (i, describe_part(part, plan))
+
+    try:
+        for _ in range(options.workers):
+            start_next()
+        for turn in range(len(jobs)):
+            while turn not in finished:
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    i, info = running.pop(fut)
+                    finished[i] = (info, fut.result())
+                    start_next()
+            yield finished.pop(turn)
     except BaseException:
         _stop_pool(pool)
         raise
@@ -608,7 +664,7 @@ def segment_scene(
     split = layering.sh_apart
     if split:
         jobs = with_sh_jobs(jobs)
-    parts = (job_part(scene, job, split) for job in jobs)
+    parts = JobParts(jobs, lambda job: job_part(scene, job, split))
     tl = scene.timeline
     fields: dict[str, Any] = {
         "gaussians": len(scene),
