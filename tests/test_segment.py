@@ -517,14 +517,20 @@ def test_jobs_are_encoded_largest_first_and_written_in_order() -> None:
 def test_progress_reports_every_chunk(tmp_path: Path) -> None:
     src = make_scene(TimelineType.START_DURATION, background=100, objects=2, per_object=40)
     calls: list[tuple[int, int]] = []
+    stages: list[tuple[str, int]] = []
     report = segment_scene(
         src,
         tmp_path / "p.tsogs",
         SegmentOptions(window_s=1.0, max_pixels=16 * 16),
         on_chunk=lambda done, total: calls.append((done, total)),
+        on_stage=lambda text: stages.append((text, len(calls))),
     )
     assert [d for d, _ in calls] == list(range(1, report.chunks + 1))
     assert all(total == report.chunks for _, total in calls)
+    # every phase is announced before it starts: the last, encoding, before any chunk
+    assert [text.split()[0] for text, _ in stages] == ["choosing", "measuring", "encoding"]
+    assert stages[-1] == (f"encoding {report.chunks} chunks ({report.stored} Gaussians stored) "
+                          "on one process", 0)  # fmt: skip
 
 
 def test_a_failed_segmentation_leaves_the_destination_untouched(tmp_path: Path) -> None:

@@ -34,6 +34,7 @@ from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Layer
+from ..segment.engines import check_cluster
 from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
@@ -82,6 +83,8 @@ def check_segment_args(args: argparse.Namespace) -> None:
         )
     if args.workers < 1:
         raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
+    if args.cluster is not None:
+        check_cluster(args.cluster)
     tolerance_option(args)  # refuses a negative or non-finite tolerance now, not after a read
 
 
@@ -134,6 +137,13 @@ def add_stream_commands(sub: Subparsers) -> None:
     )
     p.add_argument(
         "--workers", type=Integer(1, 256), default=2, help="encoder processes (default 2)"
+    )
+    p.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="encode on a Dask cluster: a scheduler address (tcp://host:8786) or 'local' for "
+        "a LocalCluster of --workers processes (needs tsog-stream[cluster]); the container is "
+        "byte-identical to a local run (default: a local process pool)",
     )
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
     p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
@@ -242,11 +252,17 @@ def _segment(
         seed=args.seed,
         quality=args.quality,
         layers=args.layers,
+        cluster=args.cluster,
     )
     cameras, cameras_source = capture
     for stale in remove_stale_temp_files(args.output):
         note(f"removed {stale}, left by an interrupted run")
     started = time.monotonic()
+
+    def on_stage(text: str) -> None:
+        nonlocal started
+        started = time.monotonic()  # the ETA counts from the last phase begun: encoding
+        progress(text)
 
     def on_chunk(done: int, total: int) -> None:
         elapsed = time.monotonic() - started
@@ -262,18 +278,34 @@ def _segment(
             print(f"temporal: {why}; stored one per frame (type 0)")
         if merged is None or why is not None:
             report = segment_sequence(
-                source, args.output, options, on_chunk=on_chunk, layout=layout, cameras=cameras
+                source,
+                args.output,
+                options,
+                layout=layout,
+                cameras=cameras,
+                on_chunk=on_chunk,
+                on_stage=on_stage,
             )
         else:
             report = segment_scene(
-                merged, args.output, options, on_chunk=on_chunk, layout=layout, cameras=cameras
+                merged,
+                args.output,
+                options,
+                layout=layout,
+                cameras=cameras,
+                on_chunk=on_chunk,
+                on_stage=on_stage,
             )
             progress.done()
             _report_frame_errors(source, args.output)
     elif isinstance(source, FrameSequence):
-        report = segment_sequence(source, args.output, options, on_chunk=on_chunk, cameras=cameras)
+        report = segment_sequence(
+            source, args.output, options, cameras=cameras, on_chunk=on_chunk, on_stage=on_stage
+        )
     else:
-        report = segment_scene(source, args.output, options, on_chunk=on_chunk, cameras=cameras)
+        report = segment_scene(
+            source, args.output, options, cameras=cameras, on_chunk=on_chunk, on_stage=on_stage
+        )
     progress.done()
     print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, input_size)}")
     if report.layout is not None:

@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import multiprocessing
 import os
-import signal
 from collections import deque
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -44,6 +42,7 @@ from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
+from .engines import Engine, engine, sigint_blocked
 from .layers import (
     MEASURE_TIMES,
     ONE_LAYER_ASKED,
@@ -69,6 +68,8 @@ BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
 Ints = npt.NDArray[np.int64]
 ChunkProgress = Callable[[int, int], None]
+StageProgress = Callable[[str], None]
+"""Told what segmenting does next, before each phase that can take a while."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,9 @@ class SegmentOptions:
     sh_apart: bool = True
     """A layered stream keeps its base's SH bands in SH-band chunks (spec §8.7); False keeps
     them in the base (the layout before them, for comparisons)."""
+    cluster: str | None = None
+    """Encode on Dask (segment/engines.py): ``local`` for a LocalCluster of ``workers``
+    processes, or a scheduler address; None encodes here or in a local process pool."""
 
 
 @dataclass(frozen=True)
@@ -401,128 +405,80 @@ def describe_part(part: Part, plan: Plan) -> PartInfo:
 def _encoded(
     parts: Iterable[Part], plan: Plan, options: SegmentOptions
 ) -> Generator[tuple[PartInfo, bytes], None, None]:
-    """(info, payload) in input order, with at most ``workers`` parts in flight.
+    """(info, payload) in input order, encoded here (one worker, no cluster) or by the engine
+    of ``options`` (segment/engines.py) with at most its slots in flight.
 
     The parent keeps only each part's small :class:`PartInfo`, so peak memory is the part being
     produced plus the ones being encoded, whatever the scene length. Parts known up front
     (:class:`JobParts`) are encoded largest first.
     """
-    if options.workers > 1 and isinstance(parts, JobParts):
-        yield from _encoded_largest_first(parts, plan, options)
-        return
-    if options.workers <= 1:
+    if options.workers <= 1 and options.cluster is None:
         for part in parts:
             payload = encode_job_payload(
                 part.scene, options.seed, options.quality, part.sh_of is not None
             )
             yield describe_part(part, plan), payload
         return
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        max_workers=options.workers, mp_context=context, initializer=_ignore_interrupts
-    )
-    try:
-        pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
-        for part in parts:
-            info = describe_part(part, plan)
-            pending.append((info, _submit(pool, part, options)))
-            del part
-            if len(pending) >= options.workers:
-                done, fut = pending.popleft()
-                yield done, fut.result()
-        while pending:
+    with engine(options.workers, options.cluster) as running:
+        if isinstance(parts, JobParts):
+            yield from _largest_first(parts, plan, options, running)
+        else:
+            yield from _in_order(parts, plan, options, running)
+
+
+def _in_order(
+    parts: Iterable[Part], plan: Plan, options: SegmentOptions, running: Engine
+) -> Generator[tuple[PartInfo, bytes], None, None]:
+    """Parts encoded in input order, at most ``running.slots`` in flight."""
+    pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
+    for part in parts:
+        pending.append((describe_part(part, plan), _submit(running, part, options)))
+        del part
+        if len(pending) >= running.slots:
             done, fut = pending.popleft()
             yield done, fut.result()
-    except BaseException:
-        _stop_pool(pool)
-        raise
-    pool.shutdown(wait=True)
+    while pending:
+        done, fut = pending.popleft()
+        yield done, fut.result()
 
 
-def _submit(pool: ProcessPoolExecutor, part: Part, options: SegmentOptions) -> Future[bytes]:
-    """Encode ``part`` in a worker (SIGINT held while one may be starting: a worker started
-    here inherits the block, see :func:`_sigint_blocked`)."""
-    with _sigint_blocked():
-        return pool.submit(
+def _submit(running: Engine, part: Part, options: SegmentOptions) -> Future[bytes]:
+    """Encode ``part`` on the engine (SIGINT held while a local worker may be starting: it
+    inherits the block, see engines.sigint_blocked)."""
+    with sigint_blocked():
+        return running.executor.submit(
             encode_job_payload, part.scene, options.seed, options.quality, part.sh_of is not None
         )
 
 
-def _encoded_largest_first(
-    parts: JobParts, plan: Plan, options: SegmentOptions
+def _largest_first(
+    parts: JobParts, plan: Plan, options: SegmentOptions, running: Engine
 ) -> Generator[tuple[PartInfo, bytes], None, None]:
-    """(info, payload) in job order, the jobs encoded largest first with at most ``workers``
-    in flight: a scene whose biggest chunk comes last no longer has one core encode it while
-    the other idles (measured: docs/design/segmenter.md, "Parallel encoding"). Payloads done
-    early wait, compressed, for their turn."""
+    """(info, payload) in job order, the jobs encoded largest first with at most
+    ``running.slots`` in flight: a scene whose biggest chunk comes last no longer has one core
+    encode it while the other idles (measured: docs/design/segmenter.md, "Parallel
+    encoding"). Payloads done early wait, compressed, for their turn."""
     jobs = parts.jobs
     order = iter(sorted(range(len(jobs)), key=lambda i: (-jobs[i].indices.size, i)))
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        max_workers=options.workers, mp_context=context, initializer=_ignore_interrupts
-    )
-    running: dict[Future[bytes], tuple[int, PartInfo]] = {}
+    in_flight: dict[Future[bytes], tuple[int, PartInfo]] = {}
     finished: dict[int, tuple[PartInfo, bytes]] = {}
 
     def start_next() -> None:
         i = next(order, None)
         if i is not None:
             part = parts.make(jobs[i])
-            running[_submit(pool, part, options)] = (i, describe_part(part, plan))
+            in_flight[_submit(running, part, options)] = (i, describe_part(part, plan))
 
-    try:
-        for _ in range(options.workers):
-            start_next()
-        for turn in range(len(jobs)):
-            while turn not in finished:
-                done, _ = wait(running, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i, info = running.pop(fut)
-                    finished[i] = (info, fut.result())
-                    start_next()
-            yield finished.pop(turn)
-    except BaseException:
-        _stop_pool(pool)
-        raise
-    pool.shutdown(wait=True)
-
-
-def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
-    """Stop a pool after Ctrl-C or an error: queued jobs dropped, workers terminated and joined.
-
-    Not ``shutdown(wait=True)``: waiting for the running jobs after a KeyboardInterrupt can hang
-    (seen once in CI: the process printed "interrupted" and never exited), and their results
-    are discarded anyway. The worker list is the executor's private ``_processes``.
-    """
-    workers = list(getattr(pool, "_processes", {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for worker in workers:
-        worker.terminate()
-    for worker in workers:
-        worker.join(grace_s)
-        if worker.is_alive():
-            worker.kill()
-            worker.join(grace_s)
-
-
-@contextlib.contextmanager
-def _sigint_blocked() -> Iterator[None]:
-    """SIGINT held (not lost) in this thread while it may start worker processes: a worker
-    inherits the blocked mask, so a Ctrl-C during its start-up (imports) cannot interrupt it
-    before :func:`_ignore_interrupts` runs."""
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-
-
-def _ignore_interrupts() -> None:
-    """Workers ignore SIGINT (a terminal's Ctrl-C reaches the whole group): the parent alone
-    handles it, then shuts the pool down, instead of every worker printing a traceback. A
-    SIGINT held since the worker started is discarded on unblocking."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    for _ in range(running.slots):
+        start_next()
+    for turn in range(len(jobs)):
+        while turn not in finished:
+            done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+            for fut in done:
+                i, info = in_flight.pop(fut)
+                finished[i] = (info, fut.result())
+                start_next()
+        yield finished.pop(turn)
 
 
 def _union(boxes: Sequence[Box]) -> dict[str, list[float]]:
@@ -643,19 +599,25 @@ def segment_scene(
     on_chunk: ChunkProgress | None = None,
     layout: Choice | None = None,
     cameras: Sequence[CaptureCamera] = (),
+    on_stage: StageProgress | None = None,
 ) -> SegmentReport:
     """Segment an in-memory scene into the container at ``path`` (published atomically), in
     ``layout`` when already chosen for these options (see :func:`merge_or_frames`), with its
-    capture ``cameras`` and the view a player opens it from (framing.default_view)."""
+    capture ``cameras`` and the view a player opens it from (framing.default_view);
+    ``on_stage`` hears of each phase before it starts, ``on_chunk`` of each chunk written."""
     options = options or SegmentOptions()
+    stage = on_stage or (lambda _text: None)
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
     check_layers(options.layers)
+    if layout is None:
+        stage(f"choosing the layout of {len(scene)} Gaussians (encoding samples)")
     choice = layout or scene_layout(scene, options, max_count)
     options = _with_layout(options, choice)
     plan = plan_scene(scene, options)
     views = Views.of(scene.gaussians, cameras)
     groups = node_groups(scene, plan, options.slice_s)
     members = [g for _, g in groups]
+    stage("measuring quality layers (rendering)")
     layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
     layer_of = None
     if layering.layers > 1:
@@ -665,6 +627,7 @@ def segment_scene(
     if split:
         jobs = with_sh_jobs(jobs)
     parts = JobParts(jobs, lambda job: job_part(scene, job, split))
+    stage(_encoding(len(jobs), plan.stored, options.workers))
     tl = scene.timeline
     fields: dict[str, Any] = {
         "gaussians": len(scene),
@@ -686,6 +649,12 @@ def segment_scene(
         layering=layering,
     )
     return replace(report, layout=choice)
+
+
+def _encoding(chunks: int, gaussians: int, workers: int) -> str:
+    """The encoding phase, as a stage line."""
+    on = f"{workers} workers" if workers > 1 else "one process"
+    return f"encoding {chunks} chunks ({gaussians} Gaussians stored) on {on}"
 
 
 def _sequence_parts(
@@ -770,16 +739,21 @@ def segment_sequence(
     on_chunk: ChunkProgress | None = None,
     layout: Choice | None = None,
     cameras: Sequence[CaptureCamera] = (),
+    on_stage: StageProgress | None = None,
 ) -> SegmentReport:
     """Segment a frame sequence window by window: memory depends on the window, not the length.
-    ``layout``: the frames per chunk when already chosen (see :func:`merge_or_frames`).
+    ``layout``: the frames per chunk when already chosen (see :func:`merge_or_frames`);
+    ``on_stage`` and ``on_chunk`` as for :func:`segment_scene`.
 
     Windows are whole frames (``window_s`` rounded to frames; by default the cost model's
     choice, one frame for most flipbooks); a frame's Gaussians live in that frame only, so
     every policy stores each Gaussian once and the policy does not matter.
     """
     options = options or SegmentOptions()
+    stage = on_stage or (lambda _text: None)
     max_count = max_gaussians_per_chunk(options.max_pixels, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
+    if layout is None:
+        stage(f"choosing the layout of {seq.count} frames (encoding the first)")
     choice = layout or sequence_layout(seq, options, max_count)
     per_window = max(1, round(choice.chosen.layout.window_s * seq.fps))
     window_s = per_window / seq.fps
@@ -794,13 +768,16 @@ def segment_sequence(
         "temporal": {},
         "sh_bands": SH_BANDS_BY_COEFFS[seq.sh_coeffs],
     }
+    stage("measuring quality layers (rendering sampled frames)")
     sampled = _sampled_frames(seq)
     views = Views.of(Gaussians.concat([frame.gaussians for frame in sampled.values()]), cameras)
     layering = _sequence_layers(seq, sampled, views.view, options.layers, options.sh_apart)
+    total = _sequence_chunks(seq, per_window, max_count, layering)
+    stage(_encoding(total, seq.gaussians, options.workers))
     report = _write_container(
         path,
         _sequence_parts(seq, per_window, max_count, layering),
-        total=_sequence_chunks(seq, per_window, max_count, layering),
+        total=total,
         plan=plan,
         scene_fields=fields,
         options=options,

@@ -1,0 +1,148 @@
+"""Where chunks are encoded: one process, a local process pool, or a Dask cluster.
+
+Every engine is a :class:`concurrent.futures.Executor` with a number of jobs to keep in flight;
+the segmenter submits the same encode jobs to any of them and writes the results in its own
+order, so the container is byte-identical whichever engine made it. Dask (``--cluster``,
+the ``tsog-stream[cluster]`` extra) is imported only when asked for. See
+docs/design/segmenter.md ("Parallel encoding").
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import re
+import signal
+from collections.abc import Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import InputError
+
+LOCAL_CLUSTER = "local"
+"""``--cluster local``: a Dask LocalCluster on this machine, one single-threaded worker process
+per ``--workers``."""
+CLUSTER_ADDRESS = re.compile(r"(tcp|tls|ucx)://[A-Za-z0-9.\-\[\]:]{1,253}:[0-9]{1,5}")
+"""A Dask scheduler address: protocol://host:port."""
+CONNECT_TIMEOUT_S = 10.0
+"""How long to try reaching a scheduler before a one-line error."""
+JOB_RETRIES = 2
+"""Times Dask runs a job again when the worker running it is lost."""
+
+
+def check_cluster(value: str) -> str:
+    """``local`` or a scheduler address (``tcp://host:8786``); InputError otherwise."""
+    if value == LOCAL_CLUSTER or CLUSTER_ADDRESS.fullmatch(value):
+        return value
+    raise InputError(
+        f"expected 'local' or a scheduler address such as tcp://127.0.0.1:8786, got {value!r}",
+        where="--cluster",
+    )
+
+
+@dataclass
+class Engine:
+    """An executor for encode jobs and how many to keep in flight."""
+
+    executor: Executor
+    slots: int
+
+
+@contextlib.contextmanager
+def engine(workers: int, cluster: str | None) -> Iterator[Engine]:
+    """The engine for ``workers`` local processes, or for the Dask cluster ``cluster``; an
+    error or Ctrl-C in the body stops it at once (queued jobs dropped, running ones
+    abandoned)."""
+    if cluster is not None:
+        with _dask_engine(workers, check_cluster(cluster)) as found:
+            yield found
+        return
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_ignore_interrupts,
+    )
+    try:
+        yield Engine(pool, workers)
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+@contextlib.contextmanager
+def _dask_engine(workers: int, cluster: str) -> Iterator[Engine]:
+    """A Dask client's executor (jobs retried on a lost worker), on a LocalCluster of
+    ``workers`` processes or on the scheduler at ``cluster``; as many jobs in flight as the
+    cluster has worker threads."""
+    try:
+        from distributed import Client, LocalCluster  # noqa: PLC0415 - an optional extra
+    except ImportError:
+        raise InputError(
+            "needs Dask: pip install 'tsog-stream[cluster]'", where="--cluster"
+        ) from None
+    with contextlib.ExitStack() as stack:
+        if cluster == LOCAL_CLUSTER:
+            address: Any = stack.enter_context(
+                LocalCluster(  # type: ignore[no-untyped-call]
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address="127.0.0.1:0",  # loopback, any free port
+                    host="127.0.0.1",
+                )
+            )
+        else:
+            address = cluster
+        try:
+            client = stack.enter_context(
+                Client(address, timeout=CONNECT_TIMEOUT_S)  # type: ignore[no-untyped-call]
+            )
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"cannot reach the Dask scheduler: {exc}", where=cluster) from None
+        threads = sum(client.nthreads().values()) or 1
+        executor = client.get_executor(retries=JOB_RETRIES, pure=False)
+        try:
+            yield Engine(executor, threads)
+        except BaseException:
+            executor.shutdown(wait=False)
+            raise
+
+
+def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
+    """Stop a pool after Ctrl-C or an error: queued jobs dropped, workers terminated and joined.
+
+    Not ``shutdown(wait=True)``: waiting for the running jobs after a KeyboardInterrupt can hang
+    (seen once in CI: the process printed "interrupted" and never exited), and their results
+    are discarded anyway. The worker list is the executor's private ``_processes``.
+    """
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for worker in workers:
+        worker.terminate()
+    for worker in workers:
+        worker.join(grace_s)
+        if worker.is_alive():
+            worker.kill()
+            worker.join(grace_s)
+
+
+@contextlib.contextmanager
+def sigint_blocked() -> Iterator[None]:
+    """SIGINT held (not lost) in this thread while it may start worker processes: a worker
+    inherits the blocked mask, so a Ctrl-C during its start-up (imports) cannot interrupt it
+    before :func:`_ignore_interrupts` runs."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+def _ignore_interrupts() -> None:
+    """Workers ignore SIGINT (a terminal's Ctrl-C reaches the whole group): the parent alone
+    handles it, then shuts the pool down, instead of every worker printing a traceback. A
+    SIGINT held since the worker started is discarded on unblocking."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
