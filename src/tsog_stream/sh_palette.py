@@ -132,10 +132,14 @@ def _unique_rows(data: F32) -> tuple[F32, Ints, F64]:
 
 
 def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
-    """Weighted mean and the leading principal axes (D, ≤ SPLIT_DIMS) of the points."""
-    mean = weights @ points.astype(np.float64) / weights.sum()
+    """Weighted mean and the leading principal axes (D, ≤ SPLIT_DIMS) of the points.
+
+    Sums by ``einsum``, not BLAS: a multi-threaded BLAS sums in an order that depends on its
+    thread count, so the palette (and the chunk's bytes) differed between a process with one
+    BLAS thread (a Dask worker) and one with two."""
+    mean = np.einsum("n,nd->d", weights, points.astype(np.float64)) / weights.sum()
     centred = points - mean.astype(np.float32)
-    cov = (centred * weights[:, None].astype(np.float32)).T @ centred
+    cov = np.einsum("nd,ne->de", centred * weights[:, None].astype(np.float32), centred)
     _, vecs = np.linalg.eigh(cov.astype(np.float64))
     axes = np.ascontiguousarray(vecs[:, ::-1][:, : min(SPLIT_DIMS, points.shape[1])])
     return mean.astype(np.float32), axes.astype(np.float32)
@@ -143,11 +147,11 @@ def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
 
 def _tree_coords(points: F32, axes: tuple[F32, F32], tree: int, rng: np.random.Generator) -> F32:
     """Split coordinates of tree ``tree``: PCA coordinates, leading ones rotated after tree 0."""
-    coords: F32 = ((points - axes[0]) @ axes[1]).astype(np.float32, copy=False)
+    coords: F32 = np.einsum("nd,dk->nk", points - axes[0], axes[1]).astype(np.float32)
     mixed = min(MIXED_DIMS, coords.shape[1])
     if tree > 0 and mixed > 1:
         rotation, _ = np.linalg.qr(rng.standard_normal((mixed, mixed)))
-        coords[:, :mixed] = coords[:, :mixed] @ rotation.astype(np.float32)
+        coords[:, :mixed] = np.einsum("nd,dk->nk", coords[:, :mixed], rotation.astype(np.float32))
     return coords
 
 
@@ -312,7 +316,8 @@ def _refine(
         moved, relabelled = _update(points, weights, centroids, assigned)
         moved_errors = _errors(points, moved, relabelled)
         report(MERGE_SHARE + (1.0 - MERGE_SHARE) * (step + 1) / iterations)
-        before, after = float(weights @ errors), float(weights @ moved_errors)
+        before = float(np.einsum("n,n->", weights, errors))
+        after = float(np.einsum("n,n->", weights, moved_errors))
         if after > before:  # float32 rounding can undo a tiny gain: keep the better palette
             break
         centroids, labels, errors = moved, relabelled, moved_errors
