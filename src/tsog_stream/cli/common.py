@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
 
 from ..errors import InputError
+from ..io.objects import ObjectPath, is_object_url
 from ..io.readers import FORMATS, LoadedScene, ReadOptions, load_scene
 from ..io.sequence import DEFAULT_FPS
 from ..io.splatv import ASSUMED_DURATION
@@ -164,7 +165,10 @@ def check_time(t: float, span: tuple[float, float] | None) -> None:
 
 
 def input_bytes(path: str) -> int:
-    """Size of an input file, or of the files in an input folder (0 for a pattern)."""
+    """Size of an input file, or of the files in an input folder or store prefix (0 for a
+    pattern)."""
+    if is_object_url(path):
+        return 0 if any(c in path for c in "*?[") else ObjectPath.from_url(path).total_bytes()
     p = Path(path)
     if p.is_file():
         return p.stat().st_size

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..io.objects import as_location, is_object_url
 from ..server import Limits, Privacy, Site, default_workers, run_server, run_workers
 from ..signing import load_secret, parse_ttl, sign_url
 from .common import Integer, Subparsers
@@ -29,7 +30,11 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
         "  TSOG_URL_SECRET_FILE=secret.key tsog serve media/ --private 'paid/*'",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("root", help="folder to serve, or one .tsogs file (only that file is served)")
+    p.add_argument(
+        "root",
+        help="folder to serve, or one .tsogs file (only that file is served); or the same in "
+        "object storage: s3://bucket/media/ (needs tsog-stream[s3]; bodies read with ranged GETs)",
+    )
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument(
         "--port", type=Integer(0, 65535), default=8080, help="port (default 8080; 0 = any free)"
@@ -102,8 +107,9 @@ def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
 
 def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
     """Serve until interrupted; returns the exit code."""
-    root = Path(args.root)
-    if not (root.is_dir() or root.is_file()):
+    root: Path | str = args.root if is_object_url(args.root) else Path(args.root)
+    found = as_location(root)
+    if not (found.is_dir() or found.is_file()):
         raise InputError("no such folder or file", where=args.root)
     if not 0 <= args.port <= 65535:
         raise InputError(f"expected a port 0-65535, got {args.port}", where="--port")
@@ -124,6 +130,8 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
     privacy = Privacy(tuple(args.private), load_secret(args.secret_file))
     if not args.quiet:
         logging.basicConfig(level=logging.INFO, format="%(message)s")
+        for chatty in ("botocore", "aiobotocore", "s3fs", "fsspec"):  # object storage clients
+            logging.getLogger(chatty).setLevel(logging.WARNING)
     progress.done()
     limits = Limits(
         args.max_concurrent,

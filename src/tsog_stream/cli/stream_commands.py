@@ -115,7 +115,10 @@ def add_stream_commands(sub: Subparsers) -> None:
     add_input(p)
     add_cameras(p)
     p.add_argument(
-        "-o", "--output", type=Path, required=True, help="the container to write (.tsogs)"
+        "-o",
+        "--output",
+        required=True,
+        help="the container to write (.tsogs): a path or a storage URL (s3://bucket/scene.tsogs)",
     )
     p.add_argument(
         "--window",
@@ -192,13 +195,19 @@ def add_stream_commands(sub: Subparsers) -> None:
     p = sub.add_parser("extract", help="copy one chunk of a container out as a standalone .sog")
     p.add_argument("input", help=STREAM_HELP)
     p.add_argument("chunk", type=Integer(0, 2**31 - 1), help="chunk id (see tsog info)")
-    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument("-o", "--output", required=True, help="the .sog to write (path or storage URL)")
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)
 
     p = sub.add_parser("unpack", help="container -> folder with manifest.json and chunks/*.sog")
     p.add_argument("input", help=STREAM_HELP)
-    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="the folder to write, or a storage prefix for a CDN (s3://bucket/scene/): chunks "
+        "first, manifest.json last",
+    )
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)
 
@@ -206,7 +215,9 @@ def add_stream_commands(sub: Subparsers) -> None:
         "pack", help="unpacked folder -> container (the exact bytes unpack started from)"
     )
     p.add_argument("input", help="the unpacked folder (path or URL; any stream works)")
-    p.add_argument("-o", "--output", type=Path, required=True)
+    p.add_argument(
+        "-o", "--output", required=True, help="the container to write (path or storage URL)"
+    )
     p.add_argument("-f", "--force", action="store_true")
     add_common(p)
 
@@ -332,12 +343,12 @@ def _layers_line(report: SegmentReport) -> str:
     return f"{report.layers_why}; bytes per layer: {sizes}"
 
 
-def _write_thumbnail(container: Path, progress: Progress) -> None:
+def _write_thumbnail(container: str, progress: Progress) -> None:
     """The scene list's picture beside the container; a failure is a note, not an error."""
     from ..inputs import thumbnail_png  # noqa: PLC0415 - loads the renderer
 
     progress("drawing the thumbnail")
-    target = Path(thumbnail_path(str(container)))
+    target = thumbnail_path(container)
     try:
         atomic_write_bytes(target, thumbnail_png(container))
     except TsogError as exc:
@@ -426,7 +437,7 @@ def _merged(args: argparse.Namespace, progress: Progress, seq: FrameSequence) ->
     return scene
 
 
-def _report_frame_errors(seq: FrameSequence, path: Path, samples: int = 5) -> None:
+def _report_frame_errors(seq: FrameSequence, path: str, samples: int = 5) -> None:
     """Decode a few frames of the written container and print their worst error per attribute."""
     frames = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(samples, seq.count))})
     worst: dict[str, float] = {}

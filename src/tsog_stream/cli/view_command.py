@@ -23,6 +23,7 @@ from .._version import __version__
 from ..client import open_stream
 from ..errors import InputError
 from ..inputs import STREAM_KINDS, input_kind, is_url
+from ..io.objects import is_object_url
 from ..io.sequence import list_frames
 from ..server import make_app, start_server
 from .common import Integer, Subparsers, add_cameras, add_common, add_input
@@ -82,11 +83,18 @@ def _files_of(target: Path) -> list[Path]:
             if len(found) > MAX_FINGERPRINT_FILES:
                 raise InputError(f"more than {MAX_FINGERPRINT_FILES} files", where=str(target))
         return found
-    return list_frames(str(target))  # a frame pattern: the frames the sequence reader reads
+    # a frame pattern: the frames the sequence reader reads (local: Path(args.input) is local)
+    return [p for p in list_frames(str(target)) if isinstance(p, Path)]
 
 
 def fingerprint(args: argparse.Namespace) -> str:
     """A key that changes when the input's files, the reading options or the version do."""
+    if is_object_url(args.input):
+        raise InputError(
+            "tsog view opens local inputs; segment a stored one with tsog segment and view the "
+            "container, or serve it",
+            where=args.input,
+        )
     items: list[object] = [__version__, str(Path(args.input).resolve())]
     sources = _files_of(Path(args.input))
     if args.cameras is not None:

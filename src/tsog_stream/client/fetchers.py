@@ -16,11 +16,13 @@ from pathlib import Path
 from urllib.parse import unquote, urljoin, urlparse, urlsplit, urlunsplit
 
 from ..container.index import MAX_INDEX_BYTES
+from ..container.objects import ObjectSource
 from ..container.ranges import ByteRange
 from ..container.sources import ByteSource, FileSource, ReadStats, read_index
 from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import SourceError
 from ..io.files import read_head
+from ..io.objects import is_object_url, object_at
 from ..schemas.manifest import ChunkEntry
 from ..signing import redact_url
 from .http_source import HttpFiles, HttpOptions, HttpSource
@@ -91,6 +93,8 @@ class FolderFetcher(ChunkFetcher):
         """The file ``name`` of the folder, at most ``limit`` bytes (else a SourceError)."""
         if self._http is not None:
             return await self._http.get(self._url(name), limit)
+        if is_object_url(self.base):
+            return await self._get_object(name, limit)
         path = Path(self.base) / name
         try:
             size = (await asyncio.to_thread(os.stat, path)).st_size
@@ -101,6 +105,16 @@ class FolderFetcher(ChunkFetcher):
             raise SourceError(
                 f"{max(size, len(data))} bytes, expected at most {limit}", where=str(path)
             )
+        self.stats.add(len(data))
+        return data
+
+    async def _get_object(self, name: str, limit: int) -> bytes:
+        """The stored object ``name`` under the folder's prefix: one GET of at most
+        ``limit`` + 1 bytes, so a longer object is refused without reading it whole."""
+        obj = object_at(self.base.rstrip("/")) / name
+        data = await asyncio.to_thread(read_head, obj, limit + 1)
+        if len(data) > limit:
+            raise SourceError(f"more than {limit} bytes, expected at most {limit}", where=str(obj))
         self.stats.add(len(data))
         return data
 
@@ -122,6 +136,8 @@ class FolderFetcher(ChunkFetcher):
     def _where(self, name: str) -> str:
         if self._http is not None:
             return redact_url(self._url(name))
+        if is_object_url(self.base):
+            return f"{self.base.rstrip('/')}/{name}"
         return str(Path(self.base) / name)
 
     async def aclose(self) -> None:
@@ -139,8 +155,9 @@ def make_fetcher(
 ) -> RangeFetcher | FolderFetcher:
     """The fetcher for a target, by its form.
 
-    An http(s) URL ending with ``/`` or ``/manifest.json``, or a local folder (or its
-    ``manifest.json``), is the unpacked layout; anything else is one ``.tsogs`` file.
+    An http(s) URL ending with ``/`` or ``/manifest.json``, a local folder or store prefix
+    (``s3://bucket/scene/``), or a ``manifest.json`` in either, is the unpacked layout;
+    anything else is one ``.tsogs`` file (a storage URL is read with ranged GETs).
     """
     text = os.fspath(target)
     if _is_http(text):
@@ -151,6 +168,12 @@ def make_fetcher(
             folder = parts._replace(path=parts.path[: -len(MANIFEST)])
             return FolderFetcher(urlunsplit(folder), options)
         return RangeFetcher(HttpSource(text, options))
+    if is_object_url(text):
+        if text.endswith("/" + MANIFEST):
+            return FolderFetcher(text[: -len(MANIFEST)])
+        if text.endswith("/") or object_at(text).is_dir():
+            return FolderFetcher(text)
+        return RangeFetcher(ObjectSource(text))
     if urlparse(text).scheme.lower() == "file":
         text = unquote(urlparse(text).path)
     path = Path(text)

@@ -11,10 +11,11 @@ from __future__ import annotations
 import os
 from collections.abc import Awaitable, Callable
 
+from ..container.objects import container_output, put_objects
 from ..container.stream_index import MANIFEST, StreamIndex
-from ..container.writer import ContainerFile
 from ..errors import IntegrityError
 from ..io.files import atomic_write_folder
+from ..io.objects import is_object_url
 from ..schemas.manifest import dump_manifest
 
 ChunkBytes = Callable[[int], Awaitable[bytes]]
@@ -29,7 +30,10 @@ async def unpack(
     files = {MANIFEST: dump_manifest(manifest)}
     for chunk in manifest.chunks:
         files[chunk.file] = await chunk_bytes(chunk.id)
-    atomic_write_folder(folder, files, overwrite=overwrite)
+    if is_object_url(folder):
+        put_objects(os.fspath(folder), files, overwrite=overwrite)
+    else:
+        atomic_write_folder(folder, files, overwrite=overwrite)
     return len(manifest.chunks)
 
 
@@ -40,7 +44,7 @@ async def pack(index: StreamIndex, chunk_bytes: ChunkBytes, path: str | os.PathL
     by hand is refused rather than written with an index that lies.
     """
     manifest = index.manifest
-    with ContainerFile(path) as out:
+    with container_output(path) as out:
         for chunk in sorted(manifest.chunks, key=lambda c: c.offset):
             offset, length, _ = out.add(await chunk_bytes(chunk.id))
             if (offset, length) != (chunk.offset, chunk.length):

@@ -13,7 +13,7 @@ import hashlib
 import os
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO
+from typing import BinaryIO, Protocol
 
 from ..errors import SourceError
 from ..io.files import temp_path
@@ -22,10 +22,28 @@ from .header import HEADER_SIZE, INDEX_ZSTD, PREFIX_SIZE, VERSION_MAJOR, VERSION
 from .index import encode_index
 
 
+class Sink(Protocol):
+    """Where a container's bytes go: appended in order, then the reserved prefix (and the
+    index, when it does not fit there) written at finish. A file, or an upload holding its
+    first part until the end (container/objects.py)."""
+
+    def write(self, data: bytes, /) -> int:
+        """Write at the current position."""
+        ...
+
+    def seek(self, offset: int, /) -> int:
+        """Move the position (the writer only goes back into the prefix, or to the end)."""
+        ...
+
+    def truncate(self) -> int:
+        """End the stream at the current position."""
+        ...
+
+
 class PayloadWriter:
     """Appends chunk payloads to a seekable binary stream and finishes it with header + index."""
 
-    def __init__(self, out: BinaryIO) -> None:
+    def __init__(self, out: Sink) -> None:
         self.out = out
         self.out.seek(0)
         self.out.write(b"\x00" * PREFIX_SIZE)

@@ -13,16 +13,17 @@ from ..errors import SourceError
 from ..model import Scene
 from ..schemas import listed_files
 from .files import atomic_write_bytes, atomic_write_folder, read_bytes, refuse_existing
+from .objects import Location, ObjectPath, as_location
 
 
-def is_unbundled(path: Path) -> bool:
+def is_unbundled(path: Location) -> bool:
     """True for a folder holding meta.json, or a path to such a meta.json."""
     return (path.is_dir() and (path / META_JSON).is_file()) or (
         path.name == META_JSON and path.is_file()
     )
 
 
-def read_folder(path: Path) -> dict[str, bytes]:
+def read_folder(path: Location) -> dict[str, bytes]:
     """meta.json and every image it lists from an unbundled chunk folder."""
     folder = path if path.is_dir() else path.parent
     where = str(folder)
@@ -36,9 +37,9 @@ def read_folder(path: Path) -> dict[str, bytes]:
     return files
 
 
-def read_chunk_files(path: str | os.PathLike[str]) -> dict[str, bytes]:
+def read_chunk_files(path: str | os.PathLike[str] | ObjectPath) -> dict[str, bytes]:
     """The files of a chunk stored as a .sog zip or an unbundled folder."""
-    p = Path(path)
+    p = as_location(path)
     if is_unbundled(p):
         return read_folder(p)
     if p.is_dir():
@@ -46,7 +47,7 @@ def read_chunk_files(path: str | os.PathLike[str]) -> dict[str, bytes]:
     return read_bundle(read_bytes(p), where=str(p))
 
 
-def read_chunk(path: str | os.PathLike[str]) -> Scene:
+def read_chunk(path: str | os.PathLike[str] | ObjectPath) -> Scene:
     """Decode the chunk at ``path`` (bundled or unbundled)."""
     return decode_chunk(read_chunk_files(path), where=str(path))
 

@@ -16,9 +16,20 @@ import stat
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, cast
 
 from ..errors import SourceError
+from .objects import (
+    ObjectPath,
+    as_location,
+    check_destination,
+    is_object_url,
+    object_at,
+    put_object,
+)
+
+Readable = str | os.PathLike[str] | ObjectPath
+"""What the readers accept: a local path, a storage URL or an ObjectPath."""
 
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{12}\.tmp$")
 
@@ -41,7 +52,10 @@ def _alive(pid: int) -> bool:
 
 
 def stale_temp_files(target: str | os.PathLike[str]) -> list[Path]:
-    """Temp files of ``target`` left by writers that no longer run (sorted by name)."""
+    """Temp files of ``target`` left by writers that no longer run (sorted by name; none for
+    a storage URL, where an upload is never visible before it completes)."""
+    if is_object_url(target):
+        return []
     path = Path(target)
     parent = path.parent if str(path.parent) else Path(".")
     stale = []
@@ -68,8 +82,11 @@ def remove_stale_temp_files(target: str | os.PathLike[str]) -> list[Path]:
 
 
 def refuse_existing(path: str | os.PathLike[str], *, overwrite: bool) -> None:
-    """Refuse to replace ``path`` unless ``overwrite`` (checked before any work is done)."""
-    if not overwrite and Path(path).exists():
+    """Refuse to replace ``path`` unless ``overwrite``, or to write into a missing bucket
+    (checked before any work is done)."""
+    if is_object_url(path):
+        check_destination(os.fspath(path))
+    if not overwrite and as_location(path).exists():
         raise SourceError("already exists (pass --force to replace it)", where=str(path))
 
 
@@ -81,8 +98,11 @@ def atomic_write_bytes(
     The temp file is created with the umask's permissions (unlike ``mkstemp``), fsynced, and
     removed on any failure, so the target is either the old file or the complete new one.
     """
-    target = Path(path)
     parts = [data] if isinstance(data, bytes | bytearray | memoryview) else data
+    if is_object_url(path):
+        put_object(os.fspath(path), b"".join(parts))
+        return
+    target = Path(path)
     tmp = temp_path(target)
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
@@ -149,18 +169,24 @@ def _open_regular(path: str | os.PathLike[str]) -> int:
     raise SourceError("not a regular file (a FIFO, device or socket): refused", where=str(path))
 
 
-def read_bytes(path: str | os.PathLike[str]) -> bytes:
-    """The bytes of a regular file, or a SourceError that names it."""
+def read_bytes(path: Readable) -> bytes:
+    """The bytes of a regular file (or a stored object), or a SourceError that names it."""
     return read_head(path, -1)
 
 
-def open_regular(path: str | os.PathLike[str]) -> BinaryIO:
-    """A regular file opened for binary reading (a FIFO, device or folder: a SourceError)."""
-    return os.fdopen(_open_regular(path), "rb")
+def open_regular(path: Readable) -> BinaryIO:
+    """A regular file (or a stored object) opened for binary reading (a FIFO, device or
+    folder: a SourceError)."""
+    if is_object_url(path):
+        return object_at(path).open()
+    return os.fdopen(_open_regular(cast("str | os.PathLike[str]", path)), "rb")
 
 
-def read_head(path: str | os.PathLike[str], limit: int) -> bytes:
-    """At most ``limit`` first bytes of a regular file (all of it for -1), or a SourceError."""
+def read_head(path: Readable, limit: int) -> bytes:
+    """At most ``limit`` first bytes of a regular file or stored object (all of it for -1),
+    or a SourceError."""
+    if is_object_url(path):
+        return object_at(path).read_head(limit)
     with open_regular(path) as f:
         try:
             return f.read(limit)

@@ -34,7 +34,7 @@ import numpy.typing as npt
 from ..constants import GENERATOR
 from ..errors import InputError, PlyError
 from ..model import F32, Gaussians
-from .files import atomic_write_bytes, read_bytes
+from .files import Readable, atomic_write_bytes, read_bytes
 from .ply_header import MAGICS, PlyHeader, Records, parse_header, read_elements
 
 POSITION: Final = ("x", "y", "z")
@@ -91,7 +91,7 @@ def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents
     return PlyContents(_split_columns(columns, k), extra, notes, header)
 
 
-def read_ply(path: PathLike) -> PlyContents:
+def read_ply(path: Readable) -> PlyContents:
     """Read and decode a PLY file; I/O failures raise :class:`SourceError`."""
     return parse_ply(read_bytes(path), name=str(path))
 

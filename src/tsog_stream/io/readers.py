@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Literal
 
 from ..codec.bundle import is_zip
@@ -29,6 +28,7 @@ from .freetimegs import (
     sniff_freetimegs_npz,
 )
 from .loaded import Loaded4D
+from .objects import Location, as_location
 from .ply import parse_ply, sniff_ply
 from .ply_header import parse_header
 from .sequence import DEFAULT_FPS, detect_sequence, read_ply_sequence, read_sog_sequence
@@ -84,7 +84,7 @@ def _is_glob(path: str | os.PathLike[str]) -> bool:
     return any(c in str(path) for c in "*?[")
 
 
-def _detect_file(p: Path) -> str:
+def _detect_file(p: Location) -> str:
     """Format of a single file, from its first bytes (and its zip members)."""
     head = read_head(p, HEAD_BYTES)
     if is_container(head):
@@ -113,7 +113,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         if kind is None:
             raise InputError("the pattern matches no numbered frames", where=str(path))
         return kind
-    p = Path(path)
+    p = as_location(path)
     if not p.exists():
         raise InputError("no such file or folder", where=str(p))
     if is_unbundled(p):
@@ -121,7 +121,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
     if (p / "manifest.json").is_file():
         return "tsogs-dir"
     if p.is_dir():
-        kind = detect_sequence(p)
+        kind = detect_sequence(str(p))
         if kind is None:
             raise UnsupportedError(
                 "a folder must hold meta.json (SOG) or numbered PLY/SOG frames", where=str(p)

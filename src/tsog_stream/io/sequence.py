@@ -42,8 +42,9 @@ from ..errors import InputError, IntegrityError, SogError, SourceError, Unsuppor
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from .chunks import read_chunk
 from .compressed_ply import is_compressed_ply
-from .files import read_bytes, read_head
+from .files import open_regular, read_bytes, read_head
 from .loaded import Loaded4D
+from .objects import Location, as_location, glob_objects, is_object_url
 from .ply import read_ply, sniff_ply
 from .ply_header import MAX_HEADER_BYTES, parse_header
 
@@ -66,14 +67,14 @@ def natural_key(name: str) -> tuple[tuple[object, ...], str]:
     return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), name
 
 
-def frame_number(path: Path) -> int | None:
+def frame_number(path: Location) -> int | None:
     """The last number in a frame's name (extension excluded), or None when it has none."""
     stem = path.name if path.is_dir() else path.stem
     numbers = _DIGITS.findall(stem)
     return int(numbers[-1]) if numbers else None
 
 
-def sniff_frame(path: Path) -> str | None:
+def sniff_frame(path: Location) -> str | None:
     """ "ply" or "sog" from a file's magic bytes (or a folder's meta.json), else None."""
     if path.is_dir():
         return "sog" if (path / META_JSON).is_file() else None
@@ -87,36 +88,45 @@ def sniff_frame(path: Path) -> str | None:
 class _Frames:
     """A scanned sequence: frame paths in order, their numbers, kind and the files skipped."""
 
-    paths: list[Path]
+    paths: list[Location]
     numbers: list[int]
     kind: str
-    ignored: list[Path]
+    ignored: list[Location]
 
 
 def _is_glob(source: Source) -> bool:
     """True for a string with glob wildcards that is not itself an existing path."""
-    return (
-        isinstance(source, str) and bool(_GLOB_MAGIC.search(source)) and not Path(source).exists()
-    )
+    if not isinstance(source, str) or not _GLOB_MAGIC.search(source):
+        return False
+    return is_object_url(source) or not Path(source).exists()
 
 
-def _candidates(source: Source) -> list[Path]:
-    """Entries with a number in their name, from a folder or a glob pattern, naturally sorted."""
-    text = os.fspath(source)
-    p = Path(text)
-    if _is_glob(source):
-        entries = [Path(m) for m in glob.glob(text)]
-    elif p.is_dir():
+def _glob(pattern: str) -> list[Location]:
+    """The entries matching a glob pattern, local or in a store."""
+    if is_object_url(pattern):
+        return list(glob_objects(pattern))
+    return [Path(m) for m in glob.glob(pattern)]
+
+
+def _folder_entries(text: str) -> list[Location]:
+    """The visible entries of a folder (or store prefix) of frames."""
+    p = as_location(text)
+    if p.is_dir():
         if (p / META_JSON).is_file():
             raise InputError("is one unbundled SOG chunk, not a sequence of frames", where=text)
         try:
-            entries = [e for e in p.iterdir() if not e.name.startswith(".")]
+            return [e for e in p.iterdir() if not e.name.startswith(".")]
         except OSError as exc:
             raise SourceError(f"cannot list: {exc.strerror or exc}", where=text) from exc
-    elif p.exists():
+    if p.exists():
         raise InputError("expected a folder of numbered frames or a glob pattern", where=text)
-    else:
-        raise InputError("no such folder (and not a glob pattern)", where=text)
+    raise InputError("no such folder (and not a glob pattern)", where=text)
+
+
+def _candidates(source: Source) -> list[Location]:
+    """Entries with a number in their name, from a folder or a glob pattern, naturally sorted."""
+    text = os.fspath(source)
+    entries = _glob(text) if _is_glob(source) else _folder_entries(text)
     numbered = [e for e in entries if frame_number(e) is not None]
     return sorted(numbered, key=lambda e: natural_key(e.name))
 
@@ -124,8 +134,8 @@ def _candidates(source: Source) -> list[Path]:
 def _scan(source: Source) -> _Frames:
     """Find the frames of ``source``; refuse an empty, mixed or ambiguous sequence."""
     where = os.fspath(source)
-    frames: dict[str, list[Path]] = {"ply": [], "sog": []}
-    ignored: list[Path] = []
+    frames: dict[str, list[Location]] = {"ply": [], "sog": []}
+    ignored: list[Location] = []
     for entry in _candidates(source):
         kind = sniff_frame(entry)
         (frames[kind] if kind else ignored).append(entry)
@@ -146,7 +156,7 @@ def _scan(source: Source) -> _Frames:
     return _Frames(paths, numbers, kind, ignored)
 
 
-def list_frames(source: Source) -> list[Path]:
+def list_frames(source: Source) -> list[Location]:
     """The frame files of a folder or glob pattern, in natural numeric order."""
     return _scan(source).paths
 
@@ -157,9 +167,10 @@ def detect_sequence(path: Source) -> str | None:
     The kind is that of the first numbered entry with PLY or SOG magic bytes; the frames are
     the entries sharing its extension. Anything else (including a single chunk folder) is None.
     """
-    p = Path(path)
-    if not _is_glob(path) and (not p.is_dir() or (p / META_JSON).is_file()):
-        return None
+    if not _is_glob(path):
+        p = as_location(path)
+        if not p.is_dir() or (p / META_JSON).is_file():
+            return None
     candidates = _candidates(path)
     for entry in candidates:
         kind = sniff_frame(entry)
@@ -228,7 +239,7 @@ def _check_fps(fps: float) -> float:
     return rate
 
 
-def _ply_shape(path: Path) -> tuple[int, int]:
+def _ply_shape(path: Location) -> tuple[int, int]:
     """(Gaussians, SH coefficients per channel) declared by a PLY frame's header."""
     head = read_head(path, MAX_HEADER_BYTES)
     header = parse_header(head, name=str(path))
@@ -241,14 +252,14 @@ def _ply_shape(path: Path) -> tuple[int, int]:
     return count, len(rest) // 3
 
 
-def _sog_shape(path: Path) -> tuple[int, int]:
+def _sog_shape(path: Location) -> tuple[int, int]:
     """(Gaussians, SH coefficients per channel) from a SOG frame's meta.json alone."""
     where = str(path)
     if path.is_dir():
         data = read_bytes(path / META_JSON)
     else:
         try:
-            with zipfile.ZipFile(path) as archive:
+            with open_regular(path) as file, zipfile.ZipFile(file) as archive:
                 data = archive.read(META_JSON)
         except KeyError:
             raise SogError("archive has no meta.json at its root", where=where) from None
@@ -340,7 +351,7 @@ class FrameSequence:
         """Notes on skipped files, numbering gaps, sizes and SH degrees."""
         return _sequence_notes(self.frames, self.shapes)
 
-    def _read_frame(self, path: Path) -> tuple[Gaussians, list[str], set[str]]:
+    def _read_frame(self, path: Location) -> tuple[Gaussians, list[str], set[str]]:
         """One frame's Gaussians, reader notes and unkept extra properties."""
         if self.frames.kind == "ply":
             contents = read_ply(path)

@@ -32,7 +32,7 @@ from ..constants import (
     SH_COEFFS_BY_BANDS,
     WEBP_MAX_SIDE,
 )
-from ..container.writer import ContainerFile
+from ..container.objects import container_output
 from ..errors import InputError
 from ..framing import dense_core, opening_view
 from ..io.sequence import FrameSequence
@@ -506,7 +506,8 @@ def _write_container(
     entries: list[ChunkEntry] = []
     keys: list[NodeKey] = []
     per_level: dict[int, int] = {}
-    with ContainerFile(path) as out, contextlib.closing(_encoded(parts, plan, options)) as encoded:
+    encoding = contextlib.closing(_encoded(parts, plan, options))
+    with container_output(path) as out, encoding as encoded:
         for i, (info, payload) in enumerate(encoded):
             offset, length, digest = out.add(payload)
             entries.append(

@@ -20,10 +20,12 @@ from urllib.parse import quote
 from aiohttp import HttpVersion10, HttpVersion11, web
 
 from ..errors import AccessError, InputError
+from ..io.objects import ObjectPath, is_object_url
 from .catalog import BusyError, Catalog, NotFoundError, SceneEntry
 from .conditional import Outcome, evaluate, http_date
 from .lean import LeanSite
 from .logs import log_out_of_fds, quiet_client_errors
+from .object_catalog import ObjectCatalog
 from .player import add_player_routes
 from .private import (
     PRIVACY,
@@ -211,17 +213,29 @@ async def healthz(request: web.Request) -> web.StreamResponse:
     return web.json_response({"status": "ok"}, headers={"Cache-Control": "no-store"})
 
 
+def _catalog(root: Path | str) -> Catalog:
+    """The catalog of a folder or file, or of a store prefix or object (a storage URL)."""
+    if is_object_url(root):
+        store = ObjectPath.from_url(str(root))
+        if not (store.is_dir() or store.is_file()):
+            raise InputError("no such prefix or object in the store", where=str(root))
+        return ObjectCatalog(store)
+    path = Path(root)
+    if not (path.is_dir() or path.is_file()):
+        raise InputError("the server root must be a folder or a file", where=str(root))
+    return Catalog(path)
+
+
 def make_app(
-    root: Path, *, limits: Limits | None = None, privacy: Privacy | None = None
+    root: Path | str, *, limits: Limits | None = None, privacy: Privacy | None = None
 ) -> web.Application:
-    """The application serving ``root``: a folder, or one file (only that file is served).
+    """The application serving ``root``: a folder, or one file (only that file is served), or
+    the same in object storage (``s3://bucket/media/``: bodies read with ranged GETs).
 
     ``privacy`` names the private paths and the URL secret (docs/http.md, "Private scenes").
     """
-    if not (root.is_dir() or root.is_file()):
-        raise InputError("the server root must be a folder or a file", where=str(root))
     app = web.Application(middlewares=[_guard])
-    app[CATALOG] = Catalog(root)
+    app[CATALOG] = _catalog(root)
     app[LIMITS] = limits or Limits()
     app[LOAD] = Load()
     app[PRIVACY] = privacy or Privacy()
@@ -256,7 +270,7 @@ async def start_server(
     await runner.setup()
     site = (
         LeanSite(runner, host, port, reuse_port=reuse_port)
-        if limits.lean and limits.sendfile and CATALOG in app  # an app from make_app
+        if limits.lean and limits.sendfile and _local(app)
         else web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
     )
     try:
@@ -269,8 +283,17 @@ async def start_server(
     return runner, int(runner.addresses[0][1])
 
 
+def _local(app: web.Application) -> bool:
+    """An app from make_app serving local files (the lean path sends files by descriptor)."""
+    return CATALOG in app and not isinstance(app[CATALOG], ObjectCatalog)
+
+
 async def serve_forever(
-    root: Path, host: str, port: int, limits: Limits | None = None, privacy: Privacy | None = None
+    root: Path | str,
+    host: str,
+    port: int,
+    limits: Limits | None = None,
+    privacy: Privacy | None = None,
 ) -> None:
     """Serve until cancelled (Ctrl-C), then shut down gracefully."""
     app = make_app(root, limits=limits, privacy=privacy)
@@ -283,7 +306,7 @@ async def serve_forever(
 
 
 def run_server(
-    root: Path,
+    root: Path | str,
     *,
     host: str = "127.0.0.1",
     port: int = 8080,

@@ -24,7 +24,7 @@ from typing import Any, BinaryIO, NamedTuple, TypeVar, cast
 from ..constants import is_container
 from ..container.header import HEADER_SIZE, Header
 from ..container.index import MAX_INDEX_BYTES
-from ..container.sources import FileSource, read_index
+from ..container.sources import ByteSource, FileSource, read_index
 from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import InputError, SourceError, TsogError
 from ..schemas.manifest import ChunkEntry, dump_manifest
@@ -72,6 +72,9 @@ class Representation:
     beneath: Path | None = None
     """The served root this file was checked to lie under (resolved, no symlink left in
     ``path``): it is opened with :func:`open_beneath`. None for the server's own files."""
+    source: ByteSource | None = None
+    """Where the bytes are read when they are not a local file: a stored object (ranged GETs,
+    server/object_catalog.py); ``path`` is then its name relative to the served prefix."""
 
     def open(self) -> BinaryIO:
         """The file, opened for reading (see :func:`open_beneath`)."""
@@ -254,7 +257,7 @@ class Catalog:
 
     def _whole(self, path: Path, version: FileVersion, etag: str) -> Representation:
         """The representation of a whole file under the root."""
-        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else _guess_type(path)
+        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else guess_type(path)
         return Representation(path, 0, version.size, etag, version.mtime_ns / 1e9, kind, self.root)
 
     async def _once(
@@ -335,6 +338,14 @@ class Catalog:
         """The root-relative path of a scene: its container file or its folder."""
         return self.relative(scene.path if scene.packed else scene.path.parent)
 
+    def has_file(self, rel: str) -> bool:
+        """Whether the regular file ``rel`` exists under the root (blocking)."""
+        try:
+            locate(self.root, rel)
+        except (NotFoundError, InputError):
+            return False
+        return True
+
     def scene_ids(self) -> list[str]:
         """Ids of every container and unpacked layout under the root (symlinks not followed;
         names that are not :func:`servable` skipped, with the folders below them)."""
@@ -401,7 +412,7 @@ def remember(cache: dict[_K, _V], path: _K, value: _V) -> None:
         del cache[next(iter(cache))]
 
 
-def _guess_type(path: Path) -> str:
+def guess_type(path: Path) -> str:
     """A media type from the extension (octet-stream when unknown)."""
     known = {".json": "application/json", ".sog": SOG_TYPE, ".ply": "application/octet-stream"}
     return known.get(path.suffix.lower(), "application/octet-stream")

@@ -101,6 +101,6 @@ async def scene_list(request: web.Request) -> list[dict[str, Any]]:
     """The public scenes as the API and the player's index list them."""
     catalog = request.app[CATALOG]
     found = await public_scenes(request)
-    rels = [catalog.root / thumbnail_rel(catalog, s) for s in found]
-    present = await asyncio.to_thread(lambda: [p.is_file() for p in rels])
+    rels = [thumbnail_rel(catalog, s) for s in found]
+    present = await asyncio.to_thread(lambda: [catalog.has_file(rel) for rel in rels])
     return [_scene_json(s, has) for s, has in zip(found, present, strict=True)]

@@ -50,7 +50,8 @@ def default_workers() -> int:
 class Site:
     """What every worker serves, and where."""
 
-    root: Path
+    root: Path | str
+    """A folder or file, or a storage URL."""
     host: str
     port: int
     limits: Limits
