@@ -1,12 +1,17 @@
 """Segmenting on one machine's engines: the local process pool against a Dask LocalCluster.
 
-    .venv/bin/python benchmarks/bench_cluster.py [--gaussians 1000000]
+    .venv/bin/python benchmarks/bench_cluster.py [--gaussians 1000000] [--frames 24]
 
-A generated FreeTimeGS-style SH3 clip (10 s, lifespans 60-100 % of it: the issue's kind of
-scene, at a size this machine segments in a minute), segmented in one run by every engine with
-1 and 2 workers: wall time, Gaussians per second, CPU use (the parent's, its children's and the
-Dask workers'), the parent's peak RSS, and whether every container is byte-identical. Writes
-the "cluster" section of docs/benchmarks.md.
+Two inputs, each segmented in one run by every engine with 1 and 2 workers: wall time,
+Gaussians per second, CPU use (the parent's, its children's and the Dask workers'), peak RSS
+of the parent and of each worker, and whether every container of an input is byte-identical.
+- A generated FreeTimeGS-style SH3 clip (10 s, lifespans 60-100 % of it: the issue's kind of
+  scene, at a size this machine segments in a minute): a scene in memory, so the client sends
+  each job its Gaussians.
+- A generated sequence of SH3 PLY frames on disk (a flipbook of a capture): each job is a
+  window that its worker reads itself; the bytes sent to a worker per window (the pickled job)
+  are set against the window's arrays, and the bytes that come back (the chunks).
+Writes the "cluster" section of docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -15,11 +20,12 @@ import argparse
 import datetime as dt
 import hashlib
 import os
+import pickle
 import resource
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -27,8 +33,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from distributed import LocalCluster
 
 from common import write_section
+from tsog_stream.io.ply import write_ply
+from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.model import Scene
-from tsog_stream.segment.segmenter import SegmentOptions, SegmentReport, segment_scene
+from tsog_stream.segment.layers import LayerPlan
+from tsog_stream.segment.plan import Plan
+from tsog_stream.segment.segmenter import (
+    SegmentOptions,
+    SegmentReport,
+    WindowJob,
+    max_gaussians_per_chunk,
+    segment_scene,
+    segment_sequence,
+)
 from tsog_stream.synthetic import freetime_scene, static_gaussians
 
 MiB = 1 << 20
@@ -44,6 +61,8 @@ class Run:
     cpu_percent: float
     digest: str
     report: SegmentReport
+    worker_peak_mib: float
+    """The largest worker's peak RSS (the pool's: the largest child's so far)."""
 
 
 def scene_of(n: int) -> Scene:
@@ -57,9 +76,31 @@ def _cpu_s() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def measure(scene: Scene, engine: str, workers: int, path: Path) -> Run:
-    """Segment ``scene`` once on ``engine`` (local pool or a fresh Dask LocalCluster)."""
-    options = SegmentOptions(workers=workers, layers=1)
+def _peak_rss_kib() -> int:
+    """This process's peak RSS (run inside each Dask worker)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def frames_of(folder: Path, count: int, per_frame: int) -> FrameSequence:
+    """``count`` SH3 PLY frames of ``per_frame`` Gaussians each (a new draw per frame)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in range(count):
+        write_ply(folder / f"frame_{k:04d}.ply", static_gaussians(per_frame, sh_bands=3, seed=k))
+    return open_sequence(folder)
+
+
+def _segment(source: Scene | FrameSequence, path: Path, options: SegmentOptions) -> SegmentReport:
+    if isinstance(source, FrameSequence):
+        return segment_sequence(source, path, options)
+    return segment_scene(source, path, options)
+
+
+def measure(source: Scene | FrameSequence, engine: str, workers: int, path: Path) -> Run:
+    """Segment ``source`` once on ``engine`` (local pool or a fresh Dask LocalCluster)."""
+    base = SegmentOptions(workers=workers, layers=1)
+    if isinstance(source, FrameSequence):
+        base = SegmentOptions(workers=workers, layers=1, window_s=1 / source.fps)
+    options = base
     cluster = None
     if engine == "dask":
         cluster = LocalCluster(  # type: ignore[no-untyped-call]
@@ -69,71 +110,126 @@ def measure(scene: Scene, engine: str, workers: int, path: Path) -> Run:
             host="127.0.0.1",
             dashboard_address="127.0.0.1:0",
         )
-        options = SegmentOptions(workers=workers, layers=1, cluster=cluster.scheduler_address)
+        options = replace(base, cluster=cluster.scheduler_address)
     try:
         cpu, began = _cpu_s(), time.monotonic()
-        report = segment_scene(scene, path, options)
+        report = _segment(source, path, options)
         wall = time.monotonic() - began
         cpu_used = _cpu_s() - cpu
+        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         if cluster is not None:
             from distributed import Client  # noqa: PLC0415
 
             with Client(cluster) as client:  # type: ignore[no-untyped-call]
                 cpu_used += sum(client.run(lambda: sum(os.times()[:2])).values())
+                peak = max(client.run(_peak_rss_kib).values()) / 1024
     finally:
         if cluster is not None:
             cluster.close()
     digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
-    return Run(engine, workers, wall, 100 * cpu_used / wall, digest, report)
+    if workers == 1 and cluster is None:
+        peak = 0.0  # encoded in the parent
+    return Run(engine, workers, wall, 100 * cpu_used / wall, digest, report, peak)
+
+
+def job_bytes(seq: FrameSequence, report: SegmentReport) -> tuple[float, float, float]:
+    """Mean bytes per window: sent to a worker (the pickled window job), the window's arrays,
+    and what comes back (its chunks)."""
+    plan = Plan(0.0, seq.count / seq.fps, 1 / seq.fps, seq.count, {}, 0)
+    max_count = max_gaussians_per_chunk(SegmentOptions().max_pixels, 3)
+    one = LayerPlan.single()
+    sent = [
+        len(pickle.dumps(WindowJob(seq.window(k, k + 1), k, max_count, one, plan, 0, 90)))
+        for k in range(seq.count)
+    ]
+    arrays = [seq.read(k, k + 1).scene.gaussians for k in range(min(seq.count, 3))]
+    raw = sum(sum(a.nbytes for a in vars(g).values()) for g in arrays) / len(arrays)
+    return sum(sent) / len(sent), raw, report.bytes / seq.count
+
+
+def run_all(source: Scene | FrameSequence, folder: Path, name: str) -> list[Run]:
+    """Every engine with 1 and 2 workers on ``source``."""
+    runs = []
+    for engine in ("pool", "dask"):
+        for workers in (1, 2):
+            run = measure(source, engine, workers, folder / f"{name}-{engine}{workers}.tsogs")
+            runs.append(run)
+            print(name, engine, workers, f"{run.wall_s:.1f} s", f"{run.cpu_percent:.0f} %")
+    return runs
+
+
+def table(runs: list[Run], gaussians: int) -> list[str]:
+    """The runs as a Markdown table, with the scaling line under it."""
+    rows = [
+        "| engine | workers | wall | Gaussians/s | CPU | worker peak RSS |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in runs:
+        peak = f"{r.worker_peak_mib:.0f} MiB" if r.worker_peak_mib else "(in the parent)"
+        rows.append(
+            f"| {r.engine} | {r.workers} | {r.wall_s:.1f} s | "
+            f"{gaussians / r.wall_s / 1e3:.0f}k | {r.cpu_percent:.0f} % | {peak} |"
+        )
+    by = {(r.engine, r.workers): r.wall_s for r in runs}
+    same = len({r.digest for r in runs}) == 1
+    rows += [
+        "",
+        f"Scaling from 1 to 2 workers: pool {by['pool', 1] / by['pool', 2]:.2f}x, Dask "
+        f"{by['dask', 1] / by['dask', 2]:.2f}x; Dask against the pool at 2 workers: "
+        f"{by['dask', 2] / by['pool', 2]:.2f}x the time. Containers byte-identical: "
+        f"{'yes' if same else 'NO'}.",
+    ]
+    return rows
+
+
+def _peak_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--gaussians", type=int, default=1_000_000)
+    parser.add_argument("--frames", type=int, default=24)
+    parser.add_argument("--per-frame", type=int, default=40_000)
     args = parser.parse_args()
-    scene = scene_of(args.gaussians)
-    raw = sum(a.nbytes for a in vars(scene.gaussians).values())
-    runs = []
     with tempfile.TemporaryDirectory() as tmp:
-        for engine in ("pool", "dask"):
-            for workers in (1, 2):
-                run = measure(scene, engine, workers, Path(tmp) / f"{engine}{workers}.tsogs")
-                runs.append(run)
-                print(
-                    engine, workers, f"{run.wall_s:.1f} s", f"{run.cpu_percent:.0f} %", flush=True
-                )
-    identical = len({r.digest for r in runs}) == 1
+        seq = frames_of(Path(tmp) / "frames", args.frames, args.per_frame)
+        seq_runs = run_all(seq, Path(tmp), "frames")
+        sent, window_raw, back = job_bytes(seq, seq_runs[0].report)
+        parent_seq = _peak_mib()
+        scene = scene_of(args.gaussians)
+        raw = sum(a.nbytes for a in vars(scene.gaussians).values())
+        scene_runs = run_all(scene, Path(tmp), "scene")
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     body = [
         "## Segmenting on the local pool and on Dask (issue 20)",
         "",
-        f"Run {dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC')} "
-        f"(`benchmarks/bench_cluster.py --gaussians {args.gaussians}`), 2 cores. A generated "
-        f"FreeTimeGS-style clip of {len(scene)} SH3 Gaussians (10 s, lifespans 60-100 %; raw "
-        f"arrays {raw / MiB:.0f} MiB), one layer, segmented by each engine in the same run: "
-        "`--workers N` (local spawned processes; 1: in the parent) and `--cluster` on a fresh "
-        "Dask LocalCluster of N single-threaded worker processes (its start not counted). CPU: "
-        "the parent's, its children's and the Dask workers' over the wall time. "
-        f"Containers byte-identical: {'yes' if identical else 'NO'}.",
+        f"Run {when} (`benchmarks/bench_cluster.py --gaussians {args.gaussians} --frames "
+        f"{args.frames} --per-frame {args.per_frame}`), 2 cores. Each input segmented by each "
+        "engine in the same run, one layer: `--workers N` (local spawned processes; 1: in the "
+        "parent) and `--cluster` on a fresh Dask LocalCluster of N single-threaded worker "
+        "processes (its start not counted). CPU: the parent's, its children's and the Dask "
+        "workers' over the wall time. Worker peak RSS: the largest worker's (for the pool, the "
+        "largest child process's so far in the run).",
         "",
-        "| engine | workers | wall | Gaussians/s | CPU |",
-        "| --- | --- | --- | --- | --- |",
-    ]
-    for r in runs:
-        body.append(
-            f"| {r.engine} | {r.workers} | {r.wall_s:.1f} s | "
-            f"{len(scene) / r.wall_s / 1e3:.0f}k | {r.cpu_percent:.0f} % |"
-        )
-    by = {(r.engine, r.workers): r.wall_s for r in runs}
-    body += [
+        f"**A scene in memory**: a generated FreeTimeGS-style clip of {len(scene)} SH3 Gaussians "
+        f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "
+        "its Gaussians.",
         "",
-        f"Scaling from 1 to 2 workers: pool {by['pool', 1] / by['pool', 2]:.2f}x, Dask "
-        f"{by['dask', 1] / by['dask', 2]:.2f}x; Dask against the pool at 2 workers: "
-        f"{by['dask', 2] / by['pool', 2]:.2f}x the time. The client sends each job its "
-        "Gaussians (workers reading their own input is the next step); the parent's peak RSS "
-        f"over all runs: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB "
-        "(the scene, the jobs in flight and the finished chunks waiting for their turn). Each "
-        "worker's own peak is not measured yet (`getrusage` inside a Dask worker reported the "
-        "parent's figure).",
+        *table(scene_runs, len(scene)),
+        f"The parent's peak RSS over the whole run: {_peak_mib():.0f} MiB (the scene, the jobs "
+        "in flight and the finished chunks waiting for their turn).",
+        "",
+        f"**A frame sequence on disk**: {args.frames} generated SH3 PLY frames of "
+        f"{args.per_frame} Gaussians (a window per frame). With 2 workers each job is a window "
+        "its worker reads itself: a job sent to a worker is "
+        f"{sent / 1024:.1f} KiB (the frames' paths and shapes, the plan) instead of the window's "
+        f"{window_raw / MiB:.1f} MiB of arrays ({window_raw / sent:.0f}x less); what comes back "
+        f"is the window's chunks, {back / 1024:.0f} KiB a window. The parent's peak RSS up to "
+        f"here: {parent_seq:.0f} MiB (it reads only the few frames it samples for the layout, "
+        "the opening view and the layers).",
+        "",
+        *table(seq_runs, seq.gaussians),
         "",
     ]
     write_section("cluster", "\n".join(body), "bench_cluster.py")

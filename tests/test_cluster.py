@@ -4,23 +4,29 @@ for a scheduler that is not there."""
 
 from __future__ import annotations
 
+import os
+import signal
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from distributed import LocalCluster
+from distributed import Client, LocalCluster
 
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.errors import InputError
+from tsog_stream.io.ply import write_ply
+from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Scene
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment import engines
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.synthetic import SceneSpec, generate_scene
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
 OPTIONS = SegmentOptions(window_s=1.0, policy="hybrid", max_pixels=64 * 64, layers=2)
 """Chunks of unequal sizes and two layers (SH-band chunks too)."""
@@ -98,3 +104,55 @@ def test_a_scheduler_that_is_not_there_is_one_line(
     with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
         segment_scene(scene, tmp_path / "o.tsogs", options)
     assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def test_window_jobs_of_a_layered_sh_sequence_write_the_same_bytes(tmp_path: Path) -> None:
+    """A frame sequence with enough windows for every worker: each job is a window its
+    worker reads and cuts itself (layers, SH-band chunks numbered within the window, then
+    renumbered here); the container is the one a single process writes."""
+    for k in range(4):  # 4 windows: 2 a worker, the least that makes windows the jobs
+        write_ply(tmp_path / f"f_{k:02d}.ply", static_gaussians(1500, sh_bands=1, seed=k))
+    seq = open_sequence(tmp_path, fps=10.0)
+    options = SegmentOptions(window_s=0.1, layers=2, max_pixels=64 * 64)
+    paths = {n: tmp_path / f"w{n}.tsogs" for n in (1, 2)}
+    for n, path in paths.items():
+        segment_sequence(seq, path, replace(options, workers=n))
+    chunks = _chunks(paths[2])
+    assert {c.node for c in chunks if c.sh_of is not None} == set(range(4))
+    assert [c.sh_of for c in chunks if c.sh_of is not None] == [0, 3, 6, 9]  # container ids
+    assert len(chunks) == 3 * 4  # base, bands and layer 1 of every window
+    assert paths[2].read_bytes() == paths[1].read_bytes()
+
+
+def _kill_a_busy_worker(address: str, done: threading.Event, killed: list[str]) -> None:
+    """SIGKILL the first worker seen running a job (its Nanny starts a new one)."""
+    with Client(address, timeout=10) as client:  # type: ignore[no-untyped-call]
+        pids = client.run(os.getpid)
+        deadline = time.monotonic() + 120
+        while not done.is_set() and time.monotonic() < deadline:
+            busy = {w: list(keys) for w, keys in client.processing().items() if keys}
+            if busy:
+                worker, keys = next(iter(busy.items()))
+                os.kill(pids[worker], signal.SIGKILL)
+                killed.extend(str(k) for k in keys)
+                return
+            time.sleep(0.01)
+
+
+def test_a_lost_worker_s_jobs_run_again_and_the_bytes_do_not_change(
+    scene: Scene, reference: bytes, scheduler: str, tmp_path: Path
+) -> None:
+    """A worker killed in the middle of a job: the job runs again elsewhere (Dask reschedules
+    it; the cluster's Nanny starts a new worker), the run finishes and the container is the
+    one a single process writes. The last test of the module: it kills a shared worker."""
+    done, killed = threading.Event(), list[str]()
+    killer = threading.Thread(target=_kill_a_busy_worker, args=(scheduler, done, killed))
+    killer.start()
+    try:
+        path = tmp_path / "cluster.tsogs"
+        segment_scene(scene, path, replace(OPTIONS, cluster=scheduler))
+    finally:
+        done.set()
+        killer.join(30)
+    assert killed, "no job was seen running: nothing was lost"
+    assert path.read_bytes() == reference

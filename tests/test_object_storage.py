@@ -13,6 +13,7 @@ import logging
 import os
 import random
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +35,12 @@ from tsog_stream.container.objects import (
 from tsog_stream.container.ranges import ByteRange
 from tsog_stream.container.sources import read_index
 from tsog_stream.errors import SourceError
+from tsog_stream.io import sequence as sequence_module
 from tsog_stream.io.objects import ObjectPath, is_object_url
 from tsog_stream.io.readers import load_scene
+from tsog_stream.io.sequence import open_sequence
 from tsog_stream.schemas.manifest import Manifest
+from tsog_stream.segment.segmenter import SegmentOptions, segment_sequence
 from tsog_stream.server import make_app
 
 moto_server = pytest.importorskip("moto.server")  # dev extra: installed by scripts/setup
@@ -324,3 +328,41 @@ def test_part_sizes_grow_so_hours_of_capture_fit_one_upload() -> None:
     assert sizes[0] == PART_SIZE and min(sizes) >= MIN_PART_SIZE
     assert sizes == sorted(sizes) and sum(sizes) > 400 * 2**30  # 400 GiB in 10000 parts
     assert max(sizes) <= 128 << 20  # two parts in memory stay bounded
+
+
+def test_cluster_workers_read_their_own_frames_from_the_bucket(
+    s3: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A frame sequence in the bucket segmented on a LocalCluster: each job is a window its
+    worker reads from the store itself, so this process reads only the frames it samples
+    (layout, opening view, layers), and the container equals the one-process run."""
+    distributed = pytest.importorskip("distributed")
+    frames = sorted(FRAMES.iterdir())
+    for k in range(6):
+        s3.pipe_file(f"{BUCKET}/long/f_{k:03d}.ply", frames[k % len(frames)].read_bytes())
+    seq = open_sequence(f"s3://{BUCKET}/long/")
+    options = SegmentOptions(window_s=1 / 30, layers=1, max_pixels=64 * 64)
+    reads: list[str] = []
+    read_frame = sequence_module._read_frame
+
+    def counting(kind: str, path: Any) -> Any:
+        reads.append(str(path))
+        return read_frame(kind, path)
+
+    monkeypatch.setattr(sequence_module, "_read_frame", counting)
+    alone = tmp_path / "one.tsogs"
+    segment_sequence(seq, alone, replace(options, workers=1))
+    here = len(reads)
+    reads.clear()
+    with distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address="127.0.0.1:0",
+    ) as cluster:
+        url = f"s3://{BUCKET}/long.tsogs"
+        segment_sequence(seq, url, replace(options, cluster=cluster.scheduler_address))
+    assert reads and len(reads) == here - seq.count  # the samples only: no window read here
+    s3.invalidate_cache()
+    assert s3.cat_file(f"{BUCKET}/long.tsogs") == alone.read_bytes()

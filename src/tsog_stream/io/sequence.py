@@ -351,33 +351,67 @@ class FrameSequence:
         """Notes on skipped files, numbering gaps, sizes and SH degrees."""
         return _sequence_notes(self.frames, self.shapes)
 
-    def _read_frame(self, path: Location) -> tuple[Gaussians, list[str], set[str]]:
-        """One frame's Gaussians, reader notes and unkept extra properties."""
-        if self.frames.kind == "ply":
-            contents = read_ply(path)
-            return contents.gaussians, contents.notes, set(contents.extra)
-        return read_chunk(path).gaussians, [], set()
+    def window(self, first: int = 0, stop: int | None = None) -> FrameWindow:
+        """Frames [first, stop) as a :class:`FrameWindow`: what a worker needs to read them."""
+        stop = self.count if stop is None else stop
+        return FrameWindow(
+            self.frames.kind,
+            self.frames.paths[first:stop],
+            self.shapes[first:stop],
+            self.sh_coeffs,
+            self.fps,
+            first,
+            self.count,
+        )
 
     def read(
         self, first: int = 0, stop: int | None = None, progress: Progress | None = None
     ) -> Loaded4D:
         """Frames [first, stop) as one type-0 scene with absolute frame ids."""
-        stop = self.count if stop is None else stop
-        shapes = self.shapes[first:stop]
+        return self.window(first, stop).read(progress)
+
+
+def _read_frame(kind: str, path: Location) -> tuple[Gaussians, list[str], set[str]]:
+    """One frame's Gaussians, reader notes and unkept extra properties."""
+    if kind == "ply":
+        contents = read_ply(path)
+        return contents.gaussians, contents.notes, set(contents.extra)
+    return read_chunk(path).gaussians, [], set()
+
+
+@dataclass(frozen=True)
+class FrameWindow:
+    """A run of frames by location and declared shape, not by content: small to send, so a
+    worker process or a cluster node reads its own window's frames (from disk or a store)."""
+
+    kind: str
+    paths: list[Location]
+    shapes: list[tuple[int, int]]
+    sh_coeffs: int
+    """SH coefficients every frame is padded to (the sequence's highest)."""
+    fps: float
+    first: int
+    """The sequence's frame number of the first frame here."""
+    total: int
+    """Frames in the whole sequence (the scene length)."""
+
+    def read(self, progress: Progress | None = None) -> Loaded4D:
+        """The frames as one type-0 scene with absolute frame ids."""
+        shapes = self.shapes
         stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes], self.sh_coeffs)
         per_frame: list[tuple[str, list[str]]] = []
         extras: set[str] = set()
-        for i, path in enumerate(self.frames.paths[first:stop]):
+        for i, path in enumerate(self.paths):
             if progress:
-                progress(f"frame {first + i + 1}/{self.count}")
-            g, notes, extra = self._read_frame(path)
+                progress(f"frame {self.first + i + 1}/{self.total}")
+            g, notes, extra = _read_frame(self.kind, path)
             stack.put(i, g, str(path))
             per_frame.append((path.name, notes))
             extras.update(extra)
         notes = _merge_notes(per_frame)
         if extras:
             notes.append(f"per-frame extra properties are not kept: {', '.join(sorted(extras))}")
-        return Loaded4D(stack.scene(self.fps, first, self.count), notes)
+        return Loaded4D(stack.scene(self.fps, self.first, self.total), notes)
 
 
 def open_sequence(
@@ -417,6 +451,7 @@ __all__ = [
     "PLY_SEQUENCE",
     "SOG_SEQUENCE",
     "FrameSequence",
+    "FrameWindow",
     "detect_sequence",
     "frame_number",
     "list_frames",

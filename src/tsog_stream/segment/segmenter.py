@@ -35,7 +35,7 @@ from ..constants import (
 from ..container.objects import container_output
 from ..errors import InputError
 from ..framing import dense_core, opening_view
-from ..io.sequence import FrameSequence
+from ..io.sequence import FrameSequence, FrameWindow
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..morton import morton_order
 from ..schemas.cameras import CaptureCamera
@@ -490,9 +490,13 @@ def _union(boxes: Sequence[Box]) -> dict[str, list[float]]:
     return {"min": lo.tolist(), "max": hi.tolist()}
 
 
+Encoded = Generator[tuple[PartInfo, bytes], None, None]
+"""(what the index records, payload) of each chunk, in container order."""
+
+
 def _write_container(
     path: str | os.PathLike[str],
-    parts: Iterable[Part],
+    chunks: Encoded,
     *,
     total: int,
     plan: Plan,
@@ -502,12 +506,12 @@ def _write_container(
     views: Views,
     layering: LayerPlan,
 ) -> SegmentReport:
-    """Encode parts (in order), append them, and finish the container with its index."""
+    """Append the chunks as they are encoded (in order) and finish the container with its
+    index; the encoding stops (engine shut down) whatever ends the writing."""
     entries: list[ChunkEntry] = []
     keys: list[NodeKey] = []
     per_level: dict[int, int] = {}
-    encoding = contextlib.closing(_encoded(parts, plan, options))
-    with container_output(path) as out, encoding as encoded:
+    with container_output(path) as out, contextlib.closing(chunks) as encoded:
         for i, (info, payload) in enumerate(encoded):
             offset, length, digest = out.add(payload)
             entries.append(
@@ -640,7 +644,7 @@ def segment_scene(
     }
     report = _write_container(
         path,
-        parts,
+        _encoded(parts, plan, options),
         total=len(jobs),
         plan=plan,
         scene_fields=fields,
@@ -658,26 +662,124 @@ def _encoding(chunks: int, gaussians: int, workers: int) -> str:
     return f"encoding {chunks} chunks ({gaussians} Gaussians stored) on {on}"
 
 
+def window_parts(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> list[Part]:
+    """The parts of window ``w`` of a frame sequence: its chunks layer by layer, each frame's
+    most important Gaussians in its base (and its SH bands, if any, in SH-band chunks at the
+    start of layer 1, their hosts numbered from 0 within the window)."""
+    layer_of = None
+    if layering.layers > 1:
+        layer_of = layering.assign(importance(scene.gaussians), _frame_groups(scene))
+    window = [(NodeKey(0, w), np.arange(len(scene)))]
+    jobs = chunk_jobs(scene, window, max_count, layer_of)
+    if layering.sh_apart:
+        jobs = with_sh_jobs(jobs)
+    return [job_part(scene, job, layering.sh_apart) for job in jobs]
+
+
+def _after(sh_of: int | None, written: int) -> int | None:
+    """A host id counted within its window, as a container id (``written`` chunks before)."""
+    return None if sh_of is None else sh_of + written
+
+
 def _sequence_parts(
     seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan
 ) -> Iterator[Part]:
-    """Parts of a frame sequence, one window of frames in memory at a time: each window's
-    chunks layer by layer, each frame's most important Gaussians in its base (and its SH
-    bands, if any, in SH-band chunks at the start of layer 1)."""
-    split = layering.sh_apart
+    """Parts of a frame sequence read here, one window of frames in memory at a time."""
     written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
         scene = seq.read(first, min(seq.count, first + per_window)).scene
-        layer_of = None
-        if layering.layers > 1:
-            layer_of = layering.assign(importance(scene.gaussians), _frame_groups(scene))
-        window = [(NodeKey(0, w), np.arange(len(scene)))]
-        jobs = chunk_jobs(scene, window, max_count, layer_of)
-        if split:
-            jobs = with_sh_jobs(jobs, written)
-        written += len(jobs)
-        for job in jobs:
-            yield job_part(scene, job, split)
+        parts = window_parts(scene, w, max_count, layering)
+        for part in parts:
+            yield replace(part, sh_of=_after(part.sh_of, written))
+        written += len(parts)
+
+
+@dataclass(frozen=True)
+class WindowJob:
+    """One window of a frame sequence, read and encoded where the job runs: only the frames'
+    locations travel to the worker, only the chunks' payloads and index facts come back."""
+
+    frames: FrameWindow
+    index: int
+    max_count: int
+    layering: LayerPlan
+    plan: Plan
+    seed: int
+    quality: int
+
+
+def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
+    """Read a window's frames, cut and encode its chunks (run in worker processes)."""
+    scene = job.frames.read().scene
+    parts = window_parts(scene, job.index, job.max_count, job.layering)
+    del scene
+    return [
+        (
+            describe_part(part, job.plan),
+            encode_job_payload(part.scene, job.seed, job.quality, part.sh_of is not None),
+        )
+        for part in parts
+    ]
+
+
+WINDOWS_PER_SLOT = 2
+"""Windows per worker slot from which a sequence's jobs are whole windows (fewer: chunks, so
+that a short sequence still keeps every worker busy)."""
+
+
+def _sequence_encoded(
+    seq: FrameSequence,
+    per_window: int,
+    max_count: int,
+    layering: LayerPlan,
+    *,
+    plan: Plan,
+    options: SegmentOptions,
+) -> Encoded:
+    """A frame sequence's chunks in container order. On an engine with enough windows to
+    keep every worker busy, each job is a window that its worker reads itself, so no frame
+    passes through this process (the store or disk is read by the workers); otherwise
+    windows are read here and their chunks are the jobs."""
+    starts = range(0, seq.count, per_window)
+    if options.workers <= 1 and options.cluster is None:
+        yield from _encoded(_sequence_parts(seq, per_window, max_count, layering), plan, options)
+        return
+    with engine(options.workers, options.cluster) as running:
+        if len(starts) < WINDOWS_PER_SLOT * running.slots:
+            parts = _sequence_parts(seq, per_window, max_count, layering)
+            yield from _in_order(parts, plan, options, running)
+            return
+        jobs = (
+            WindowJob(
+                seq.window(first, min(seq.count, first + per_window)),
+                w,
+                max_count,
+                layering,
+                plan,
+                options.seed,
+                options.quality,
+            )
+            for w, first in enumerate(starts)
+        )
+        written = 0
+        for results in _window_results(jobs, running):
+            for info, payload in results:
+                yield replace(info, sh_of=_after(info.sh_of, written)), payload
+            written += len(results)
+
+
+def _window_results(
+    jobs: Iterable[WindowJob], running: Engine
+) -> Iterator[list[tuple[PartInfo, bytes]]]:
+    """Each window's encoded chunks in window order, ``running.slots`` windows in flight."""
+    pending: deque[Future[list[tuple[PartInfo, bytes]]]] = deque()
+    for job in jobs:
+        with sigint_blocked():
+            pending.append(running.executor.submit(encode_window, job))
+        if len(pending) >= running.slots:
+            yield pending.popleft().result()
+    while pending:
+        yield pending.popleft().result()
 
 
 def _frame_groups(scene: Scene) -> list[Ints]:
@@ -777,7 +879,7 @@ def segment_sequence(
     stage(_encoding(total, seq.gaussians, options.workers))
     report = _write_container(
         path,
-        _sequence_parts(seq, per_window, max_count, layering),
+        _sequence_encoded(seq, per_window, max_count, layering, plan=plan, options=options),
         total=total,
         plan=plan,
         scene_fields=fields,
