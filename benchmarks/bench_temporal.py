@@ -28,6 +28,7 @@ from common import sample, write_section
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.io.objects import size_of
 from tsog_stream.io.ply import ply_bytes, write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.merge import merge_sequence
@@ -73,7 +74,7 @@ def per_frame_sog(seq: FrameSequence, frames: list[int]) -> tuple[int, dict[str,
         path = seq.frames.paths[k]
         g = seq.read(k, k + 1).scene.gaussians
         if seq.frames.kind == "sog":
-            total += path.stat().st_size
+            total += size_of(path)
             continue
         files = encode_chunk(Scene(g))
         total += len(bundle_bytes(files))
@@ -87,7 +88,7 @@ def per_frame_sog(seq: FrameSequence, frames: list[int]) -> tuple[int, dict[str,
 def ply_sequence_bytes(seq: FrameSequence) -> int:
     """Bytes of the sequence as float 3DGS PLYs (the files themselves for PLY input)."""
     if seq.frames.kind == "ply":
-        return sum(p.stat().st_size for p in seq.frames.paths)
+        return sum(size_of(p) for p in seq.frames.paths)
     return sum(len(ply_bytes(seq.read(k, k + 1).scene.gaussians)) for k in range(seq.count))
 
 

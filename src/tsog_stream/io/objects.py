@@ -226,6 +226,13 @@ def as_location(path: str | os.PathLike[str] | ObjectPath) -> Location:
     return Path(text)
 
 
+def size_of(location: Location) -> int:
+    """Bytes of a local file or of a stored object (or of everything under a prefix)."""
+    if isinstance(location, ObjectPath):
+        return location.total_bytes()
+    return location.stat().st_size
+
+
 def object_at(path: object) -> ObjectPath:
     """The ObjectPath for a storage URL or ObjectPath (check with :func:`is_object_url`)."""
     if isinstance(path, ObjectPath):
@@ -271,5 +278,6 @@ __all__ = [
     "object_at",
     "put_object",
     "scheme_of",
+    "size_of",
     "store_errors",
 ]
