@@ -17,6 +17,7 @@ Writes the "cluster" section of docs/benchmarks.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import hashlib
 import os
@@ -24,12 +25,14 @@ import pickle
 import resource
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import psutil
 from distributed import LocalCluster
 
 from common import write_section
@@ -62,7 +65,7 @@ class Run:
     digest: str
     report: SegmentReport
     worker_peak_mib: float
-    """The largest worker's peak RSS (the pool's: the largest child's so far)."""
+    """The largest worker's RSS, sampled every 0.2 s (0: encoded in the parent)."""
 
 
 def scene_of(n: int) -> Scene:
@@ -76,9 +79,32 @@ def _cpu_s() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def _peak_rss_kib() -> int:
-    """This process's peak RSS (run inside each Dask worker)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+class ChildPeak:
+    """The largest RSS any child process (pool worker, Dask worker or nanny) reached, sampled
+    every ``every_s`` seconds in a thread. Not ``getrusage``: Linux carries a process's peak
+    across exec, so a spawned worker reports the parent's size at the fork."""
+
+    def __init__(self, every_s: float = 0.2) -> None:
+        self.peak = 0
+        self.every_s = every_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        me = psutil.Process()
+        while not self._stop.is_set():
+            for child in me.children(recursive=True):
+                with contextlib.suppress(psutil.Error):
+                    self.peak = max(self.peak, child.memory_info().rss)
+            self._stop.wait(self.every_s)
+
+    def __enter__(self) -> ChildPeak:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
 
 
 def frames_of(folder: Path, count: int, per_frame: int) -> FrameSequence:
@@ -113,16 +139,16 @@ def measure(source: Scene | FrameSequence, engine: str, workers: int, path: Path
         options = replace(base, cluster=cluster.scheduler_address)
     try:
         cpu, began = _cpu_s(), time.monotonic()
-        report = _segment(source, path, options)
+        with ChildPeak() as children:
+            report = _segment(source, path, options)
         wall = time.monotonic() - began
         cpu_used = _cpu_s() - cpu
-        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        peak = children.peak / MiB
         if cluster is not None:
             from distributed import Client  # noqa: PLC0415
 
             with Client(cluster) as client:  # type: ignore[no-untyped-call]
                 cpu_used += sum(client.run(lambda: sum(os.times()[:2])).values())
-                peak = max(client.run(_peak_rss_kib).values()) / 1024
     finally:
         if cluster is not None:
             cluster.close()
@@ -209,8 +235,9 @@ def main() -> None:
         "engine in the same run, one layer: `--workers N` (local spawned processes; 1: in the "
         "parent) and `--cluster` on a fresh Dask LocalCluster of N single-threaded worker "
         "processes (its start not counted). CPU: the parent's, its children's and the Dask "
-        "workers' over the wall time. Worker peak RSS: the largest worker's (for the pool, the "
-        "largest child process's so far in the run).",
+        "workers' over the wall time. Worker peak RSS: the largest of any worker process, "
+        "sampled every 0.2 s (Dask's workers run with glibc's malloc thresholds set back: "
+        "`engines.tune_malloc`).",
         "",
         f"**A scene in memory**: a generated FreeTimeGS-style clip of {len(scene)} SH3 Gaussians "
         f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "

@@ -10,9 +10,12 @@ docs/design/segmenter.md ("Parallel encoding").
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 import multiprocessing
 import re
 import signal
+import warnings
 from collections.abc import Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass
@@ -29,6 +32,41 @@ CONNECT_TIMEOUT_S = 10.0
 """How long to try reaching a scheduler before a one-line error."""
 JOB_RETRIES = 2
 """Times Dask runs a job again when the worker running it is lost."""
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+"""glibc ``mallopt`` parameters (malloc.h)."""
+MALLOC_PLUGIN = "tsog-stream-malloc"
+
+
+def tune_malloc() -> bool:
+    """Give glibc's allocator the thresholds it would have grown to by itself (mmap 32 MiB,
+    trim 64 MiB); False where there is no glibc.
+
+    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back sooner),
+    which also pins the mmap threshold at 128 KiB: every large temporary array is then mapped
+    and zeroed afresh, and encoding a window ran 1.6x slower in a Dask worker than in a plain
+    process (14.4 s against 8.9 s for three 40k-Gaussian SH3 frames; 9.1 s after this).
+    """
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(M_MMAP_THRESHOLD, 32 << 20) and mallopt(M_TRIM_THRESHOLD, 64 << 20))
+
+
+def _register_malloc_tuning(client: Any) -> None:
+    """Run :func:`tune_malloc` on every worker of the cluster, present and future (a worker
+    started again after a loss too), as a Dask worker plugin."""
+    from distributed import WorkerPlugin  # noqa: PLC0415 - an optional extra
+
+    class TuneMalloc(WorkerPlugin):
+        name = MALLOC_PLUGIN
+
+        def setup(self, worker: Any) -> None:
+            tune_malloc()
+
+    client.register_plugin(TuneMalloc())
 
 
 def check_cluster(value: str) -> str:
@@ -101,13 +139,17 @@ def _dask_engine(workers: int, cluster: str) -> Iterator[Engine]:
             )
         except (OSError, TimeoutError) as exc:
             raise InputError(f"cannot reach the Dask scheduler: {exc}", where=cluster) from None
+        _register_malloc_tuning(client)
         threads = sum(client.nthreads().values()) or 1
         executor = client.get_executor(retries=JOB_RETRIES, pure=False)
-        try:
-            yield Engine(executor, threads)
-        except BaseException:
-            executor.shutdown(wait=False)
-            raise
+        with warnings.catch_warnings():
+            # a scene in memory sends each job its Gaussians: that is the design, not a mistake
+            warnings.filterwarnings("ignore", "Sending large graph", UserWarning)
+            try:
+                yield Engine(executor, threads)
+            except BaseException:
+                executor.shutdown(wait=False)
+                raise
 
 
 def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
