@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -17,6 +19,7 @@ import pytest
 from test_cli_hostile import HOSTILE_FILE_RUNS
 from tsog_stream import TimelineType
 from tsog_stream.cli import interrupt
+from tsog_stream.cli import progress as progress_module
 from tsog_stream.cli.main import main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.codec.bundle import bundle_bytes
@@ -173,6 +176,26 @@ def test_a_swallowed_ctrl_c_is_raised_again_at_the_next_progress_report() -> Non
     finally:
         sys.unraisablehook = previous_hook
     assert len(seen) == 1
+
+
+def test_a_long_first_stage_is_logged_from_the_first_seconds(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Without a terminal, stages shorter than QUIET_SECONDS stay unlogged, but one still
+    running then is printed then (a 5M-Gaussian read was silent for 16 s); a command that
+    ends first prints nothing later."""
+    monkeypatch.setattr(progress_module, "QUIET_SECONDS", 0.2)
+    log = io.StringIO()
+    progress = Progress(stream=log)
+    progress("reading a big file")
+    time.sleep(0.6)
+    assert "reading a big file" in log.getvalue()
+    quick = io.StringIO()
+    progress = Progress(stream=quick)
+    progress("a quick command")
+    progress.close()
+    time.sleep(0.4)
+    assert quick.getvalue() == ""
 
 
 @pytest.fixture(scope="module")

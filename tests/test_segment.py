@@ -22,7 +22,9 @@ from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
 from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.compare import rotation_angles_deg
+from tsog_stream.constants import DEFAULT_MAX_PIXELS
 from tsog_stream.schemas.manifest import Policy
+from tsog_stream.segment import segmenter
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
 from tsog_stream.segment.segmenter import (
     ChunkJob,
@@ -572,3 +574,19 @@ def test_a_static_scene_cannot_be_segmented(tmp_path: Path) -> None:
     src = make_scene(TimelineType.START_DURATION, background=20, objects=1, per_object=10)
     with pytest.raises(InputError, match="4D"):
         segment_scene(Scene(src.gaussians), tmp_path / "x.tsogs")
+
+
+def test_no_chunk_holds_more_than_the_job_cap(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The pixel budget allows 8M Gaussians a chunk; a chunk holds at most
+    MAX_CHUNK_GAUSSIANS so one job never holds most of a scene (a long-lived scene's whole-clip
+    node is split into Morton runs, shared among the workers)."""
+    assert segmenter.max_gaussians_per_chunk(DEFAULT_MAX_PIXELS) == segmenter.MAX_CHUNK_GAUSSIANS
+    assert segmenter.max_gaussians_per_chunk(64 * 64) < segmenter.MAX_CHUNK_GAUSSIANS
+    monkeypatch.setattr(segmenter, "MAX_CHUNK_GAUSSIANS", 700)
+    scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
+    report = segment_scene(scene, tmp_path / "s.tsogs", SegmentOptions(layers=1))
+    with open_stream(tmp_path / "s.tsogs") as stream:
+        counts = [c.count for c in stream.index.manifest.chunks]
+    assert max(counts) <= 700 and sum(counts) == report.stored and len(counts) >= 4

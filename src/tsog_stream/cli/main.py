@@ -314,6 +314,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # interpreter must not fail again flushing stdout at exit
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    finally:
+        progress.close()
 
 
 if __name__ == "__main__":

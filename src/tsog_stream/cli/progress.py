@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from typing import TextIO
 
@@ -25,6 +26,10 @@ class Progress:
         self.start = time.monotonic()
         self.live = self.stream.isatty()
         self._open_line = False
+        self._lock = threading.Lock()
+        self._pending: str | None = None
+        """A stage begun before QUIET_SECONDS, printed then if it is still running."""
+        self._timer: threading.Timer | None = None
 
     def __call__(self, stage: str) -> None:
         """Announce that ``stage`` has begun (and stop here if Ctrl-C was pressed)."""
@@ -33,8 +38,13 @@ class Progress:
             return
         elapsed = time.monotonic() - self.start
         if not self.live and elapsed < QUIET_SECONDS:
+            self._hold(stage, elapsed)
             return
-        text = f"[{elapsed:6.1f}s] {stage}"
+        with self._lock:
+            self._pending = None
+            self._write(f"[{elapsed:6.1f}s] {stage}")
+
+    def _write(self, text: str) -> None:
         if self.live:
             self.stream.write("\r\x1b[2K" + text)
             self._open_line = True
@@ -42,13 +52,39 @@ class Progress:
             self.stream.write(text + "\n")
         self.stream.flush()
 
+    def _hold(self, stage: str, elapsed: float) -> None:
+        """Keep an early stage; print it at QUIET_SECONDS if no other output came first (a
+        long read, the first thing a command does, is then seen from the first seconds)."""
+        with self._lock:
+            self._pending = stage
+            if self._timer is None:
+                self._timer = threading.Timer(QUIET_SECONDS - elapsed, self._flush_held)
+                self._timer.daemon = True
+                self._timer.start()
+
+    def _flush_held(self) -> None:
+        with self._lock:
+            if self._pending is not None:
+                elapsed = time.monotonic() - self.start
+                self._write(f"[{elapsed:6.1f}s] {self._pending}")
+                self._pending = None
+
+    def close(self) -> None:
+        """The command ended: nothing held is printed later."""
+        with self._lock:
+            self._pending = None
+            if self._timer is not None:
+                self._timer.cancel()
+        self.done()
+
     def bar(self, stage: str, fraction: float) -> None:
         """Draw a bar for ``stage`` at ``fraction`` (0..1)."""
         filled = int(max(0.0, min(1.0, fraction)) * 30)
         self(f"{stage} [{'#' * filled}{'.' * (30 - filled)}] {fraction * 100:5.1f}%")
 
     def done(self) -> None:
-        """End the live line, if one is open."""
+        """End the live line, if one is open (and drop a held stage: that work is over)."""
+        self._pending = None
         if self._open_line and not self.quiet:
             self.stream.write("\n")
             self.stream.flush()

@@ -30,7 +30,7 @@ import math
 import zipfile
 import zlib
 from collections.abc import Mapping
-from typing import Final, Literal
+from typing import IO, BinaryIO, Final, Literal, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -76,6 +76,7 @@ _EXTRAS_NOTE: Final = "unknown properties kept as extras"
 
 DurationMode = Literal["log", "linear"]
 F64 = npt.NDArray[np.float64]
+Floats = npt.NDArray[np.float32] | npt.NDArray[np.float64]
 
 
 # --- PLY -------------------------------------------------------------------------------------
@@ -182,13 +183,17 @@ def _velocity(extra: dict[str, npt.NDArray[np.generic]], where: str) -> F64 | No
 # --- npz -------------------------------------------------------------------------------------
 
 
-def sniff_freetimegs_npz(data: bytes | memoryview) -> bool:
-    """True for a zip holding ``means.npy``, ``times.npy`` and ``durations.npy`` (whole file:
-    the zip directory is at its end)."""
-    if bytes(data[:4]) != b"PK\x03\x04":
-        return False
+def sniff_freetimegs_npz(data: bytes | memoryview | BinaryIO) -> bool:
+    """True for a zip holding ``means.npy``, ``times.npy`` and ``durations.npy`` (the whole
+    file, or an open one: the zip directory is at its end, read without the rest)."""
+    if isinstance(data, bytes | memoryview):
+        if bytes(data[:4]) != b"PK\x03\x04":
+            return False
+        source: BinaryIO = io.BytesIO(data)
+    else:
+        source = data
     try:
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        with zipfile.ZipFile(source) as zf:
             names = set(zf.namelist())
     except (zipfile.BadZipFile, OSError, ValueError, EOFError):
         return False
@@ -196,9 +201,15 @@ def sniff_freetimegs_npz(data: bytes | memoryview) -> bool:
 
 
 def parse_freetimegs_npz(
-    data: bytes | memoryview, *, name: str = "<bytes>", scene_length_s: float | None = None
+    data: bytes | memoryview | BinaryIO,
+    *,
+    name: str = "<bytes>",
+    scene_length_s: float | None = None,
 ) -> Loaded4D:
-    """Decode a FreeTimeGsVanilla checkpoint saved as ``.npz`` (splats' arrays by key)."""
+    """Decode a FreeTimeGsVanilla checkpoint saved as ``.npz`` (splats' arrays by key), from
+    bytes or from an open file: a file is read member by member, never whole, and float32
+    arrays stay float32 (a 5M-Gaussian SH3 checkpoint read as bytes and float64 peaked at
+    about 5x its arrays)."""
     _scene_length(scene_length_s)  # reject a bad option before reading anything
     arrays = _load_npz(data, name)
     n = arrays["means"].shape[0] if arrays["means"].ndim else -1
@@ -220,23 +231,27 @@ def parse_freetimegs_npz(
         )
     except InputError as exc:
         raise FormatError(exc.message, where=f"{name}: {exc.where}") from None
-    sigma = np.maximum(_exp(arrays["durations"].reshape(n)), MIN_DURATION)
-    velocity: F64 | None = arrays["velocities"]
+    sigma = np.maximum(_exp(arrays["durations"].reshape(n).astype(np.float64)), MIN_DURATION)
+    velocity: F64 | None = arrays["velocities"].astype(np.float64)
     notes: list[str] = []
-    base = (arrays[k].reshape(n, -1) for k in ("means", "scales", "quats", "opacities", "sh0"))
-    if bad := int(np.count_nonzero(~np.isfinite(np.hstack(list(base))).all(axis=1))):
+    finite = np.ones(n, bool)
+    for key in ("means", "scales", "quats", "opacities", "sh0"):
+        finite &= np.isfinite(arrays[key].reshape(n, -1)).all(axis=1)
+    if bad := int(n - np.count_nonzero(finite)):
         notes.append(f"kept {bad} Gaussians with non-finite base values as read")
     if "use_velocity" in arrays and not arrays["use_velocity"].any():
         notes.append("use_velocity 0: velocities ignored, positions are static")
         velocity = None
-    times = arrays["times"].reshape(n)
+    times = arrays["times"].reshape(n).astype(np.float64)
     return _build(gaussians, times, sigma, velocity, scene_length_s=scene_length_s, notes=notes)
 
 
-def _load_npz(data: bytes | memoryview, name: str) -> dict[str, F64]:
-    """The checkpoint's arrays as float64, read header-first so sizes are checked before use."""
+def _load_npz(data: bytes | memoryview | BinaryIO, name: str) -> dict[str, Floats]:
+    """The checkpoint's arrays (float32 kept, any other dtype as float64), read header-first
+    so sizes are checked before use."""
+    source = data if hasattr(data, "read") else io.BytesIO(cast("bytes", data))
     try:
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        with zipfile.ZipFile(cast(BinaryIO, source)) as zf:
             members = {i.filename.removesuffix(".npy"): i for i in zf.infolist()}
             missing = [k for k in NPZ_REQUIRED if k not in members]
             if missing:
@@ -249,8 +264,9 @@ def _load_npz(data: bytes | memoryview, name: str) -> dict[str, F64]:
         raise UnsupportedError(f"cannot read the zip: {exc}", where=name) from None
 
 
-def _read_npy(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, floats: bool) -> F64:
-    """One ``.npy`` member: float (else any numeric) dtype, a declared size that fits it."""
+def _read_npy(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, floats: bool) -> Floats:
+    """One ``.npy`` member: float (else any numeric) dtype, a declared size that fits it; read
+    straight into its array (no second copy), float32 kept."""
     with zf.open(info) as f:
         try:
             version = np.lib.format.read_magic(f)
@@ -270,11 +286,30 @@ def _read_npy(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, floats: bo
             raise FormatError(
                 f"shape {shape} needs {nbytes} bytes, the member has fewer", where=where
             )
-        raw = f.read(nbytes)
-    if len(raw) != nbytes:
-        raise FormatError(f"truncated: {len(raw)} of {nbytes} bytes", where=where)
-    array = np.frombuffer(raw, dtype).reshape(shape, order="F" if fortran else "C")
+        flat = np.empty(math.prod(shape), dtype)
+        got = _read_into(f, flat.view(np.uint8))
+    if got != nbytes:
+        raise FormatError(f"truncated: {got} of {nbytes} bytes", where=where)
+    array = flat.reshape(shape, order="F" if fortran else "C")
+    if array.dtype == np.float32:
+        return array
     return array.astype(np.float64)
+
+
+READ_BLOCK = 1 << 20
+"""Bytes of an npz member decompressed at a time into its array."""
+
+
+def _read_into(f: IO[bytes], out: npt.NDArray[np.uint8]) -> int:
+    """Fill ``out`` from ``f`` a block at a time (a member is never held twice); the count."""
+    got = 0
+    while got < out.size:
+        block = f.read(min(READ_BLOCK, out.size - got))
+        if not block:
+            break
+        out[got : got + len(block)] = np.frombuffer(block, np.uint8)
+        got += len(block)
+    return got
 
 
 # --- shared ----------------------------------------------------------------------------------
@@ -326,7 +361,8 @@ def _build(
         temporal["means"] = (velocity[keep] / length)[:, None, :].astype(np.float32)
     if scene_length_s is None:
         notes.append("time is normalised to [0, 1]: 1 unit read as 1.0 s (scene_length_s)")
-    return Loaded4D(Scene(gaussians.subset(keep), timeline, temporal), notes)
+    kept = gaussians if keep.all() else gaussians.subset(keep)  # no copy when all are kept
+    return Loaded4D(Scene(kept, timeline, temporal), notes)
 
 
 __all__ = [

@@ -19,7 +19,7 @@ from ..schemas.cameras import CaptureCamera
 from .cameras import cameras_for_input
 from .chunks import is_unbundled, read_chunk
 from .compressed_ply import is_compressed_ply
-from .files import read_bytes, read_head
+from .files import open_regular, read_bytes, read_head
 from .fourdgs import parse_4dgs, sniff_4dgs
 from .freetimegs import (
     is_freetimegs_ply,
@@ -94,7 +94,8 @@ def _detect_file(p: Location) -> str:
     if sniff_4dgs(head):
         return "4dgs"
     if is_zip(head):
-        return "freetimegs-npz" if sniff_freetimegs_npz(read_bytes(p)) else "sog"
+        with open_regular(p) as file:  # the zip directory only, not the whole file
+            return "freetimegs-npz" if sniff_freetimegs_npz(file) else "sog"
     if sniff_ply(head):
         header = parse_header(head, name=str(p))
         if is_compressed_ply(header):
@@ -137,6 +138,9 @@ def _read_4d(kind: str, path: str, options: ReadOptions, progress: Progress | No
         return read_ply_sequence(path, fps=fps, progress=progress)
     if kind == "sog-sequence":
         return read_sog_sequence(path, fps=fps, progress=progress)
+    if kind == "freetimegs-npz":  # read member by member from the file, never whole
+        with open_regular(path) as file:
+            return parse_freetimegs_npz(file, name=path, scene_length_s=options.scene_length_s)
     data = read_bytes(path)
     if kind == "splatv":
         return parse_splatv(data, name=path, duration_s=options.duration_s)
@@ -144,8 +148,6 @@ def _read_4d(kind: str, path: str, options: ReadOptions, progress: Progress | No
         return parse_freetimegs_ply(
             data, name=path, scene_length_s=options.scene_length_s, duration=options.duration_mode
         )
-    if kind == "freetimegs-npz":
-        return parse_freetimegs_npz(data, name=path, scene_length_s=options.scene_length_s)
     return parse_4dgs(data, name=path)
 
 

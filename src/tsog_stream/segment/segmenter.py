@@ -169,9 +169,17 @@ def palette_pixels(count: int, sh_bands: int) -> int:
     return rows * SH_CENTROIDS_PER_ROW * coeffs
 
 
+MAX_CHUNK_GAUSSIANS = 1 << 20
+"""No chunk holds more Gaussians than this, whatever the pixel budget allows (4096^2 pixels
+take 8M): one encode job must not hold most of a scene. A generated 5M-Gaussian SH3
+FreeTimeGS checkpoint with long lifespans was one 5M chunk: 283 s on one worker while the
+other idled, that worker at 10 GB (docs/design/cluster.md). The SH palette saturates at 65536
+entries from 65536 Gaussians on, so bigger chunks gain little from sharing one."""
+
+
 def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
     """Largest Gaussian count whose SOG images (the SH palette's included) fit in
-    ``max_pixels`` pixels each (and in WebP)."""
+    ``max_pixels`` pixels each (and in WebP), at most MAX_CHUNK_GAUSSIANS."""
     if max_pixels < MIN_PIXELS or max_pixels > WEBP_MAX_SIDE * WEBP_MAX_SIDE:
         raise InputError(
             f"pixel budget must be between {MIN_PIXELS} and {WEBP_MAX_SIDE}^2, got {max_pixels}",
@@ -192,7 +200,7 @@ def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
         except InputError:
             fits = False
         lo, hi = (mid, hi) if fits else (lo, mid - 1)
-    return lo
+    return min(lo, MAX_CHUNK_GAUSSIANS)
 
 
 def plan_scene(scene: Scene, options: SegmentOptions) -> Plan:
