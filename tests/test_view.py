@@ -21,7 +21,9 @@ import pytest
 from PIL import Image
 
 from helpers import ThreadedServer
+from tsog_stream import inputs
 from tsog_stream.server import make_app
+from tsog_stream.synthetic import static_gaussians
 
 FRAMES = "4d/tztechno_fireworks_frames"
 START_TIMEOUT_S = 120
@@ -161,3 +163,17 @@ def test_the_scene_list_shows_thumbnail_duration_and_count(samples: Path, tmp_pa
         assert missing.value.code == 404
     finally:
         server.stop()
+
+
+def test_a_thumbnail_draws_at_most_its_cap_of_the_most_opaque(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A huge scene's thumbnail draws its THUMBNAIL_GAUSSIANS most opaque Gaussians, in the
+    scene's order (its render of 5M Gaussians took the process to 6 GB)."""
+    monkeypatch.setattr(inputs, "THUMBNAIL_GAUSSIANS", 10)
+    g = static_gaussians(50, seed=3)
+    kept = inputs._most_opaque(g)
+    expected = np.sort(np.argsort(-g.opacities, kind="stable")[:10])
+    assert np.array_equal(kept.opacities, g.opacities[expected])
+    small = g.subset(np.arange(8))
+    assert inputs._most_opaque(small) is small
