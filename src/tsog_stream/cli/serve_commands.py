@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ..io.objects import as_location, is_object_url
+from ..io.objects import as_location
 from ..server import Limits, Privacy, Site, default_workers, run_server, run_workers
 from ..signing import load_secret, parse_ttl, sign_url
 from .common import Integer, Subparsers
@@ -107,10 +107,10 @@ def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
 
 def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
     """Serve until interrupted; returns the exit code."""
-    root: Path | str = args.root if is_object_url(args.root) else Path(args.root)
-    found = as_location(root)
+    found = as_location(args.root)
     if not (found.is_dir() or found.is_file()):
         raise InputError("no such folder or file", where=args.root)
+    root = found if isinstance(found, Path) else args.root  # a Site crosses processes: a URL
     if not 0 <= args.port <= 65535:
         raise InputError(f"expected a port 0-65535, got {args.port}", where="--port")
     for flag, count in (

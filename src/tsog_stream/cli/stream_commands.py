@@ -295,7 +295,30 @@ def _segment(
         eta = elapsed / done * (total - done)
         progress.bar(f"chunk {done}/{total}, ETA {eta:4.0f}s", done / total)
 
+    def segment(what: Scene | FrameSequence, layout: Choice | None) -> SegmentReport:
+        """A frame sequence window by window, or a scene in memory, with the same options."""
+        if isinstance(what, FrameSequence):
+            return segment_sequence(
+                what,
+                args.output,
+                options,
+                layout=layout,
+                cameras=cameras,
+                on_chunk=on_chunk,
+                on_stage=on_stage,
+            )
+        return segment_scene(
+            what,
+            args.output,
+            options,
+            layout=layout,
+            cameras=cameras,
+            on_chunk=on_chunk,
+            on_stage=on_stage,
+        )
+
     merged: Scene | None = None
+    layout: Choice | None = None
     if isinstance(source, FrameSequence) and args.temporal != "off":
         merged = _merged(args, progress, source)
         why, layout = (
@@ -303,36 +326,11 @@ def _segment(
         )
         if why is not None:
             print(f"temporal: {why}; stored one per frame (type 0)")
-        if merged is None or why is not None:
-            report = segment_sequence(
-                source,
-                args.output,
-                options,
-                layout=layout,
-                cameras=cameras,
-                on_chunk=on_chunk,
-                on_stage=on_stage,
-            )
-        else:
-            report = segment_scene(
-                merged,
-                args.output,
-                options,
-                layout=layout,
-                cameras=cameras,
-                on_chunk=on_chunk,
-                on_stage=on_stage,
-            )
-            progress.done()
-            _report_frame_errors(source, args.output)
-    elif isinstance(source, FrameSequence):
-        report = segment_sequence(
-            source, args.output, options, cameras=cameras, on_chunk=on_chunk, on_stage=on_stage
-        )
-    else:
-        report = segment_scene(
-            source, args.output, options, cameras=cameras, on_chunk=on_chunk, on_stage=on_stage
-        )
+            merged = None
+    report = segment(merged if merged is not None else source, layout)
+    if merged is not None and isinstance(source, FrameSequence):
+        progress.done()
+        _report_frame_errors(source, args.output)
     held.source = None  # the thumbnail below decodes and draws the scene again: drop ours
     del source, merged
     progress.done()

@@ -25,6 +25,7 @@ from collections.abc import Iterator
 from typing import Any, cast
 
 from ..errors import SourceError
+from ..io.files import refuse_existing
 from ..io.objects import ObjectPath, is_object_url, object_at, store_errors
 from .ranges import ByteRange
 from .sources import ReadStats
@@ -108,11 +109,8 @@ class MultipartObject:
         self.position = 0
         self.upload_id: str | None = None
         self.parts: list[dict[str, Any]] = []
-        self.requests = 0
-        """S3 requests made (a test counts them)."""
 
     def _call(self, method: str, **kwargs: Any) -> dict[str, Any]:
-        self.requests += 1
         s3: Any = self.target.fs
         with store_errors(str(self.target), "write"):
             reply = s3.call_s3(method, Bucket=self.bucket, Key=self.key, **kwargs)
@@ -234,8 +232,7 @@ def put_objects(base: str, files: dict[str, bytes], *, overwrite: bool) -> None:
     root = object_at(base)
     names = list(files)
     first = names[0]
-    if not overwrite and (root / first).exists():
-        raise SourceError("already exists (pass --force to replace it)", where=str(root / first))
+    refuse_existing(str(root / first), overwrite=overwrite)
     written: list[ObjectPath] = []
     try:
         for name in [*names[1:], first]:

@@ -13,7 +13,7 @@ from collections import deque
 from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -68,6 +68,8 @@ BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
 Ints = npt.NDArray[np.int64]
 ChunkProgress = Callable[[int, int], None]
+_Tag = TypeVar("_Tag")
+_Result = TypeVar("_Result")
 StageProgress = Callable[[str], None]
 """Told what segmenting does next, before each phase that can take a while."""
 
@@ -381,7 +383,7 @@ class Part:
 @dataclass(frozen=True)
 class JobParts:
     """The parts of a scene in memory, known up front as jobs: they may be encoded in any
-    order (largest first, see :func:`_encoded_largest_first`) and are written in job order."""
+    order (largest first, see :func:`_largest_first`) and are written in job order."""
 
     jobs: Sequence[ChunkJob]
     make: Callable[[ChunkJob], Part]
@@ -421,42 +423,63 @@ def _encoded(
     (:class:`JobParts`) are encoded largest first.
     """
     if options.workers <= 1 and options.cluster is None:
-        for part in parts:
-            payload = encode_job_payload(
-                part.scene, options.seed, options.quality, part.sh_of is not None
-            )
-            yield describe_part(part, plan), payload
+        yield from encoded_here(parts, plan, options.seed, options.quality)
         return
     with engine(options.workers, options.cluster) as running:
         if isinstance(parts, JobParts):
             yield from _largest_first(parts, plan, options, running)
         else:
-            yield from _in_order(parts, plan, options, running)
+            yield from _in_order(_submitted(parts, plan, options, running), running.slots)
+
+
+def encoded_here(
+    parts: Iterable[Part], plan: Plan, seed: int, quality: int
+) -> Iterator[tuple[PartInfo, bytes]]:
+    """(info, payload) of each part, encoded in this process: the one-process engine, and a
+    window job in its worker."""
+    for part in parts:
+        payload = encode_job_payload(part.scene, seed, quality, part.sh_of is not None)
+        yield describe_part(part, plan), payload
+
+
+def _submitted(
+    parts: Iterable[Part], plan: Plan, options: SegmentOptions, running: Engine
+) -> Iterator[tuple[PartInfo, Future[bytes]]]:
+    """Each part's info and the future of its payload, submitted as it is asked for (this
+    process keeps no part once it is handed over)."""
+    for part in parts:
+        info, future = describe_part(part, plan), _submit(running, part, options)
+        del part
+        yield info, future
 
 
 def _in_order(
-    parts: Iterable[Part], plan: Plan, options: SegmentOptions, running: Engine
-) -> Generator[tuple[PartInfo, bytes], None, None]:
-    """Parts encoded in input order, at most ``running.slots`` in flight."""
-    pending: deque[tuple[PartInfo, Future[bytes]]] = deque()
-    for part in parts:
-        pending.append((describe_part(part, plan), _submit(running, part, options)))
-        del part
-        if len(pending) >= running.slots:
-            done, fut = pending.popleft()
-            yield done, fut.result()
+    started: Iterable[tuple[_Tag, Future[_Result]]], slots: int
+) -> Iterator[tuple[_Tag, _Result]]:
+    """The results of jobs in the order they were started, at most ``slots`` in flight (the
+    next job is started, by iterating ``started``, only when a result is taken)."""
+    pending: deque[tuple[_Tag, Future[_Result]]] = deque()
+    for tag, future in started:
+        pending.append((tag, future))
+        if len(pending) >= slots:
+            done, oldest = pending.popleft()
+            yield done, oldest.result()
     while pending:
-        done, fut = pending.popleft()
-        yield done, fut.result()
+        done, oldest = pending.popleft()
+        yield done, oldest.result()
+
+
+def _start(running: Engine, job: Callable[..., _Result], *args: Any) -> Future[_Result]:
+    """Run ``job(*args)`` on the engine (SIGINT held while a local worker may be starting: it
+    inherits the block, see engines.sigint_blocked)."""
+    with sigint_blocked():
+        return running.executor.submit(job, *args)
 
 
 def _submit(running: Engine, part: Part, options: SegmentOptions) -> Future[bytes]:
-    """Encode ``part`` on the engine (SIGINT held while a local worker may be starting: it
-    inherits the block, see engines.sigint_blocked)."""
-    with sigint_blocked():
-        return running.executor.submit(
-            encode_job_payload, part.scene, options.seed, options.quality, part.sh_of is not None
-        )
+    """Encode ``part`` on the engine."""
+    has_bands = part.sh_of is not None
+    return _start(running, encode_job_payload, part.scene, options.seed, options.quality, has_bands)
 
 
 def _largest_first(
@@ -717,17 +740,10 @@ class WindowJob:
 
 
 def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
-    """Read a window's frames, cut and encode its chunks (run in worker processes)."""
-    scene = job.frames.read().scene
-    parts = window_parts(scene, job.index, job.max_count, job.layering)
-    del scene
-    return [
-        (
-            describe_part(part, job.plan),
-            encode_job_payload(part.scene, job.seed, job.quality, part.sh_of is not None),
-        )
-        for part in parts
-    ]
+    """Read a window's frames, cut and encode its chunks (run in worker processes; the
+    window's scene is dropped once cut into parts)."""
+    parts = window_parts(job.frames.read().scene, job.index, job.max_count, job.layering)
+    return list(encoded_here(parts, job.plan, job.seed, job.quality))
 
 
 WINDOWS_PER_SLOT = 2
@@ -755,7 +771,7 @@ def _sequence_encoded(
     with engine(options.workers, options.cluster) as running:
         if len(starts) < WINDOWS_PER_SLOT * running.slots:
             parts = _sequence_parts(seq, per_window, max_count, layering)
-            yield from _in_order(parts, plan, options, running)
+            yield from _in_order(_submitted(parts, plan, options, running), running.slots)
             return
         jobs = (
             WindowJob(
@@ -769,25 +785,12 @@ def _sequence_encoded(
             )
             for w, first in enumerate(starts)
         )
+        started = ((w, _start(running, encode_window, job)) for w, job in enumerate(jobs))
         written = 0
-        for results in _window_results(jobs, running):
+        for _, results in _in_order(started, running.slots):
             for info, payload in results:
                 yield replace(info, sh_of=_after(info.sh_of, written)), payload
             written += len(results)
-
-
-def _window_results(
-    jobs: Iterable[WindowJob], running: Engine
-) -> Iterator[list[tuple[PartInfo, bytes]]]:
-    """Each window's encoded chunks in window order, ``running.slots`` windows in flight."""
-    pending: deque[Future[list[tuple[PartInfo, bytes]]]] = deque()
-    for job in jobs:
-        with sigint_blocked():
-            pending.append(running.executor.submit(encode_window, job))
-        if len(pending) >= running.slots:
-            yield pending.popleft().result()
-    while pending:
-        yield pending.popleft().result()
 
 
 def _frame_groups(scene: Scene) -> list[Ints]:
