@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tsog_stream import framing
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.constants import MAX_CAMERAS
@@ -335,6 +336,21 @@ def test_the_framing_fits_the_dense_core_not_the_floaters() -> None:
     with pytest.raises(InputError, match="without a visible Gaussian"):
         dense_core(Gaussians.empty(0))
     assert default_view(Gaussians.empty(0), []) is None
+
+
+def test_a_big_scene_is_framed_from_a_sample(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Above FRAMING_SAMPLE Gaussians the view is measured on every k-th: the same core
+    within a few percent of its radius, floaters still ignored."""
+    gaussians = blob_with_floaters()
+    whole = dense_core(gaussians)
+    monkeypatch.setattr(framing, "FRAMING_SAMPLE", len(gaussians) // 7)
+    sample = framing.framing_sample(gaussians)
+    assert len(sample) <= len(gaussians) // 7
+    centre, radius = dense_core(sample)
+    assert np.linalg.norm(centre - whole[0]) < 0.05 * whole[1]
+    assert abs(radius - whole[1]) < 0.05 * whole[1]
+    monkeypatch.setattr(framing, "FRAMING_SAMPLE", len(gaussians))
+    assert framing.framing_sample(gaussians) is gaussians
 
 
 def test_cameras_are_found_where_trainers_leave_them(tmp_path: Path) -> None:

@@ -25,6 +25,8 @@ from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.constants import DEFAULT_MAX_PIXELS
 from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment import segmenter
+from tsog_stream.segment.layout import chunk_counts
+from tsog_stream.segment.meter import Meter, encode_work
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
 from tsog_stream.segment.segmenter import (
     ChunkJob,
@@ -494,7 +496,7 @@ def test_same_input_gives_byte_identical_containers(tmp_path: Path) -> None:
     assert not list(tmp_path.glob(".*.tmp")), "temporary files left behind"
 
 
-def test_jobs_are_encoded_largest_first_and_written_in_order() -> None:
+def test_jobs_are_encoded_costliest_first_and_written_in_order() -> None:
     """With two workers the biggest job starts first (a scene whose biggest chunk comes last
     kept one core idle while it encoded), and the payloads come out in job order, each the
     one the in-order encoder makes."""
@@ -508,27 +510,61 @@ def test_jobs_are_encoded_largest_first_and_written_in_order() -> None:
         started.append(next(i for i, j in enumerate(jobs) if j is job))
         return Part(job.key, src.subset(job.indices))
 
+    def by_size(job: ChunkJob) -> float:
+        return encode_work(job.indices.size, 0)
+
     options = SegmentOptions(workers=2)
-    parallel = list(_encoded(JobParts(jobs, make), plan, options))
+    parallel = list(_encoded(JobParts(jobs, make, by_size), plan, options, Meter(0.0)))
     assert started == [2, 1, 0]
-    serial = list(_encoded(JobParts(jobs, make), plan, replace(options, workers=1)))
+    serial = list(
+        _encoded(JobParts(jobs, make, by_size), plan, replace(options, workers=1), Meter(0.0))
+    )
     assert [p for _, p in parallel] == [p for _, p in serial]
     assert [info.count for info, _ in parallel] == [20, 40, len(src) - 60]
+    # the order follows the cost, not the count: a small job with SH bands goes first
+    started.clear()
+    with_bands = {1: 15}  # 40 Gaussians with SH3 weigh 640, more than the 340 without
+    list(
+        _encoded(
+            JobParts(
+                jobs,
+                make,
+                lambda job: encode_work(
+                    job.indices.size,
+                    with_bands.get(next(i for i, j in enumerate(jobs) if j is job), 0),
+                ),
+            ),
+            plan,
+            options,
+            Meter(0.0),
+        )
+    )
+    assert started == [1, 2, 0]
 
 
 def test_progress_reports_every_chunk(tmp_path: Path) -> None:
     src = make_scene(TimelineType.START_DURATION, background=100, objects=2, per_object=40)
     calls: list[tuple[int, int]] = []
+    etas: list[float | None] = []
     stages: list[tuple[str, int]] = []
+
+    def on_chunk(done: int, total: int, eta_s: float | None) -> None:
+        calls.append((done, total))
+        etas.append(eta_s)
+
     report = segment_scene(
         src,
         tmp_path / "p.tsogs",
         SegmentOptions(window_s=1.0, max_pixels=16 * 16),
-        on_chunk=lambda done, total: calls.append((done, total)),
+        on_chunk=on_chunk,
         on_stage=lambda text: stages.append((text, len(calls))),
     )
     assert [d for d, _ in calls] == list(range(1, report.chunks + 1))
     assert all(total == report.chunks for _, total in calls)
+    # encoded here, each chunk's job has finished when it is written: every ETA is known,
+    # and none is left after the last
+    assert all(eta is not None and eta >= 0.0 for eta in etas)
+    assert etas[-1] == pytest.approx(0.0, abs=1e-6)
     # every phase is announced before it starts: the last, encoding, before any chunk
     assert [text.split()[0] for text, _ in stages] == ["choosing", "measuring", "encoding"]
     assert stages[-1] == (f"encoding {report.chunks} chunks ({report.stored} Gaussians stored) "
@@ -540,7 +576,7 @@ def test_a_failed_segmentation_leaves_the_destination_untouched(tmp_path: Path) 
     out = tmp_path / "keep.tsogs"
     out.write_bytes(b"keep me")
 
-    def interrupt(done: int, total: int) -> None:
+    def interrupt(done: int, total: int, eta_s: float | None) -> None:
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
@@ -588,5 +624,16 @@ def test_no_chunk_holds_more_than_the_job_cap(
     scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
     report = segment_scene(scene, tmp_path / "s.tsogs", SegmentOptions(layers=1))
     with open_stream(tmp_path / "s.tsogs") as stream:
-        counts = [c.count for c in stream.index.manifest.chunks]
+        chunks = stream.index.manifest.chunks
+    counts = [c.count for c in chunks]
     assert max(counts) <= 700 and sum(counts) == report.stored and len(counts) >= 4
+
+
+def test_a_big_node_is_cut_into_an_even_number_of_chunks() -> None:
+    """Two workers finish a big node together: 5 chunks' worth become 6 (the 5M checkpoint's
+    last chunk encoded alone for ~40 s); one or two stay as they are."""
+    counts = chunk_counts([0, 1, 100, 101, 200, 201, 300, 500, 501], 100)
+    assert counts.tolist() == [0, 1, 1, 2, 2, 4, 4, 6, 6]
+    scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
+    jobs = segmenter.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(2900))], 700)
+    assert [job.indices.size for job in jobs] == [484] * 2 + [483] * 4

@@ -22,8 +22,9 @@ from PIL import Image
 
 from helpers import ThreadedServer
 from tsog_stream import inputs
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
-from tsog_stream.synthetic import static_gaussians
+from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
 FRAMES = "4d/tztechno_fireworks_frames"
 START_TIMEOUT_S = 120
@@ -177,3 +178,22 @@ def test_a_thumbnail_draws_at_most_its_cap_of_the_most_opaque(
     assert np.array_equal(kept.opacities, g.opacities[expected])
     small = g.subset(np.arange(8))
     assert inputs._most_opaque(small) is small
+    # reduced piece by piece (a container chunk by chunk): the same Gaussians, same order
+    pieces = [g.subset(np.arange(a, b)) for a, b in ((0, 20), (20, 35), (35, 50))]
+    assert np.array_equal(inputs._most_opaque_of(pieces).opacities, g.opacities[expected])
+    assert len(inputs._most_opaque_of([])) == 0
+
+
+def test_a_container_is_drawn_a_chunk_at_a_time(tmp_path: Path) -> None:
+    """A container's Source gives the Gaussians at t chunk by chunk (the thumbnail never holds
+    a big scene whole); together they are the frame at t."""
+    scene = generate_scene(SceneSpec(background=300, objects=2, per_object=60))
+    out = tmp_path / "pieces.tsogs"
+    segment_scene(scene, out, SegmentOptions(window_s=1.0, max_pixels=16 * 16, layers=1))
+    with inputs.open_source(out) as source:
+        t = sum(source.span or (0.0, 0.0)) / 2
+        pieces = list(source.parts_at(t))
+        whole = source.at(t)
+    assert len(pieces) > 2
+    assert np.array_equal(np.concatenate([p.means for p in pieces]), whole.means)
+    assert np.array_equal(np.concatenate([p.opacities for p in pieces]), whole.opacities)

@@ -37,6 +37,10 @@ MIN_COVERAGE = 0.5
 """A capture camera that sees less of the scene than this (opacity-weighted) is not its view."""
 FRAMING_NAME = "framing"
 """The ``name`` of a framing camera (capture cameras carry their image names)."""
+FRAMING_SAMPLE = 1 << 20
+"""Gaussians the view of a bigger scene is measured on, every k-th (a 5M-Gaussian scene's
+weighted medians and coverage took 4.3 s of segmenting's serial start; a median of 2^20
+samples is as good a centre)."""
 
 
 def rotation(camera: CaptureCamera) -> F64:
@@ -104,6 +108,12 @@ def weighted_centres(gaussians: Gaussians) -> tuple[F64, F64]:
     alpha = logit_to_alpha(gaussians.opacities)
     keep = np.all(np.isfinite(means), axis=1) & np.isfinite(alpha) & (alpha > 0)
     return means[keep], alpha[keep]
+
+
+def framing_sample(gaussians: Gaussians) -> Gaussians:
+    """``gaussians``, or every k-th of them when there are more than FRAMING_SAMPLE."""
+    step = -(-len(gaussians) // FRAMING_SAMPLE)
+    return gaussians if step <= 1 else gaussians.subset(np.arange(0, len(gaussians), step))
 
 
 def dense_core(gaussians: Gaussians) -> tuple[F64, float]:

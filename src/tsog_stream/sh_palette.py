@@ -31,7 +31,7 @@ Ints = npt.NDArray[np.intp]
 Labels = npt.NDArray[np.uint16] | npt.NDArray[np.uint32]
 Progress = Callable[[float], None]
 
-BLOCK_BYTES: Final = 256 << 20
+BLOCK_BYTES: Final = 16 << 20
 """Upper bound on the bytes of one distance block."""
 LEAF_SIZE: Final = 256
 """Points per kd-tree leaf searched by brute force."""
@@ -195,9 +195,12 @@ def _leaf_neighbours(points: F32, ids: Ints, real: npt.NDArray[np.bool_], count:
     rhs[:, dim, :] = np.where(real, -0.5 * norms, -1e30)
     best = np.empty((cells, length, count), np.intp)
     step = max(1, BLOCK_BYTES // (4 * length * length))
+    block = np.empty((min(step, cells), length, length), np.float32)
     diag = np.arange(length)
     for start in range(0, cells, step):
-        scores = np.einsum("cld,cdm->clm", lhs[start : start + step], rhs[start : start + step])
+        stop = min(cells, start + step)
+        scores = block[: stop - start]
+        np.einsum("cld,cdm->clm", lhs[start:stop], rhs[start:stop], out=scores)
         scores[:, diag, diag] = -np.inf
         if count == 1:
             best[start : start + step, :, 0] = np.argmax(scores, axis=2)
@@ -248,8 +251,7 @@ def _cheapest_partner(means: F32, mass: F64, candidates: Ints) -> tuple[Ints, F6
     costs = np.empty(candidates.shape, np.float64)
     for col in range(candidates.shape[1]):
         other = candidates[:, col]
-        diff = means - means[other]
-        dist = np.einsum("nd,nd->n", diff, diff).astype(np.float64)
+        dist = _distances(means, means, other)
         costs[:, col] = mass * mass[other] / (mass + mass[other]) * dist
     rows = np.arange(len(means))
     costs[candidates == rows[:, None]] = np.inf
@@ -289,11 +291,15 @@ def _merge(means: F32, mass: F64, movers: Ints, partner: Ints) -> tuple[F32, F64
     keep = np.ones(len(means), bool)
     keep[movers] = False
     new_id = (np.cumsum(keep) - 1)[target]
-    weighted = means.astype(np.float64) * mass[:, None]
-    np.add.at(weighted, target[movers], weighted[movers])
+    hosts = np.unique(target[movers])  # only the clusters that grow get new means
+    weighted = means[hosts].astype(np.float64) * mass[hosts, None]
+    slot = np.searchsorted(hosts, target[movers])
+    np.add.at(weighted, slot, means[movers].astype(np.float64) * mass[movers, None])
     total = mass.copy()
     np.add.at(total, target[movers], mass[movers])
-    return (weighted[keep] / total[keep, None]).astype(np.float32), total[keep], new_id
+    out = means.copy()
+    out[hosts] = (weighted / total[hosts, None]).astype(np.float32)
+    return out[keep], total[keep], new_id
 
 
 def _refine(
@@ -309,11 +315,12 @@ def _refine(
 ) -> tuple[F32, Ints]:
     """Lloyd passes restricted to each centroid's nearest centroids; stop when gains stall."""
     errors = _errors(points, centroids, labels)
+    columns = np.ascontiguousarray(points.T)  # each coordinate contiguous for _update's sums
     for step in range(iterations):
         near = _neighbours(centroids, axes, REFINE_CANDIDATES, rng)
         options = np.concatenate([np.arange(len(centroids))[:, None], near], axis=1)
         assigned = _assign(points, centroids, options, labels)
-        moved, relabelled = _update(points, weights, centroids, assigned)
+        moved, relabelled = _update(points, columns, weights, centroids, assigned)
         moved_errors = _errors(points, moved, relabelled)
         report(MERGE_SHARE + (1.0 - MERGE_SHARE) * (step + 1) / iterations)
         before = float(np.einsum("n,n->", weights, errors))
@@ -339,16 +346,15 @@ def _assign(points: F32, centroids: F32, options: Ints, labels: Ints) -> Ints:
     return out
 
 
-def _update(points: F32, weights: F64, centroids: F32, labels: Ints) -> tuple[F32, Ints]:
-    """Weighted means of the clusters; empty clusters move onto the worst-served points."""
+def _update(
+    points: F32, columns: F32, weights: F64, centroids: F32, labels: Ints
+) -> tuple[F32, Ints]:
+    """Weighted means of the clusters (``columns``: the points transposed, so each sum reads
+    contiguous memory); empty clusters move onto the worst-served points."""
     count = len(centroids)
     mass = np.bincount(labels, weights, minlength=count)
     sums = np.stack(
-        [
-            np.bincount(labels, weights * points[:, j], minlength=count)
-            for j in range(points.shape[1])
-        ],
-        axis=1,
+        [np.bincount(labels, weights * column, minlength=count) for column in columns], axis=1
     )
     filled = mass > 0
     out = centroids.copy()
@@ -366,6 +372,15 @@ def _update(points: F32, weights: F64, centroids: F32, labels: Ints) -> tuple[F3
 
 def _errors(points: F32, centroids: F32, labels: Ints) -> F64:
     """Squared distance of every point to its assigned centroid."""
-    diff = points - centroids[labels]
-    out: F64 = np.einsum("nd,nd->n", diff, diff).astype(np.float64)
+    return _distances(points, centroids, labels)
+
+
+def _distances(rows: F32, others: F32, picks: Ints) -> F64:
+    """Squared distance of every row to ``others[picks]``, in blocks: small temporaries
+    reuse memory instead of faulting in fresh pages on every call."""
+    out: F64 = np.empty(len(rows), np.float64)
+    step = max(1, BLOCK_BYTES // (4 * rows.shape[1]))
+    for start in range(0, len(rows), step):
+        diff = rows[start : start + step] - others[picks[start : start + step]]
+        out[start : start + step] = np.einsum("nd,nd->n", diff, diff)
     return out

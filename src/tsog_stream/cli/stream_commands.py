@@ -283,17 +283,10 @@ def _segment(
     cameras, cameras_source = capture
     for stale in remove_stale_temp_files(args.output):
         note(f"removed {stale}, left by an interrupted run")
-    started = time.monotonic()
 
-    def on_stage(text: str) -> None:
-        nonlocal started
-        started = time.monotonic()  # the ETA counts from the last phase begun: encoding
-        progress(text)
-
-    def on_chunk(done: int, total: int) -> None:
-        elapsed = time.monotonic() - started
-        eta = elapsed / done * (total - done)
-        progress.bar(f"chunk {done}/{total}, ETA {eta:4.0f}s", done / total)
+    def on_chunk(done: int, total: int, eta_s: float | None) -> None:
+        left = "ETA    ?" if eta_s is None else f"ETA {eta_s:4.0f}s"
+        progress.bar(f"chunk {done}/{total}, {left}", done / total)
 
     def segment(what: Scene | FrameSequence, layout: Choice | None) -> SegmentReport:
         """A frame sequence window by window, or a scene in memory, with the same options."""
@@ -305,7 +298,7 @@ def _segment(
                 layout=layout,
                 cameras=cameras,
                 on_chunk=on_chunk,
-                on_stage=on_stage,
+                on_stage=progress,
             )
         return segment_scene(
             what,
@@ -314,7 +307,7 @@ def _segment(
             layout=layout,
             cameras=cameras,
             on_chunk=on_chunk,
-            on_stage=on_stage,
+            on_stage=progress,
         )
 
     merged: Scene | None = None

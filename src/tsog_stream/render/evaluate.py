@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
@@ -52,10 +52,20 @@ class Source:
     """Capture cameras the input carries, sits beside, or its container stores."""
     opening: Callable[[], CaptureCamera | None] = lambda: None
     """Where a viewer opens the scene (framing.default_view), computed when asked."""
+    pieces: Callable[[float], Iterator[Gaussians]] | None = None
+    """The Gaussians visible at t a chunk at a time (a container); None: ``frame`` whole."""
 
     def at(self, t: float) -> Gaussians:
         """The Gaussians visible at ``t`` seconds."""
         return self.frame(t)
+
+    def parts_at(self, t: float) -> Iterator[Gaussians]:
+        """The Gaussians visible at ``t`` in pieces that together are :meth:`at`'s, so a
+        caller that reduces them never holds a big scene whole."""
+        if self.pieces is None:
+            yield self.frame(t)
+        else:
+            yield from self.pieces(t)
 
     def close(self) -> None:
         """Release the reader behind the source (files, event loop, HTTP session)."""

@@ -34,7 +34,7 @@ from ..constants import (
 )
 from ..container.objects import container_output
 from ..errors import InputError
-from ..framing import dense_core, opening_view
+from ..framing import dense_core, framing_sample, opening_view
 from ..io.sequence import FrameSequence, FrameWindow
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..morton import morton_order
@@ -55,10 +55,12 @@ from .layout import (
     Choice,
     Lifespans,
     choose_layout,
+    chunk_counts,
     measure_costs,
     time_slices,
     why_not_merged,
 )
+from .meter import Meter, encode_work
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan, window_count
 
 DEFAULT_POLICY: Policy = "hybrid"
@@ -67,7 +69,9 @@ MIN_PIXELS = 16
 BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
 Ints = npt.NDArray[np.int64]
-ChunkProgress = Callable[[int, int], None]
+ChunkProgress = Callable[[int, int, float | None], None]
+"""Told of each chunk written: chunks written, chunks in all, and the seconds encoding has
+left by the work done so far (None until a job has finished; segment/meter.py)."""
 _Tag = TypeVar("_Tag")
 _Result = TypeVar("_Result")
 StageProgress = Callable[[str], None]
@@ -113,13 +117,15 @@ class Views:
     @classmethod
     def of(cls, gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> Views:
         """``cameras``, the default view and the dense core of a scene whose base (or first
-        frame) is ``gaussians``; no view or core for a scene with nothing visible to frame."""
+        frame) is ``gaussians`` (measured on a sample of a big scene); no view or core for a
+        scene with nothing visible to frame."""
+        sample = framing_sample(gaussians)
         try:
-            centre, radius = dense_core(gaussians)
+            centre, radius = dense_core(sample)
         except InputError:
             return cls(list(cameras), cameras[0] if cameras else None, None, "nothing visible")
         core = {"center": _vec3(centre), "radius": radius}
-        view, why = opening_view(gaussians, cameras, (centre, radius))
+        view, why = opening_view(sample, cameras, (centre, radius))
         return cls(list(cameras), view, core, why)
 
 
@@ -279,7 +285,7 @@ def chunk_jobs(
             if members.size == 0 and layers > 1:
                 continue
             ordered = members[morton_order(scene.gaussians.means[members])]
-            parts = max(1, -(-ordered.size // max_count))  # an empty frame is one empty chunk
+            parts = max(1, int(chunk_counts(ordered.size, max_count)))  # empty: one empty chunk
             jobs.extend(ChunkJob(key, run, layer) for run in np.array_split(ordered, parts))
     return jobs
 
@@ -387,6 +393,8 @@ class JobParts:
 
     jobs: Sequence[ChunkJob]
     make: Callable[[ChunkJob], Part]
+    work: Callable[[ChunkJob], float]
+    """What encoding a job costs (segment/meter.py), known before its part is made."""
 
     def __iter__(self) -> Iterator[Part]:
         return (self.make(job) for job in self.jobs)
@@ -413,7 +421,7 @@ def describe_part(part: Part, plan: Plan) -> PartInfo:
 
 
 def _encoded(
-    parts: Iterable[Part], plan: Plan, options: SegmentOptions
+    parts: Iterable[Part], plan: Plan, options: SegmentOptions, meter: Meter
 ) -> Generator[tuple[PartInfo, bytes], None, None]:
     """(info, payload) in input order, encoded here (one worker, no cluster) or by the engine
     of ``options`` (segment/engines.py) with at most its slots in flight.
@@ -423,32 +431,42 @@ def _encoded(
     (:class:`JobParts`) are encoded largest first.
     """
     if options.workers <= 1 and options.cluster is None:
-        yield from encoded_here(parts, plan, options.seed, options.quality)
+        yield from encoded_here(parts, plan, options.seed, options.quality, meter)
         return
     with engine(options.workers, options.cluster) as running:
+        meter.slots = running.slots
         if isinstance(parts, JobParts):
-            yield from _largest_first(parts, plan, options, running)
+            yield from _largest_first(parts, plan, options, running, meter)
         else:
-            yield from _in_order(_submitted(parts, plan, options, running), running.slots)
+            started = _submitted(parts, plan, options, running, meter)
+            yield from _in_order(started, running.slots)
 
 
 def encoded_here(
-    parts: Iterable[Part], plan: Plan, seed: int, quality: int
+    parts: Iterable[Part], plan: Plan, seed: int, quality: int, meter: Meter | None = None
 ) -> Iterator[tuple[PartInfo, bytes]]:
     """(info, payload) of each part, encoded in this process: the one-process engine, and a
     window job in its worker."""
     for part in parts:
-        payload = encode_job_payload(part.scene, seed, quality, part.sh_of is not None)
+        with meter.job(part_work(part)) if meter else contextlib.nullcontext():
+            payload = encode_job_payload(part.scene, seed, quality, part.sh_of is not None)
         yield describe_part(part, plan), payload
 
 
+def part_work(part: Part) -> float:
+    """What encoding a part costs (segment/meter.py): its SH bands, if it keeps them, weigh
+    most."""
+    return encode_work(len(part.scene), part.scene.gaussians.shN.shape[1])
+
+
 def _submitted(
-    parts: Iterable[Part], plan: Plan, options: SegmentOptions, running: Engine
+    parts: Iterable[Part], plan: Plan, options: SegmentOptions, running: Engine, meter: Meter
 ) -> Iterator[tuple[PartInfo, Future[bytes]]]:
     """Each part's info and the future of its payload, submitted as it is asked for (this
     process keeps no part once it is handed over)."""
     for part in parts:
         info, future = describe_part(part, plan), _submit(running, part, options)
+        meter.track(future, part_work(part))
         del part
         yield info, future
 
@@ -483,14 +501,14 @@ def _submit(running: Engine, part: Part, options: SegmentOptions) -> Future[byte
 
 
 def _largest_first(
-    parts: JobParts, plan: Plan, options: SegmentOptions, running: Engine
+    parts: JobParts, plan: Plan, options: SegmentOptions, running: Engine, meter: Meter
 ) -> Generator[tuple[PartInfo, bytes], None, None]:
-    """(info, payload) in job order, the jobs encoded largest first with at most
+    """(info, payload) in job order, the jobs encoded costliest first with at most
     ``running.slots`` in flight: a scene whose biggest chunk comes last no longer has one core
     encode it while the other idles (measured: docs/design/segmenter.md, "Parallel
     encoding"). Payloads done early wait, compressed, for their turn."""
     jobs = parts.jobs
-    order = iter(sorted(range(len(jobs)), key=lambda i: (-jobs[i].indices.size, i)))
+    order = iter(sorted(range(len(jobs)), key=lambda i: (-parts.work(jobs[i]), i)))
     in_flight: dict[Future[bytes], tuple[int, PartInfo]] = {}
     finished: dict[int, tuple[PartInfo, bytes]] = {}
 
@@ -498,7 +516,9 @@ def _largest_first(
         i = next(order, None)
         if i is not None:
             part = parts.make(jobs[i])
-            in_flight[_submit(running, part, options)] = (i, describe_part(part, plan))
+            future = _submit(running, part, options)
+            meter.track(future, part_work(part))
+            in_flight[future] = (i, describe_part(part, plan))
 
     for _ in range(running.slots):
         start_next()
@@ -536,6 +556,7 @@ def _write_container(
     on_chunk: ChunkProgress | None,
     views: Views,
     layering: LayerPlan,
+    meter: Meter,
 ) -> SegmentReport:
     """Append the chunks as they are encoded (in order) and finish the container with its
     index; the encoding stops (engine shut down) whatever ends the writing."""
@@ -565,7 +586,7 @@ def _write_container(
             keys.append(info.key)
             per_level[info.key.level] = per_level.get(info.key.level, 0) + length
             if on_chunk:
-                on_chunk(i + 1, max(total, i + 1))
+                on_chunk(i + 1, max(total, i + 1), meter.eta_s())
         scene = {
             **scene_fields,
             "start_s": plan.start_s,
@@ -662,7 +683,13 @@ def segment_scene(
     split = layering.sh_apart
     if split:
         jobs = with_sh_jobs(jobs)
-    parts = JobParts(jobs, lambda job: job_part(scene, job, split))
+    coeffs = scene.gaussians.shN.shape[1]
+    parts = JobParts(
+        jobs,
+        lambda job: job_part(scene, job, split),
+        lambda job: encode_work(job.indices.size, 0 if split and job.sh_of is None else coeffs),
+    )
+    meter = Meter(sum(parts.work(job) for job in jobs))
     stage(_encoding(len(jobs), plan.stored, options.workers))
     tl = scene.timeline
     fields: dict[str, Any] = {
@@ -675,7 +702,7 @@ def segment_scene(
     }
     report = _write_container(
         path,
-        _encoded(parts, plan, options),
+        _encoded(parts, plan, options, meter),
         total=len(jobs),
         plan=plan,
         scene_fields=fields,
@@ -683,6 +710,7 @@ def segment_scene(
         on_chunk=on_chunk,
         views=views,
         layering=layering,
+        meter=meter,
     )
     return replace(report, layout=choice)
 
@@ -759,19 +787,21 @@ def _sequence_encoded(
     *,
     plan: Plan,
     options: SegmentOptions,
+    meter: Meter,
 ) -> Encoded:
     """A frame sequence's chunks in container order. On an engine with enough windows to
     keep every worker busy, each job is a window that its worker reads itself, so no frame
     passes through this process (the store or disk is read by the workers); otherwise
     windows are read here and their chunks are the jobs."""
     starts = range(0, seq.count, per_window)
+    parts = _sequence_parts(seq, per_window, max_count, layering)
     if options.workers <= 1 and options.cluster is None:
-        yield from _encoded(_sequence_parts(seq, per_window, max_count, layering), plan, options)
+        yield from _encoded(parts, plan, options, meter)
         return
     with engine(options.workers, options.cluster) as running:
+        meter.slots = running.slots
         if len(starts) < WINDOWS_PER_SLOT * running.slots:
-            parts = _sequence_parts(seq, per_window, max_count, layering)
-            yield from _in_order(_submitted(parts, plan, options, running), running.slots)
+            yield from _in_order(_submitted(parts, plan, options, running, meter), running.slots)
             return
         jobs = (
             WindowJob(
@@ -785,12 +815,29 @@ def _sequence_encoded(
             )
             for w, first in enumerate(starts)
         )
-        started = ((w, _start(running, encode_window, job)) for w, job in enumerate(jobs))
+        started = ((w, _tracked(running, job, meter)) for w, job in enumerate(jobs))
         written = 0
         for _, results in _in_order(started, running.slots):
             for info, payload in results:
                 yield replace(info, sh_of=_after(info.sh_of, written)), payload
             written += len(results)
+
+
+def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple[PartInfo, bytes]]]:
+    """Start a window job on the engine, counted by the meter."""
+    future = _start(running, encode_window, job)
+    meter.track(
+        future, sum(_frames_work(job.frames.shapes, job.frames.sh_coeffs, job.layering.sh_apart))
+    )
+    return future
+
+
+def _frames_work(shapes: Sequence[tuple[int, int]], sh_coeffs: int, sh_apart: bool) -> list[float]:
+    """What encoding each frame costs (segment/meter.py), its SH bands apart or not."""
+    return [
+        encode_work(count, sh_coeffs) + (count if sh_apart and sh_coeffs else 0)
+        for count, _ in shapes
+    ]
 
 
 def _frame_groups(scene: Scene) -> list[Ints]:
@@ -808,7 +855,7 @@ def _sequence_chunks(
     split = layering.sh_apart
     for first in range(0, seq.count, per_window):
         sizes = layering.sizes([c for c, _ in seq.shapes[first : first + per_window]])
-        runs = [-(-size // max_count) for size in sizes]
+        runs = chunk_counts(sizes, max_count).tolist()
         total += max(1, sum(runs)) if layering.layers == 1 else sum(runs) + split * runs[0]
     return total
 
@@ -888,9 +935,13 @@ def segment_sequence(
     layering = _sequence_layers(seq, sampled, views.view, options.layers, options.sh_apart)
     total = _sequence_chunks(seq, per_window, max_count, layering)
     stage(_encoding(total, seq.gaussians, options.workers))
+    meter = Meter(sum(_frames_work(seq.shapes, seq.sh_coeffs, layering.sh_apart)))
+    encoded = _sequence_encoded(
+        seq, per_window, max_count, layering, plan=plan, options=options, meter=meter
+    )
     report = _write_container(
         path,
-        _sequence_encoded(seq, per_window, max_count, layering, plan=plan, options=options),
+        encoded,
         total=total,
         plan=plan,
         scene_fields=fields,
@@ -898,6 +949,7 @@ def segment_sequence(
         on_chunk=on_chunk,
         views=views,
         layering=layering,
+        meter=meter,
     )
     return replace(report, layout=choice)
 
