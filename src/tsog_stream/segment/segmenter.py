@@ -776,7 +776,9 @@ def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
 
 WINDOWS_PER_SLOT = 2
 """Windows per worker slot from which a sequence's jobs are whole windows (fewer: chunks, so
-that a short sequence still keeps every worker busy)."""
+that a short sequence still keeps every worker busy). As many window jobs are kept in flight:
+a job is tiny and its result a window's payloads, and with one per slot a worker that
+finished waited for the oldest job's result before it got the next."""
 
 
 def _sequence_encoded(
@@ -817,7 +819,7 @@ def _sequence_encoded(
         )
         started = ((w, _tracked(running, job, meter)) for w, job in enumerate(jobs))
         written = 0
-        for _, results in _in_order(started, running.slots):
+        for _, results in _in_order(started, WINDOWS_PER_SLOT * running.slots):
             for info, payload in results:
                 yield replace(info, sh_of=_after(info.sh_of, written)), payload
             written += len(results)
