@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import pickle
+from typing import cast
 
 import pytest
 
@@ -28,3 +30,22 @@ def test_pool_workers_start_with_one_blas_thread(monkeypatch: pytest.MonkeyPatch
     assert all(s == expected for s in seen), seen
     assert "OPENBLAS_NUM_THREADS" not in os.environ and "MKL_NUM_THREADS" not in os.environ
     assert os.environ["OMP_NUM_THREADS"] == "3"
+
+
+def _length(values: list[int]) -> int:
+    """Run in a pool worker: what it received."""
+    return len(values)
+
+
+def test_a_handed_over_argument_is_dropped_here_once_sent() -> None:
+    """The pool keeps a job's arguments until it ends: a part in flight was held twice. A
+    HandOver is dropped when sent, the worker gets the value, and a second send is an error."""
+    with engines.engine(2, None) as running:
+        handed = engines.HandOver(list(range(1000)))
+        assert not handed.sent
+        sent = cast(list[int], handed)  # what the worker receives
+        assert running.executor.submit(_length, sent).result(timeout=60) == 1000
+        assert handed.sent
+    with pytest.raises(RuntimeError, match="sent again"):
+        pickle.dumps(handed)
+    assert pickle.loads(pickle.dumps(engines.HandOver([1, 2]))) == [1, 2]

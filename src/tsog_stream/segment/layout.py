@@ -13,6 +13,7 @@ does, the one of those that over-fetches least (docs/design/segmenter.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Final
 
 import numpy as np
@@ -121,12 +122,19 @@ class Lifespans:
 
     def visible(self, times: F64) -> F64:
         """Gaussians visible at each time (start <= t < end)."""
+        starts, began, ends, ended = self._running_totals
+        n_began = np.searchsorted(starts, times, side="right")
+        n_ended = np.searchsorted(ends, times, side="right")
+        return np.asarray(began[n_began] - ended[n_ended], dtype=np.float64)
+
+    @cached_property
+    def _running_totals(self) -> tuple[F64, F64, F64, F64]:
+        """Starts and ends sorted, with the weight begun / ended up to each: sorted once, not
+        for each of the ~80 layouts the model estimates (0.9 s of a 5M scene's start)."""
         by_start, by_end = np.argsort(self.start), np.argsort(self.end)
         began = np.concatenate(([0.0], np.cumsum(self.weight[by_start])))
         ended = np.concatenate(([0.0], np.cumsum(self.weight[by_end])))
-        n_began = np.searchsorted(self.start[by_start], times, side="right")
-        n_ended = np.searchsorted(self.end[by_end], times, side="right")
-        return np.asarray(began[n_began] - ended[n_ended], dtype=np.float64)
+        return self.start[by_start], began, self.end[by_end], ended
 
 
 @dataclass(frozen=True)

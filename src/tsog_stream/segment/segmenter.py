@@ -42,7 +42,7 @@ from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .engines import Engine, engine, sigint_blocked
+from .engines import Engine, HandOver, engine, sigint_blocked
 from .layers import (
     MEASURE_TIMES,
     ONE_LAYER_ASKED,
@@ -495,9 +495,10 @@ def _start(running: Engine, job: Callable[..., _Result], *args: Any) -> Future[_
 
 
 def _submit(running: Engine, part: Part, options: SegmentOptions) -> Future[bytes]:
-    """Encode ``part`` on the engine."""
+    """Encode ``part`` on the engine (its Gaussians dropped here once sent)."""
     has_bands = part.sh_of is not None
-    return _start(running, encode_job_payload, part.scene, options.seed, options.quality, has_bands)
+    scene = HandOver(part.scene)
+    return _start(running, encode_job_payload, scene, options.seed, options.quality, has_bands)
 
 
 def _largest_first(
