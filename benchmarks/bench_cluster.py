@@ -1,6 +1,7 @@
 """Segmenting on one machine's engines: the local process pool against a Dask LocalCluster.
 
     .venv/bin/python benchmarks/bench_cluster.py [--gaussians 1000000] [--frames 24]
+        [--checkpoint 5000000] [--checkpoint-only]
 
 Two inputs, each segmented in one run by every engine with 1 and 2 workers: wall time,
 Gaussians per second, CPU use (the parent's, its children's and the Dask workers'), peak RSS
@@ -11,7 +12,10 @@ of the parent and of each worker, and whether every container of an input is byt
 - A generated sequence of SH3 PLY frames on disk (a flipbook of a capture): each job is a
   window that its worker reads itself; the bytes sent to a worker per window (the pickled job)
   are set against the window's arrays, and the bytes that come back (the chunks).
-Writes the "cluster" section of docs/benchmarks.md.
+- A generated 5M-Gaussian SH3 FreeTimeGS checkpoint (`.npz`) through `tsog segment` as a user
+  runs it (`--checkpoint N`, 0 skips it; `--checkpoint-only`): wall, CPU, first progress line,
+  peak RSS of the CLI and its workers against the issue's targets.
+Writes the "checkpoint" and "cluster" sections of docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import hashlib
 import os
 import pickle
 import resource
+import subprocess
 import sys
 import tempfile
 import threading
@@ -32,6 +37,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import numpy as np
 import psutil
 from distributed import LocalCluster
 
@@ -212,12 +218,137 @@ def _peak_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def checkpoint_npz(path: Path, n: int) -> int:
+    """A generated FreeTimeGS checkpoint of ``n`` SH3 Gaussians with long lifespans (the
+    issue's 5M scene); returns the bytes of its raw arrays."""
+    rng = np.random.default_rng(1)
+    f32 = np.float32
+    arrays = {
+        "means": rng.normal(0, 3, (n, 3)).astype(f32),
+        "scales": rng.normal(-4, 0.5, (n, 3)).astype(f32),
+        "quats": rng.normal(0, 1, (n, 4)).astype(f32),
+        "opacities": rng.normal(0, 2, (n,)).astype(f32),
+        "sh0": rng.normal(0, 0.5, (n, 1, 3)).astype(f32),
+        "shN": rng.normal(0, 0.1, (n, 15, 3)).astype(f32),
+        "times": rng.uniform(0, 1, (n, 1)).astype(f32),
+        "durations": np.log(rng.uniform(0.3, 0.5, (n, 1))).astype(f32),
+        "velocities": rng.normal(0, 0.05, (n, 3)).astype(f32),
+    }
+    np.savez(path, **arrays)  # type: ignore[arg-type]
+    return sum(a.nbytes for a in arrays.values())
+
+
+@dataclass
+class Checkpoint:
+    """``tsog segment`` of the checkpoint, as a user runs it with stderr to a log."""
+
+    wall_s: float
+    cpu_percent: float
+    first_line_s: float
+    parent_peak: int
+    worker_peak: int
+    tree_peak: int
+    size: int
+    log: str
+
+
+def run_checkpoint(npz: Path, out: Path) -> Checkpoint:
+    """Run the CLI on ``npz`` with 2 workers, sampling the RSS of it and its workers."""
+    tsog = Path(sys.executable).with_name("tsog")
+    argv = [str(tsog), "segment", str(npz), "-o", str(out), "--scene-length-s", "10"]
+    argv += ["--workers", "2", "--layers", "1"]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    began = time.monotonic()
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    first: list[float] = []
+    lines: list[str] = []
+
+    def read_log() -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if not first:
+                first.append(time.monotonic() - began)
+            lines.append(line.rstrip())
+
+    reader = threading.Thread(target=read_log, daemon=True)
+    reader.start()
+    parent, worker, tree = 0, 0, 0
+    me = psutil.Process(proc.pid)
+    while proc.poll() is None:
+        with contextlib.suppress(psutil.Error):
+            own = me.memory_info().rss
+            kids = [c.memory_info().rss for c in me.children(recursive=True)]
+            parent, worker = max(parent, own), max([worker, *kids])
+            tree = max(tree, own + sum(kids))
+        time.sleep(0.2)
+    wall = time.monotonic() - began
+    reader.join(timeout=5)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    if proc.returncode != 0:
+        raise SystemExit(f"tsog segment failed ({proc.returncode}): {lines[-3:]}")
+    log = "\n".join(line for line in lines if line.startswith("["))
+    return Checkpoint(
+        wall, 100 * cpu / wall, first[0], parent, worker, tree, out.stat().st_size, log
+    )
+
+
+def checkpoint_section(n: int, raw: int, run: Checkpoint) -> list[str]:
+    """The checkpoint's figures against the issue's targets, and its progress log."""
+    gib = float(1 << 30)
+    return [
+        f"**The {n / 1e6:g}M-Gaussian checkpoint** (a generated SH3 FreeTimeGS `.npz`, long "
+        f"lifespans, raw arrays {raw / gib:.2f} GiB) through `tsog segment --workers 2 --layers "
+        "1`, stderr to a pipe; RSS sampled every 0.2 s. Targets (issue 20): <= 130 s, >= 180 % "
+        "CPU, peak RSS <= 2x the raw arrays, first progress line within 5 s.",
+        "",
+        "| wall | CPU | first line | parent peak RSS | largest worker | parent + workers | "
+        "container |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        f"| {run.wall_s:.1f} s | {run.cpu_percent:.0f} % | {run.first_line_s:.1f} s | "
+        f"{run.parent_peak / gib:.2f} GiB ({run.parent_peak / raw:.2f}x) | "
+        f"{run.worker_peak / gib:.2f} GiB | {run.tree_peak / gib:.2f} GiB | "
+        f"{run.size / 1e6:.1f} MB |",
+        "",
+        "```",
+        run.log,
+        "```",
+        "",
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--gaussians", type=int, default=1_000_000)
     parser.add_argument("--frames", type=int, default=24)
     parser.add_argument("--per-frame", type=int, default=40_000)
+    parser.add_argument(
+        "--checkpoint",
+        type=int,
+        default=5_000_000,
+        help="Gaussians of the checkpoint segmented through the CLI (0: skip it)",
+    )
+    parser.add_argument(
+        "--checkpoint-only", action="store_true", help="only the checkpoint (its own section)"
+    )
     args = parser.parse_args()
+    if args.checkpoint > 0:
+        with tempfile.TemporaryDirectory() as tmp:
+            npz = Path(tmp) / "checkpoint.npz"
+            raw = checkpoint_npz(npz, args.checkpoint)
+            run = run_checkpoint(npz, Path(tmp) / "checkpoint.tsogs")
+        when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+        head = [
+            "## A 5M-Gaussian checkpoint through the CLI (issue 20)",
+            "",
+            f"Run {when} (`benchmarks/bench_cluster.py --checkpoint {args.checkpoint}`), 2 cores.",
+            "",
+        ]
+        body = head + checkpoint_section(args.checkpoint, raw, run)
+        write_section("checkpoint", "\n".join(body), "bench_cluster.py")
+        print(f"checkpoint {run.wall_s:.1f} s {run.cpu_percent:.0f} %")
+    if args.checkpoint_only:
+        return
     with tempfile.TemporaryDirectory() as tmp:
         seq = frames_of(Path(tmp) / "frames", args.frames, args.per_frame)
         seq_runs = run_all(seq, Path(tmp), "frames")
