@@ -637,3 +637,20 @@ def test_a_big_node_is_cut_into_an_even_number_of_chunks() -> None:
     scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
     jobs = segmenter.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(2900))], 700)
     assert [job.indices.size for job in jobs] == [484] * 2 + [483] * 4
+
+
+def test_a_job_s_work_is_known_before_its_part_is_made() -> None:
+    """The meter's total is summed from the jobs, its progress from the parts encoded: both
+    weigh the same (a layered SH scene: bare bases, SH-band chunks, upper layers with bands)."""
+    scene = generate_scene(SceneSpec(background=300, objects=2, per_object=50, sh_bands=2))
+    layer_of = np.arange(len(scene)) % 2
+    jobs = segmenter.with_sh_jobs(
+        segmenter.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(len(scene)))], 100, layer_of)
+    )
+    kinds = {(job.layer, job.sh_of is not None) for job in jobs}
+    assert kinds == {(0, False), (1, True), (1, False)}
+    for job in jobs:
+        part = segmenter.job_part(scene, job, True)
+        assert segmenter.job_work(scene, job, True) == segmenter.part_work(part)
+    bare = [j for j in jobs if j.layer == 0]
+    assert all(segmenter.job_work(scene, j, True) == j.indices.size for j in bare)

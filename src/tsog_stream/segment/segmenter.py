@@ -304,9 +304,21 @@ def job_part(scene: Scene, job: ChunkJob, split: bool) -> Part:
     """The part a job encodes: its Gaussians, without SH bands for a base chunk whose bands
     are split off."""
     part = scene.subset(job.indices)
-    if split and job.layer == 0:
+    if _bare(job, split):
         part = without_sh(part)
     return Part(job.key, part, job.layer, job.sh_of)
+
+
+def job_work(scene: Scene, job: ChunkJob, split: bool) -> float:
+    """What encoding :func:`job_part`'s part costs (segment/meter.py), before it is made."""
+    coeffs = 0 if _bare(job, split) else scene.gaussians.shN.shape[1]
+    return encode_work(job.indices.size, coeffs)
+
+
+def _bare(job: ChunkJob, split: bool) -> bool:
+    """Whether the job's part is stored without SH bands (a base chunk whose bands are split
+    off into an SH-band chunk)."""
+    return split and job.layer == 0
 
 
 def _by_slice(
@@ -428,7 +440,7 @@ def _encoded(
 
     The parent keeps only each part's small :class:`PartInfo`, so peak memory is the part being
     produced plus the ones being encoded, whatever the scene length. Parts known up front
-    (:class:`JobParts`) are encoded largest first.
+    (:class:`JobParts`) are encoded costliest first.
     """
     if options.workers <= 1 and options.cluster is None:
         yield from encoded_here(parts, plan, options.seed, options.quality, meter)
@@ -518,7 +530,7 @@ def _largest_first(
         if i is not None:
             part = parts.make(jobs[i])
             future = _submit(running, part, options)
-            meter.track(future, part_work(part))
+            meter.track(future, parts.work(jobs[i]))
             in_flight[future] = (i, describe_part(part, plan))
 
     for _ in range(running.slots):
@@ -684,11 +696,8 @@ def segment_scene(
     split = layering.sh_apart
     if split:
         jobs = with_sh_jobs(jobs)
-    coeffs = scene.gaussians.shN.shape[1]
     parts = JobParts(
-        jobs,
-        lambda job: job_part(scene, job, split),
-        lambda job: encode_work(job.indices.size, 0 if split and job.sh_of is None else coeffs),
+        jobs, lambda job: job_part(scene, job, split), lambda job: job_work(scene, job, split)
     )
     meter = Meter(sum(parts.work(job) for job in jobs))
     stage(_encoding(len(jobs), plan.stored, options.workers))
