@@ -24,7 +24,7 @@ from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.constants import DEFAULT_MAX_PIXELS
 from tsog_stream.schemas.manifest import Policy
-from tsog_stream.segment import segmenter
+from tsog_stream.segment import layout, segmenter
 from tsog_stream.segment.layout import chunk_counts
 from tsog_stream.segment.meter import Meter, encode_work
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
@@ -629,11 +629,15 @@ def test_no_chunk_holds_more_than_the_job_cap(
     assert max(counts) <= 700 and sum(counts) == report.stored and len(counts) >= 4
 
 
-def test_a_big_node_is_cut_into_an_even_number_of_chunks() -> None:
+def test_a_big_node_is_cut_into_an_even_number_of_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
     """Two workers finish a big node together: 5 chunks' worth become 6 (the 5M checkpoint's
-    last chunk encoded alone for ~40 s); one or two stay as they are."""
-    counts = chunk_counts([0, 1, 100, 101, 200, 201, 300, 500, 501], 100)
+    last chunk encoded alone for ~40 s); one or two stay as they are, and so do small chunks
+    (an extra one costs more than the balance gains)."""
+    big = layout.EVEN_FROM
+    counts = chunk_counts(np.array([0, 1, 100, 101, 200, 201, 300, 500, 501]) * big // 100, big)
     assert counts.tolist() == [0, 1, 1, 2, 2, 4, 4, 6, 6]
+    assert chunk_counts([300, 500], 100).tolist() == [3, 5]
+    monkeypatch.setattr(layout, "EVEN_FROM", 700)
     scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
     jobs = segmenter.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(2900))], 700)
     assert [job.indices.size for job in jobs] == [484] * 2 + [483] * 4

@@ -281,11 +281,20 @@ def sample_times(life: Lifespans) -> F64:
     return life.scene_start + (np.arange(SAMPLE_TIMES) + 0.5) / SAMPLE_TIMES * span
 
 
+EVEN_FROM = 1 << 16
+"""Chunks of at most this many Gaussians or more (seconds of encoding each) are cut into an
+even number per group; below it an extra chunk's fixed cost outweighs the balance (the
+suite's tiny pixel budgets ran 30 % longer with every group evened)."""
+
+
 def chunk_counts(counts: npt.ArrayLike, max_count: int) -> npt.NDArray[np.int64]:
     """The chunks a node of each count is cut into: at most ``max_count`` Gaussians each, and
-    an even number when more than two, so that two workers finish a big node together (a 5M
-    scene in five chunks kept one core idle for the last ~40 s; six cost one SH palette more)."""
+    for big chunks (``max_count`` >= EVEN_FROM) an even number when more than two, so that two
+    workers finish a big node together (a 5M scene in five chunks kept one core idle for the
+    last ~40 s; six cost one SH palette more)."""
     n = np.ceil(np.asarray(counts, np.float64) / max(max_count, 1)).astype(np.int64)
+    if max_count < EVEN_FROM:
+        return n
     out: npt.NDArray[np.int64] = np.where(n > 2, n + n % 2, n)
     return out
 
