@@ -26,6 +26,7 @@ import datetime as dt
 import hashlib
 import os
 import pickle
+import re
 import resource
 import subprocess
 import sys
@@ -293,6 +294,27 @@ def run_checkpoint(npz: Path, out: Path) -> Checkpoint:
     )
 
 
+PROGRESS_LINE = re.compile(r"\[\s*([0-9.]+)s\] chunk (\d+)/(\d+), ETA\s+([0-9?]+)s?")
+"""A progress line of `tsog segment` in a log: elapsed, chunks written, in all, ETA."""
+
+
+def eta_rows(log: str) -> list[str]:
+    """Markdown rows: each ETA the log announced against the encoding time left in fact
+    (until its last chunk's line), at most every 10 s of the run."""
+    said = [m.groups() for m in map(PROGRESS_LINE.search, log.splitlines()) if m]
+    ends = [float(t) for t, done, total, _ in said if done == total]
+    if not ends:
+        return []
+    rows, shown = [], -10.0
+    for t, done, total, eta in said:
+        at = float(t)
+        if eta == "?" or at - shown < 10.0 or done == total:
+            continue
+        shown = at
+        rows.append(f"| {at:.1f} s | {done}/{total} | {eta} s | {ends[0] - at:.0f} s |")
+    return ["| at | chunks | ETA said | left in fact |", "| --- | --- | --- | --- |", *rows]
+
+
 def checkpoint_section(n: int, raw: int, run: Checkpoint) -> list[str]:
     """The checkpoint's figures against the issue's targets, and its progress log."""
     gib = float(1 << 30)
@@ -309,6 +331,10 @@ def checkpoint_section(n: int, raw: int, run: Checkpoint) -> list[str]:
         f"{run.parent_peak / gib:.2f} GiB ({run.parent_peak / raw:.2f}x) | "
         f"{run.worker_peak / gib:.2f} GiB | {run.tree_peak / gib:.2f} GiB | "
         f"{run.size / 1e6:.1f} MB |",
+        "",
+        "The ETA as it was announced (every 10 s at most) against the encoding time left:",
+        "",
+        *eta_rows(run.log),
         "",
         "```",
         run.log,

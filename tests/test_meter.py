@@ -6,7 +6,15 @@ from concurrent.futures import Future
 
 import pytest
 
-from tsog_stream.segment.meter import Meter, encode_work
+from tsog_stream.segment.meter import (
+    TICK_S,
+    Meter,
+    encode_work,
+    palette_share,
+    report_progress,
+    reporting_to,
+    share_of,
+)
 
 
 class Clock:
@@ -77,7 +85,7 @@ def test_futures_are_counted_until_they_complete() -> None:
     clock = Clock()
     meter = Meter(2.0, clock=clock)
     future: Future[int] = Future()
-    meter.track(future, 1.0)
+    meter.ends_with(meter.start(1.0), future)
     clock.now = 4.0
     assert meter.eta_s() is None
     future.set_result(1)
@@ -85,3 +93,72 @@ def test_futures_are_counted_until_they_complete() -> None:
     with meter.job(1.0):
         clock.now = 8.0
     assert meter.eta_s() == pytest.approx(0.0)
+
+
+def test_running_jobs_reports_give_an_eta_before_any_job_ends() -> None:
+    """The first ETA of a 5M scene came with its first finished job, ~40 s in: a running
+    job's report (its SH palette's progress) gives the rate from the first seconds."""
+    clock = Clock()
+    meter = Meter(8.0, clock=clock)
+    meter.slots = 2
+    first, second = meter.start(2.0), meter.start(2.0)
+    clock.now = 3.0  # sent, but waiting in the engine's queue until now
+    meter.advance(first, 0.0)
+    meter.advance(second, 0.0)
+    assert meter.eta_s() is None  # nothing done yet: no rate
+    clock.now = 5.0
+    meter.advance(first, 0.25)  # half a unit in 2 s of running (the queue's 3 s not counted)
+    meter.advance(second, 0.1)
+    meter.advance(second, 0.05)  # an older report arriving late never moves a job back
+    rate = (0.5 + 0.2) / (2.0 + 2.0)
+    credit = 2 * min(2.0, rate * 2.0)
+    assert meter.eta_s() == pytest.approx((8.0 - credit) / (2 * rate))
+    meter.finish(first)
+    meter.advance(first, 0.9)  # a report heard after the job ended is ignored
+    assert meter.eta_s() is not None
+
+
+def test_ticks_come_every_tick_period_and_after_drawing_none_is_due() -> None:
+    clock = Clock()
+    meter = Meter(1.0, clock=clock)
+    ticks: list[float] = []
+    meter.on_tick = lambda: ticks.append(clock.now)
+    meter.tick()
+    clock.now = TICK_S - 0.1
+    meter.tick()
+    assert ticks == []
+    clock.now = TICK_S
+    meter.tick()
+    assert ticks == [TICK_S]
+    clock.now = 2 * TICK_S - 0.5
+    meter.ticked()  # a chunk was just drawn
+    clock.now = 2 * TICK_S
+    meter.tick()
+    assert ticks == [TICK_S]
+
+
+def test_a_job_in_this_process_reports_to_its_meter_and_ticks() -> None:
+    clock = Clock()
+    meter = Meter(4.0, clock=clock)
+    ticks: list[float | None] = []
+    meter.on_tick = lambda: ticks.append(meter.eta_s())
+    with meter.job(4.0):
+        clock.now = TICK_S
+        report_progress(0.5)  # two units in TICK_S seconds
+    assert ticks == [pytest.approx(TICK_S)]
+    report_progress(0.7)  # outside any job: nobody hears it, nothing breaks
+
+
+def test_shares_map_a_parts_progress_into_its_window_job() -> None:
+    heard: list[float] = []
+    with reporting_to(heard.append):
+        with share_of(0.25, 0.5):
+            report_progress(0.5)
+            report_progress(2.0)  # clamped to the part's end
+        report_progress(-1.0)
+    assert heard == [0.5, 0.75, 0.0]
+
+
+def test_the_palette_share_follows_the_cost_model() -> None:
+    assert palette_share(0) == 0.0
+    assert palette_share(15) == pytest.approx(15 / 16)

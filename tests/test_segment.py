@@ -25,6 +25,7 @@ from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.constants import DEFAULT_MAX_PIXELS
 from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment import layout, segmenter
+from tsog_stream.segment import meter as meter_module
 from tsog_stream.segment.layout import chunk_counts
 from tsog_stream.segment.meter import Meter, encode_work
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
@@ -658,3 +659,61 @@ def test_a_job_s_work_is_known_before_its_part_is_made() -> None:
         assert segmenter.job_work(scene, job, True) == segmenter.part_work(part)
     bare = [j for j in jobs if j.layer == 0]
     assert all(segmenter.job_work(scene, j, True) == j.indices.size for j in bare)
+
+
+class _HeardMeter(Meter):
+    """A meter that keeps every report it hears from running jobs."""
+
+    def __init__(self, total: float) -> None:
+        super().__init__(total)
+        self.heard: list[tuple[int, float]] = []
+
+    def advance(self, token: int, fraction: float) -> None:
+        self.heard.append((token, fraction))
+        super().advance(token, fraction)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_running_jobs_report_their_palette_s_progress(workers: int) -> None:
+    """The first ETA of a 5M scene came with its first finished job, ~40 s in: a job with SH
+    bands reports its palette's progress as it runs, here or from a pool worker."""
+    src = generate_scene(SceneSpec(background=600, objects=2, per_object=100, sh_bands=3))
+    plan = Plan(0.0, 4.0, 4.0, 1, {}, 0)
+    key = NodeKey(0, 0)
+    jobs = [ChunkJob(key, np.arange(0, 500)), ChunkJob(key, np.arange(500, 800))]
+    coeffs = src.gaussians.shN.shape[1]
+    works = {id(job): encode_work(job.indices.size, coeffs) for job in jobs}
+    meter = _HeardMeter(sum(works.values()))
+    parts = JobParts(
+        jobs, lambda job: Part(job.key, src.subset(job.indices)), lambda job: works[id(job)]
+    )
+    list(_encoded(parts, plan, SegmentOptions(workers=workers), meter))
+    tokens = sorted({token for token, _ in meter.heard})
+    assert len(tokens) == 2
+    share = 15 / 16  # SH3: the palette is that much of a job's work (segment/meter.py)
+    for token in tokens:
+        fractions = [done for t, done in meter.heard if t == token]
+        assert fractions[0] == 0.0  # the job's start
+        assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+        # the palette's own steps, between its start (1 - share) and its end
+        assert any(1.0 - share < done < 1.0 for done in fractions), fractions
+    assert meter.eta_s() == pytest.approx(0.0)
+
+
+def test_the_eta_is_drawn_while_no_chunk_is_written(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Every tick of the meter while jobs run redraws the progress with the chunks written so
+    far (0 before the first), never past the chunks finished."""
+    monkeypatch.setattr(meter_module, "TICK_S", 0.001)
+    monkeypatch.setattr(segmenter, "TICK_S", 0.001)
+    src = make_scene(TimelineType.START_DURATION, background=400, objects=2, per_object=60)
+    calls: list[int] = []
+    report = segment_scene(
+        src,
+        tmp_path / "ticks.tsogs",
+        SegmentOptions(window_s=1.0, max_pixels=16 * 16, workers=2),
+        on_chunk=lambda done, total, eta_s: calls.append(done),
+    )
+    assert calls[0] == 0 and calls == sorted(calls) and calls[-1] == report.chunks
+    assert set(range(1, report.chunks + 1)) <= set(calls)

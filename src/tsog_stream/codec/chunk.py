@@ -29,7 +29,7 @@ from .bundle import read_bundle
 from .layout import image_size
 from .precision import QUALITY_MAX, Budgets
 from .sog_decode import decode_sog
-from .sog_encode import encode_sog
+from .sog_encode import FractionDone, encode_sog
 from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
 from .webp import ImageDecoder, encode_many, webp_size
 
@@ -49,12 +49,15 @@ def encode_chunk(
     seed: int = 0,
     progress: Progress | None = None,
     quality: int = QUALITY_MAX,
+    on_palette: FractionDone | None = None,
 ) -> dict[str, bytes]:
     """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
 
     ``quality`` 0..100 sets the error budgets of positions, timeline and motion
     (codec/precision.py; 100 keeps every 16-bit code as computed).
     ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
+    ``on_palette`` hears how far the SH palette's fitting got (0..1; it comes last and takes
+    most of the time of a chunk with SH bands).
     Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
     lossless WebP has at least one pixel, so SOG cannot hold it.
     """
@@ -73,6 +76,7 @@ def encode_chunk(
         seed=seed,
         progress=note,
         budgets=budgets,
+        on_palette=on_palette,
     )
     images = dict(sog.images)
     meta: dict[str, Any] = dict(sog.meta)

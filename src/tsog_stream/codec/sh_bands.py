@@ -24,7 +24,7 @@ from .bundle import read_bundle
 from .chunk import checked_images, texel_order
 from .layout import image_size
 from .sog_decode import decode_sh
-from .sog_encode import encode_sh_palette
+from .sog_encode import FractionDone, encode_sh_palette
 from .webp import ImageDecoder, encode_many
 
 F32 = npt.NDArray[np.float32]
@@ -61,14 +61,19 @@ def without_sh(scene: Scene) -> Scene:
     return replace(scene, gaussians=bare)
 
 
-def encode_sh_bands(host: Scene, *, seed: int = 0) -> dict[str, bytes]:
+def encode_sh_bands(
+    host: Scene, *, seed: int = 0, on_palette: FractionDone | None = None
+) -> dict[str, bytes]:
     """Files of the SH-band chunk of ``host`` (the Gaussians its chunk is encoded from, in any
-    order: they are put in the host chunk's texel order here), meta.json last."""
+    order: they are put in the host chunk's texel order here), meta.json last; ``on_palette``
+    hears the palette fitting's fraction done."""
     if len(host) == 0 or host.gaussians.sh_bands == 0:
         raise InputError("an SH-band chunk needs Gaussians with SH bands beyond DC")
     ordered = host.gaussians.subset(texel_order(host))
     width, height = image_size(len(ordered))
-    images, shn = encode_sh_palette(ordered, width, height, seed, lambda _msg: None)
+    images, shn = encode_sh_palette(
+        ordered, width, height, seed, lambda _msg: None, on_palette=on_palette
+    )
     meta = {
         "version": C.SOG_VERSION,
         "asset": {"generator": f"{C.GENERATOR} {__version__}"},

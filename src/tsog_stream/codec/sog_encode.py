@@ -25,6 +25,7 @@ from .rotations import encode_quats
 
 U8 = npt.NDArray[np.uint8]
 Progress = Callable[[str], None]
+FractionDone = Callable[[float], None]
 
 
 @dataclass(frozen=True)
@@ -70,16 +71,26 @@ def _sh_rest(gaussians: Gaussians) -> npt.NDArray[np.float32]:
 
 
 def encode_sh_palette(
-    gaussians: Gaussians, width: int, height: int, seed: int, note: Progress
+    gaussians: Gaussians,
+    width: int,
+    height: int,
+    seed: int,
+    note: Progress,
+    *,
+    on_palette: FractionDone | None = None,
 ) -> tuple[dict[str, U8], dict[str, Any]]:
-    """Palette (k-means on f_rest), its codebook, the centroid image and the label image."""
+    """Palette (k-means on f_rest), its codebook, the centroid image and the label image;
+    ``on_palette`` hears the fitting's fraction done (most of an SH chunk's encoding)."""
     coeffs = gaussians.shN.shape[1]
     vectors = _sh_rest(gaussians)
+
+    def fitted(fraction: float) -> None:
+        note(f"SH palette {100 * fraction:3.0f}%")
+        if on_palette is not None:
+            on_palette(fraction)
+
     centroids, labels = fit_palette(
-        vectors,
-        palette_size(len(gaussians)),
-        seed=seed,
-        progress=lambda f: note(f"SH palette {100 * f:3.0f}%"),
+        vectors, palette_size(len(gaussians)), seed=seed, progress=fitted
     )
     count = centroids.shape[0]
     codebook = short_codebook(build_codebook(centroids))
@@ -112,9 +123,11 @@ def encode_sog(
     seed: int = 0,
     progress: Progress | None = None,
     budgets: Budgets | None = None,
+    on_palette: FractionDone | None = None,
 ) -> SogParts:
     """Encode Gaussians already in texel order into SOG v2 images and meta keys; with
-    ``budgets`` (codec/precision.py) positions and rotations keep only the bits they need."""
+    ``budgets`` (codec/precision.py) positions and rotations keep only the bits they need.
+    The SH palette, if any, is fitted last (``on_palette`` hears its fraction done)."""
     note = progress or (lambda _msg: None)
     note("positions")
     mins, maxs, codes = encode_means(gaussians.means)
@@ -152,6 +165,8 @@ def encode_sog(
     }
     if gaussians.sh_bands > 0 and len(gaussians) > 0:
         note("SH palette")
-        sh_images, meta["shN"] = encode_sh_palette(gaussians, width, height, seed, note)
+        sh_images, meta["shN"] = encode_sh_palette(
+            gaussians, width, height, seed, note, on_palette=on_palette
+        )
         images.update(sh_images)
     return SogParts(images, meta)

@@ -14,21 +14,27 @@ import ctypes
 import ctypes.util
 import multiprocessing
 import os
+import pickle
 import re
 import signal
+import threading
 import warnings
 from collections.abc import Callable, Iterator
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass
+from multiprocessing.connection import Connection
 from typing import Any, Generic, TypeVar
 
 from ..errors import InputError
+from .meter import reporting_to
 
 LOCAL_CLUSTER = "local"
 """``--cluster local``: a Dask LocalCluster on this machine, one single-threaded worker process
 per ``--workers``."""
 CLUSTER_ADDRESS = re.compile(r"(tcp|tls|ucx)://[A-Za-z0-9.\-\[\]:]{1,253}:[0-9]{1,5}")
 """A Dask scheduler address: protocol://host:port."""
+LISTEN_POLL_S = 0.2
+"""How often the thread hearing the pool's job reports looks whether the pool has ended."""
 CONNECT_TIMEOUT_S = 10.0
 """How long to try reaching a scheduler before a one-line error."""
 JOB_RETRIES = 2
@@ -111,6 +117,21 @@ def check_cluster(value: str) -> str:
     )
 
 
+Listener = Callable[[int, float], None]
+"""Hears a running job's report: (its token, fraction done)."""
+
+
+@dataclass
+class _Worker:
+    """What this process knows as a pool worker."""
+
+    reports: Connection | None = None
+    """Where its jobs' progress goes back to the parent (None outside a pool worker)."""
+
+
+_WORKER = _Worker()
+
+
 @dataclass
 class Engine:
     """An executor for encode jobs and how many to keep in flight."""
@@ -118,21 +139,45 @@ class Engine:
     executor: Executor
     slots: int
 
+    def submit(self, token: int, job: Callable[..., T], *args: Any) -> Future[T]:
+        """Run ``job(*args)`` as the job ``token``: its :func:`meter.report_progress` calls
+        reach the engine's listener, where the engine can carry them (a local pool)."""
+        with sigint_blocked():
+            return self.executor.submit(run_reported, token, job, *args)
+
+
+def run_reported(token: int, job: Callable[..., T], *args: Any) -> T:
+    """A job in a worker, its progress sent back as (token, fraction) when this worker has a
+    report queue (a pool worker; a Dask worker has none, its jobs count when they end)."""
+    reports = _WORKER.reports
+    if reports is None:
+        return job(*args)
+
+    def send(fraction: float) -> None:
+        reports.send((token, fraction))
+
+    send(0.0)
+    with reporting_to(send):
+        return job(*args)
+
 
 @contextlib.contextmanager
-def engine(workers: int, cluster: str | None) -> Iterator[Engine]:
+def engine(workers: int, cluster: str | None, listener: Listener | None = None) -> Iterator[Engine]:
     """The engine for ``workers`` local processes, or for the Dask cluster ``cluster``; an
     error or Ctrl-C in the body stops it at once (queued jobs dropped, running ones
-    abandoned)."""
+    abandoned). ``listener`` hears the local workers' job reports (on another thread)."""
     if cluster is not None:
         with _dask_engine(workers, check_cluster(cluster)) as found:
             yield found
         return
-    with _children_environ(ONE_BLAS_THREAD):
+    context = multiprocessing.get_context("spawn")
+    reader, writer = context.Pipe(duplex=False)
+    with _children_environ(ONE_BLAS_THREAD), _listening(reader, writer, listener):
         pool = ProcessPoolExecutor(
             max_workers=workers,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_ignore_interrupts,
+            mp_context=context,
+            initializer=_start_worker,
+            initargs=(writer,),
         )
         try:
             yield Engine(pool, workers)
@@ -140,6 +185,39 @@ def engine(workers: int, cluster: str | None) -> Iterator[Engine]:
             _stop_pool(pool)
             raise
         pool.shutdown(wait=True)
+
+
+def _start_worker(reports: Connection) -> None:
+    """A pool worker's start: Ctrl-C ignored (the parent handles it), job reports written to
+    ``reports`` (one pipe for every worker: a report is one write of < PIPE_BUF bytes, which
+    the kernel never interleaves, so no lock a terminated worker could leave held)."""
+    _ignore_interrupts()
+    _WORKER.reports = reports
+
+
+@contextlib.contextmanager
+def _listening(reader: Connection, writer: Connection, listener: Listener | None) -> Iterator[None]:
+    """A thread handing the workers' reports to ``listener`` while the body runs (and those
+    still unread when it ends); both ends of the pipe closed after."""
+    stop = threading.Event()
+
+    def listen() -> None:
+        with contextlib.suppress(EOFError, OSError, pickle.UnpicklingError):
+            while not stop.is_set() or reader.poll(0):  # what was sent is heard
+                if reader.poll(LISTEN_POLL_S):
+                    report = reader.recv()
+                    if listener is not None:
+                        listener(*report)
+
+    thread = threading.Thread(target=listen, name="tsog-job-reports", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        reader.close()
+        writer.close()
 
 
 @contextlib.contextmanager

@@ -4,11 +4,15 @@ Chunks differ a lot in cost (a chunk with an SH palette costs ~15x one without, 
 1M Gaussians: 36.6 s against 2.5 s) and parallel jobs finish in bursts, so counting written
 chunks gave ETAs off by 2-3x (a 5M scene: 220 s announced after its first chunk, 85 s left in
 fact). The meter weighs each job by :func:`encode_work`, learns the rate of one worker slot
-from the jobs that finished, and credits the jobs still running with the time they have run.
+from the work done (finished jobs, and the share running jobs report of themselves: a job's SH
+palette says how far it got), and credits the jobs still running with the time they have run.
+A job reports through :func:`report_progress`, wherever it runs (segment/engines.py carries a
+pool worker's reports back).
 """
 
 from __future__ import annotations
 
+import contextvars
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -21,7 +25,51 @@ SH_COST_PER_COEFF = 1.0
 Gaussian without SH: the palette's distance work grows with the vector's length (SH3, 15
 coefficients: 16x; measured 14.6x)."""
 
+TICK_S = 5.0
+"""Seconds between two :meth:`Meter.tick` calls of its ``on_tick`` (an ETA redrawn while no
+chunk is written: a 5M scene's first chunk takes ~40 s)."""
+
 Clock = Callable[[], float]
+JobProgress = Callable[[float], None]
+_reporter: contextvars.ContextVar[JobProgress | None] = contextvars.ContextVar(
+    "tsog_job_progress", default=None
+)
+
+
+def report_progress(fraction: float) -> None:
+    """The job running here has done ``fraction`` (0..1) of its work; heard by whoever runs
+    it under :func:`reporting_to`, ignored elsewhere."""
+    reporter = _reporter.get()
+    if reporter is not None:
+        reporter(min(max(fraction, 0.0), 1.0))
+
+
+@contextmanager
+def reporting_to(reporter: JobProgress) -> Iterator[None]:
+    """:func:`report_progress` calls in the body go to ``reporter``."""
+    reset = _reporter.set(reporter)
+    try:
+        yield
+    finally:
+        _reporter.reset(reset)
+
+
+@contextmanager
+def share_of(start: float, size: float) -> Iterator[None]:
+    """:func:`report_progress` calls in the body cover ``start`` .. ``start + size`` of the
+    enclosing job (one part of a window job)."""
+    outer = _reporter.get()
+    if outer is None:
+        yield
+        return
+    with reporting_to(lambda fraction: outer(start + size * fraction)):
+        yield
+
+
+def palette_share(sh_coeffs: int) -> float:
+    """The share of a part's encoding its SH palette takes, by :func:`encode_work`'s model
+    (the palette is fitted last: a job at palette fraction f has done 1 - s + s f)."""
+    return 1.0 - encode_work(1, 0) / encode_work(1, sh_coeffs)
 
 
 def encode_work(count: int, sh_coeffs: int) -> float:
@@ -40,9 +88,13 @@ class Meter:
         self._clock = clock
         self._lock = threading.Lock()
         self._running: dict[int, tuple[float, float]] = {}
+        self._reported: dict[int, tuple[float, float]] = {}
+        """Running jobs' last report: (fraction done, when)."""
         self._done = 0.0
         self._busy = 0.0
         self._next = 0
+        self.on_tick: Callable[[], None] | None = None
+        self._ticked = clock()
 
     def start(self, work: float) -> int:
         """A job of ``work`` began now; returns its token for :meth:`finish`."""
@@ -52,37 +104,74 @@ class Meter:
             self._running[token] = (work, self._clock())
             return token
 
+    def advance(self, token: int, fraction: float) -> None:
+        """The running job ``token`` reports ``fraction`` of its work done. Its first report
+        says when it really began (a job may wait in an engine's queue after it was sent)."""
+        with self._lock:
+            job = self._running.get(token)
+            if job is None:
+                return
+            now = self._clock()
+            if token not in self._reported:
+                self._running[token] = (job[0], now)
+            before = self._reported.get(token, (0.0, now))[0]
+            self._reported[token] = (max(before, fraction), now)
+
     def finish(self, token: int) -> None:
         """The job ``token`` ended (a second report of it is ignored)."""
         with self._lock:
+            self._reported.pop(token, None)
             job = self._running.pop(token, None)
             if job is not None:
                 work, began = job
                 self._done += work
                 self._busy += max(self._clock() - began, 1e-9)
 
-    def track(self, future: Future[Any], work: float) -> None:
-        """Count ``future`` as a job of ``work`` from now until it completes."""
-        token = self.start(work)
+    def ends_with(self, token: int, future: Future[Any]) -> None:
+        """The job ``token`` ends when ``future`` completes."""
         future.add_done_callback(lambda _f: self.finish(token))
 
     @contextmanager
     def job(self, work: float) -> Iterator[None]:
-        """Count the body as one job (encoding in this process)."""
+        """Count the body as one job (encoding in this process), its reports heard here."""
         token = self.start(work)
+        self.advance(token, 0.0)
+
+        def heard(fraction: float) -> None:
+            self.advance(token, fraction)
+            self.tick()
+
         try:
-            yield
+            with reporting_to(heard):
+                yield
         finally:
             self.finish(token)
+
+    def tick(self) -> None:
+        """Call ``on_tick`` if :data:`TICK_S` have passed since the last call (or since
+        :meth:`ticked`); from the thread that draws the progress."""
+        if self.on_tick is not None and self._clock() - self._ticked >= TICK_S:
+            self.ticked()
+            self.on_tick()
+
+    def ticked(self) -> None:
+        """Progress was just drawn: the next tick is :data:`TICK_S` from now."""
+        self._ticked = self._clock()
 
     def eta_s(self) -> float | None:
         """Seconds left: the work not yet done at one slot's measured rate times the slots,
         the running jobs credited with what that rate did in their time so far (and never
-        less than the longest running job's rest); None until a job has finished."""
+        less than the longest running job's rest); None until some work is done."""
         with self._lock:
-            if self._done <= 0.0:
+            done = self._done
+            busy = self._busy
+            for token, (fraction, when) in self._reported.items():
+                work, began = self._running[token]
+                done += fraction * work
+                busy += max(when - began, 0.0)
+            if done <= 0.0 or busy <= 0.0:
                 return None
-            rate = self._done / self._busy
+            rate = done / busy
             now = self._clock()
             credit = [min(w, rate * (now - began)) for w, began in self._running.values()]
             left = max(0.0, self.total - self._done - sum(credit))

@@ -42,7 +42,7 @@ from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .engines import Engine, HandOver, engine, sigint_blocked
+from .engines import Engine, HandOver, engine
 from .layers import (
     MEASURE_TIMES,
     ONE_LAYER_ASKED,
@@ -60,7 +60,7 @@ from .layout import (
     time_slices,
     why_not_merged,
 )
-from .meter import Meter, encode_work
+from .meter import TICK_S, Meter, encode_work, palette_share, report_progress, share_of
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan, window_count
 
 DEFAULT_POLICY: Policy = "hybrid"
@@ -70,8 +70,9 @@ BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
 Ints = npt.NDArray[np.int64]
 ChunkProgress = Callable[[int, int, float | None], None]
-"""Told of each chunk written: chunks written, chunks in all, and the seconds encoding has
-left by the work done so far (None until a job has finished; segment/meter.py)."""
+"""Told of each chunk written, and every ``meter.TICK_S`` while none is: chunks written,
+chunks in all, and the seconds encoding has left by the work done so far (None until a job
+has finished or reported progress; segment/meter.py)."""
 _Tag = TypeVar("_Tag")
 _Result = TypeVar("_Result")
 StageProgress = Callable[[str], None]
@@ -337,10 +338,15 @@ def encode_job_payload(
     scene: Scene, seed: int, quality: int = QUALITY_MAX, sh_bands: bool = False
 ) -> bytes:
     """A chunk's standalone .sog bytes, or with ``sh_bands`` its SH-band chunk's bytes (run
-    in worker processes)."""
+    in worker processes); the SH palette's progress reported as the job's (segment/meter.py)."""
+    share = 1.0 if sh_bands else palette_share(scene.gaussians.shN.shape[1])
+
+    def fitted(fraction: float) -> None:
+        report_progress(1.0 - share + share * fraction)
+
     if sh_bands:
-        return bundle_bytes(encode_sh_bands(scene, seed=seed))
-    return bundle_bytes(encode_chunk(scene, seed=seed, quality=quality))
+        return bundle_bytes(encode_sh_bands(scene, seed=seed, on_palette=fitted))
+    return bundle_bytes(encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted))
 
 
 def _bounds(scene: Scene, start: float, end: float) -> Box:
@@ -445,13 +451,13 @@ def _encoded(
     if options.workers <= 1 and options.cluster is None:
         yield from encoded_here(parts, plan, options.seed, options.quality, meter)
         return
-    with engine(options.workers, options.cluster) as running:
+    with engine(options.workers, options.cluster, meter.advance) as running:
         meter.slots = running.slots
         if isinstance(parts, JobParts):
             yield from _largest_first(parts, plan, options, running, meter)
         else:
             started = _submitted(parts, plan, options, running, meter)
-            yield from _in_order(started, running.slots)
+            yield from _in_order(started, running.slots, meter)
 
 
 def encoded_here(
@@ -477,14 +483,15 @@ def _submitted(
     """Each part's info and the future of its payload, submitted as it is asked for (this
     process keeps no part once it is handed over)."""
     for part in parts:
-        info, future = describe_part(part, plan), _submit(running, part, options)
-        meter.track(future, part_work(part))
+        token = meter.start(part_work(part))
+        info, future = describe_part(part, plan), _submit(running, token, part, options)
+        meter.ends_with(token, future)
         del part
         yield info, future
 
 
 def _in_order(
-    started: Iterable[tuple[_Tag, Future[_Result]]], slots: int
+    started: Iterable[tuple[_Tag, Future[_Result]]], slots: int, meter: Meter
 ) -> Iterator[tuple[_Tag, _Result]]:
     """The results of jobs in the order they were started, at most ``slots`` in flight (the
     next job is started, by iterating ``started``, only when a result is taken)."""
@@ -493,24 +500,26 @@ def _in_order(
         pending.append((tag, future))
         if len(pending) >= slots:
             done, oldest = pending.popleft()
-            yield done, oldest.result()
+            yield done, _awaited(oldest, meter)
     while pending:
         done, oldest = pending.popleft()
-        yield done, oldest.result()
+        yield done, _awaited(oldest, meter)
 
 
-def _start(running: Engine, job: Callable[..., _Result], *args: Any) -> Future[_Result]:
-    """Run ``job(*args)`` on the engine (SIGINT held while a local worker may be starting: it
-    inherits the block, see engines.sigint_blocked)."""
-    with sigint_blocked():
-        return running.executor.submit(job, *args)
+def _awaited(future: Future[_Result], meter: Meter) -> _Result:
+    """The future's result, the meter ticking while it is awaited."""
+    while not wait([future], timeout=TICK_S).done:
+        meter.tick()
+    return future.result()
 
 
-def _submit(running: Engine, part: Part, options: SegmentOptions) -> Future[bytes]:
-    """Encode ``part`` on the engine (its Gaussians dropped here once sent)."""
+def _submit(running: Engine, token: int, part: Part, options: SegmentOptions) -> Future[bytes]:
+    """Encode ``part`` on the engine as the meter's job ``token`` (its Gaussians dropped here
+    once sent)."""
     has_bands = part.sh_of is not None
     scene = HandOver(part.scene)
-    return _start(running, encode_job_payload, scene, options.seed, options.quality, has_bands)
+    args = (scene, options.seed, options.quality, has_bands)
+    return running.submit(token, encode_job_payload, *args)
 
 
 def _largest_first(
@@ -529,15 +538,17 @@ def _largest_first(
         i = next(order, None)
         if i is not None:
             part = parts.make(jobs[i])
-            future = _submit(running, part, options)
-            meter.track(future, parts.work(jobs[i]))
+            token = meter.start(parts.work(jobs[i]))
+            future = _submit(running, token, part, options)
+            meter.ends_with(token, future)
             in_flight[future] = (i, describe_part(part, plan))
 
     for _ in range(running.slots):
         start_next()
     for turn in range(len(jobs)):
         while turn not in finished:
-            done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+            done, _ = wait(in_flight, timeout=TICK_S, return_when=FIRST_COMPLETED)
+            meter.tick()
             for fut in done:
                 i, info = in_flight.pop(fut)
                 finished[i] = (info, fut.result())
@@ -576,6 +587,8 @@ def _write_container(
     entries: list[ChunkEntry] = []
     keys: list[NodeKey] = []
     per_level: dict[int, int] = {}
+    if on_chunk is not None:  # the ETA redrawn while no chunk comes (the first takes longest)
+        meter.on_tick = lambda: on_chunk(len(entries), max(total, len(entries)), meter.eta_s())
     with container_output(path) as out, contextlib.closing(chunks) as encoded:
         for i, (info, payload) in enumerate(encoded):
             offset, length, digest = out.add(payload)
@@ -600,6 +613,7 @@ def _write_container(
             per_level[info.key.level] = per_level.get(info.key.level, 0) + length
             if on_chunk:
                 on_chunk(i + 1, max(total, i + 1), meter.eta_s())
+                meter.ticked()
         scene = {
             **scene_fields,
             "start_s": plan.start_s,
@@ -674,7 +688,8 @@ def segment_scene(
     """Segment an in-memory scene into the container at ``path`` (published atomically), in
     ``layout`` when already chosen for these options (see :func:`merge_or_frames`), with its
     capture ``cameras`` and the view a player opens it from (framing.default_view);
-    ``on_stage`` hears of each phase before it starts, ``on_chunk`` of each chunk written."""
+    ``on_stage`` hears of each phase before it starts, ``on_chunk`` of each chunk written
+    (and of the ETA while none is)."""
     options = options or SegmentOptions()
     stage = on_stage or (lambda _text: None)
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
@@ -781,7 +796,14 @@ def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
     """Read a window's frames, cut and encode its chunks (run in worker processes; the
     window's scene is dropped once cut into parts)."""
     parts = window_parts(job.frames.read().scene, job.index, job.max_count, job.layering)
-    return list(encoded_here(parts, job.plan, job.seed, job.quality))
+    works = [part_work(part) for part in parts]
+    total, done = sum(works), 0.0
+    encoded: list[tuple[PartInfo, bytes]] = []
+    for part, work in zip(parts, works, strict=True):
+        with share_of(done / total, work / total):
+            encoded.extend(encoded_here([part], job.plan, job.seed, job.quality))
+        done += work
+    return encoded
 
 
 WINDOWS_PER_SLOT = 2
@@ -810,10 +832,11 @@ def _sequence_encoded(
     if options.workers <= 1 and options.cluster is None:
         yield from _encoded(parts, plan, options, meter)
         return
-    with engine(options.workers, options.cluster) as running:
+    with engine(options.workers, options.cluster, meter.advance) as running:
         meter.slots = running.slots
         if len(starts) < WINDOWS_PER_SLOT * running.slots:
-            yield from _in_order(_submitted(parts, plan, options, running, meter), running.slots)
+            chunks = _submitted(parts, plan, options, running, meter)
+            yield from _in_order(chunks, running.slots, meter)
             return
         jobs = (
             WindowJob(
@@ -829,7 +852,7 @@ def _sequence_encoded(
         )
         started = ((w, _tracked(running, job, meter)) for w, job in enumerate(jobs))
         written = 0
-        for _, results in _in_order(started, WINDOWS_PER_SLOT * running.slots):
+        for _, results in _in_order(started, WINDOWS_PER_SLOT * running.slots, meter):
             for info, payload in results:
                 yield replace(info, sh_of=_after(info.sh_of, written)), payload
             written += len(results)
@@ -837,10 +860,11 @@ def _sequence_encoded(
 
 def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple[PartInfo, bytes]]]:
     """Start a window job on the engine, counted by the meter."""
-    future = _start(running, encode_window, job)
-    meter.track(
-        future, sum(_frames_work(job.frames.shapes, job.frames.sh_coeffs, job.layering.sh_apart))
+    token = meter.start(
+        sum(_frames_work(job.frames.shapes, job.frames.sh_coeffs, job.layering.sh_apart))
     )
+    future = running.submit(token, encode_window, job)
+    meter.ends_with(token, future)
     return future
 
 
