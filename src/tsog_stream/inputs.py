@@ -8,7 +8,7 @@ chunk by chunk through the one stream reader (:func:`tsog_stream.client.open_str
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -144,11 +144,28 @@ the process at 6 GB for a picture a few hundred pixels wide)."""
 def _most_opaque_of(pieces: Iterable[Gaussians]) -> Gaussians:
     """The THUMBNAIL_GAUSSIANS most opaque Gaussians of all ``pieces`` (in their order),
     reduced piece by piece: memory holds the kept ones and one piece, not the scene (a 5M
-    container's thumbnail: 5.0 -> 2.3 GB)."""
-    kept = Gaussians.empty()
+    container's thumbnail: 5.0 -> 2.3 GB). The kept ones stay in pieces until the end:
+    joining them at every step copied ~2M SH3 Gaussians per chunk (6.4 of its 19 s)."""
+    kept: list[Gaussians] = []
     for piece in pieces:
-        kept = _most_opaque(Gaussians.concat([kept, piece]) if len(kept) else piece)
-    return kept
+        kept.append(piece)
+        if sum(map(len, kept)) > THUMBNAIL_GAUSSIANS:
+            kept = _most_opaque_pieces(kept)
+    return Gaussians.concat(kept) if kept else Gaussians.empty()
+
+
+def _most_opaque_pieces(pieces: Sequence[Gaussians]) -> list[Gaussians]:
+    """The THUMBNAIL_GAUSSIANS most opaque of ``pieces`` taken together, as the part of each
+    piece kept (in order; a piece kept whole is not copied)."""
+    opacity = np.concatenate([g.opacities for g in pieces])
+    keep = np.zeros(len(opacity), bool)
+    keep[np.argpartition(-opacity, THUMBNAIL_GAUSSIANS - 1)[:THUMBNAIL_GAUSSIANS]] = True
+    bounds = np.cumsum([0, *map(len, pieces)])
+    cut = []
+    for g, first, end in zip(pieces, bounds[:-1], bounds[1:], strict=True):
+        mine = keep[first:end]
+        cut.append(g if mine.all() else g.subset(np.flatnonzero(mine)))
+    return cut
 
 
 def _most_opaque(g: Gaussians) -> Gaussians:

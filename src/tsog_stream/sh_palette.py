@@ -90,7 +90,6 @@ def fit_palette(
     if len(unique) <= target:
         report(1.0)
         return unique, _labels(inverse, len(unique))
-    report(0.0)  # the fitting begins: what came before it is done (a first rate to go by)
     rng = np.random.default_rng(seed)
     axes = _principal_axes(unique, weights)
     centroids, labels = _agglomerate(unique, weights, target, axes=axes, rng=rng, report=report)

@@ -869,11 +869,10 @@ def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple
 
 
 def _frames_work(shapes: Sequence[tuple[int, int]], sh_coeffs: int, sh_apart: bool) -> list[float]:
-    """What encoding each frame costs (segment/meter.py), its SH bands apart or not."""
-    return [
-        encode_work(count, sh_coeffs) + (count if sh_apart and sh_coeffs else 0)
-        for count, _ in shapes
-    ]
+    """What encoding each frame costs (segment/meter.py), weighed as :func:`job_work` weighs
+    its jobs: one chunk, or with its SH bands apart a bare base and an SH-band chunk."""
+    jobs = (0, sh_coeffs) if sh_apart and sh_coeffs else (sh_coeffs,)
+    return [sum(encode_work(count, coeffs) for coeffs in jobs) for count, _ in shapes]
 
 
 def _frame_groups(scene: Scene) -> list[Ints]:
