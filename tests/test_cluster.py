@@ -26,6 +26,7 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Scene
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment import engines
+from tsog_stream.segment.meter import report_progress
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
@@ -173,3 +174,25 @@ def test_a_lost_worker_s_jobs_run_again_and_the_bytes_do_not_change(
         killer.join(30)
     assert killed, "no job was seen running: nothing was lost"
     assert path.read_bytes() == reference
+
+
+def _reporting(steps: int) -> int:
+    """Run on a Dask worker: a job that says how far it got."""
+    for step in range(1, steps + 1):
+        report_progress(step / steps)
+    return os.getpid()
+
+
+def test_dask_jobs_progress_reaches_the_listener(scheduler: str) -> None:
+    """A job's progress (its SH palette's) reaches the client as it runs, as Dask events: the
+    ETA of a run on a cluster need not wait for a finished job."""
+    heard: list[tuple[int, float]] = []
+    with engines.engine(2, scheduler, lambda token, done: heard.append((token, done))) as running:
+        futures = [running.submit(token, _reporting, 4) for token in (7, 8, 9)]
+        assert os.getpid() not in {future.result(timeout=60) for future in futures}
+        deadline = time.monotonic() + 20
+        while len(heard) < 15 and time.monotonic() < deadline:  # events come asynchronously
+            time.sleep(0.05)
+    for token in (7, 8, 9):  # each job: its start, then its reports in order
+        assert [done for t, done in heard if t == token] == [0.0, 0.25, 0.5, 0.75, 1.0]
+    assert len(heard) == 15

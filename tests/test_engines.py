@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
+import threading
+import time
 from typing import cast
 
 import pytest
@@ -75,3 +78,29 @@ def test_pool_jobs_reports_reach_the_listener_with_their_tokens() -> None:
 def test_jobs_run_here_report_nothing_without_a_listener() -> None:
     """Outside a pool worker (a Dask worker, this process) a job runs as it is."""
     assert engines.run_reported(3, _reporting, 2) == os.getpid()
+
+
+def test_a_sigint_while_workers_may_start_is_delivered_after_the_start() -> None:
+    """Ctrl-C taken by another thread while this one spawned a worker ran the handler here,
+    mid-spawn: the half-started worker printed "EOFError: Ran out of input". The section now
+    notes the signal and delivers it once the start is over."""
+    seen: list[str] = []
+    go = threading.Event()
+
+    def press_ctrl_c() -> None:  # a thread started before the section: SIGINT not blocked
+        go.wait(10)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    previous = signal.signal(signal.SIGINT, lambda _signum, _frame: seen.append("handler"))
+    presser = threading.Thread(target=press_ctrl_c)
+    presser.start()
+    try:
+        with engines.sigint_blocked():
+            go.set()
+            presser.join(10)
+            time.sleep(0.2)  # time for a handler to run here, were it to
+            seen.append("start over")
+        seen.append("after")
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert seen == ["start over", "handler", "after"]

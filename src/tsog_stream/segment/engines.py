@@ -42,6 +42,8 @@ JOB_RETRIES = 2
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 """glibc ``mallopt`` parameters (malloc.h)."""
 MALLOC_PLUGIN = "tsog-stream-malloc"
+PROGRESS_TOPIC = "tsog-stream-job-progress"
+"""The Dask event topic a job's progress goes to the client on: [token, fraction]."""
 T = TypeVar("T")
 ONE_BLAS_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 """The environment a pool worker starts with unless the user set these (what Dask's nanny
@@ -134,28 +136,42 @@ _WORKER = _Worker()
 
 @dataclass
 class Engine:
-    """An executor for encode jobs and how many to keep in flight."""
+    """An executor for encode jobs, how many to keep in flight, and how a job runs there
+    (:func:`run_reported` or :func:`run_on_dask`)."""
 
     executor: Executor
     slots: int
+    runner: Callable[..., Any]
 
     def submit(self, token: int, job: Callable[..., T], *args: Any) -> Future[T]:
         """Run ``job(*args)`` as the job ``token``: its :func:`meter.report_progress` calls
-        reach the engine's listener, where the engine can carry them (a local pool)."""
+        reach the engine's listener."""
         with sigint_blocked():
-            return self.executor.submit(run_reported, token, job, *args)
+            return self.executor.submit(self.runner, token, job, *args)
 
 
 def run_reported(token: int, job: Callable[..., T], *args: Any) -> T:
-    """A job in a worker, its progress sent back as (token, fraction) when this worker has a
-    report queue (a pool worker; a Dask worker has none, its jobs count when they end)."""
+    """A job in a pool worker, its progress sent back as (token, fraction) over the pool's
+    report pipe (run as it is where there is none)."""
     reports = _WORKER.reports
     if reports is None:
         return job(*args)
+    return _reporting(job, args, lambda fraction: reports.send((token, fraction)))
 
-    def send(fraction: float) -> None:
-        reports.send((token, fraction))
 
+def run_on_dask(token: int, job: Callable[..., T], *args: Any) -> T:
+    """A job on a Dask worker, its progress sent to the client as events of
+    :data:`PROGRESS_TOPIC` (the worker batches them to the scheduler, which passes them on)."""
+    from distributed import get_worker  # noqa: PLC0415 - an optional extra
+
+    worker = get_worker()
+    return _reporting(
+        job, args, lambda fraction: worker.log_event(PROGRESS_TOPIC, [token, fraction])
+    )
+
+
+def _reporting(job: Callable[..., T], args: tuple[Any, ...], send: Callable[[float], None]) -> T:
+    """``job(*args)`` with its start and its reports sent by ``send``."""
     send(0.0)
     with reporting_to(send):
         return job(*args)
@@ -167,7 +183,7 @@ def engine(workers: int, cluster: str | None, listener: Listener | None = None) 
     error or Ctrl-C in the body stops it at once (queued jobs dropped, running ones
     abandoned). ``listener`` hears the local workers' job reports (on another thread)."""
     if cluster is not None:
-        with _dask_engine(workers, check_cluster(cluster)) as found:
+        with _dask_engine(workers, check_cluster(cluster), listener) as found:
             yield found
         return
     context = multiprocessing.get_context("spawn")
@@ -180,7 +196,7 @@ def engine(workers: int, cluster: str | None, listener: Listener | None = None) 
             initargs=(writer,),
         )
         try:
-            yield Engine(pool, workers)
+            yield Engine(pool, workers, run_reported)
         except BaseException:
             _stop_pool(pool)
             raise
@@ -235,10 +251,10 @@ def _children_environ(defaults: dict[str, str]) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _dask_engine(workers: int, cluster: str) -> Iterator[Engine]:
+def _dask_engine(workers: int, cluster: str, listener: Listener | None) -> Iterator[Engine]:
     """A Dask client's executor (jobs retried on a lost worker), on a LocalCluster of
     ``workers`` processes or on the scheduler at ``cluster``; as many jobs in flight as the
-    cluster has worker threads."""
+    cluster has worker threads; ``listener`` hears the jobs' progress events."""
     try:
         from distributed import Client, LocalCluster  # noqa: PLC0415 - an optional extra
     except ImportError:
@@ -265,13 +281,15 @@ def _dask_engine(workers: int, cluster: str) -> Iterator[Engine]:
         except (OSError, TimeoutError) as exc:
             raise InputError(f"cannot reach the Dask scheduler: {exc}", where=cluster) from None
         _register_malloc_tuning(client)
+        if listener is not None:
+            client.subscribe_topic(PROGRESS_TOPIC, lambda event: listener(*event[1]))
         threads = sum(client.nthreads().values()) or 1
         executor = client.get_executor(retries=JOB_RETRIES, pure=False)
         with warnings.catch_warnings():
             # a scene in memory sends each job its Gaussians: that is the design, not a mistake
             warnings.filterwarnings("ignore", "Sending large graph", UserWarning)
             try:
-                yield Engine(executor, threads)
+                yield Engine(executor, threads, run_on_dask)
             except BaseException:
                 executor.shutdown(wait=False)
                 raise
@@ -297,14 +315,29 @@ def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
 
 @contextlib.contextmanager
 def sigint_blocked() -> Iterator[None]:
-    """SIGINT held (not lost) in this thread while it may start worker processes: a worker
-    inherits the blocked mask, so a Ctrl-C during its start-up (imports) cannot interrupt it
-    before :func:`_ignore_interrupts` runs."""
+    """SIGINT held (not lost) while this thread may start worker processes, then delivered.
+
+    A worker inherits the blocked mask, so a Ctrl-C during its start-up (imports) cannot
+    interrupt it before :func:`_ignore_interrupts` runs. Blocking it here is not enough in
+    the parent: another thread (the pool's, the report listener, a timer) may take the
+    signal, and Python then runs the handler in this thread anyway, which could cut the
+    spawn's start-up data short (the half-started worker printed "EOFError: Ran out of
+    input" after "tsog: interrupted", seen twice in the suite). So the handler only notes it
+    meanwhile, and the signal is raised again once the section ends.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield  # only the main thread may set handlers (and handlers run only there)
+        return
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, _frame: held.append(signum))
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
+        if held:
+            signal.raise_signal(signal.SIGINT)
 
 
 def _ignore_interrupts() -> None:
