@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from concurrent.futures import Future
 
+import numpy as np
 import pytest
 
 from tsog_stream.segment.meter import (
@@ -162,3 +163,11 @@ def test_shares_map_a_parts_progress_into_its_window_job() -> None:
 def test_the_palette_share_follows_the_cost_model() -> None:
     assert palette_share(0) == 0.0
     assert palette_share(15) == pytest.approx(15 / 16)
+
+
+def test_reports_are_plain_floats() -> None:
+    """Dask sends reports as msgpack, which refuses numpy scalars (the job would fail)."""
+    heard: list[float] = []
+    with reporting_to(heard.append):
+        report_progress(np.float64(0.25))
+    assert heard == [0.25] and type(heard[0]) is float

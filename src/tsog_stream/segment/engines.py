@@ -181,7 +181,7 @@ def _reporting(job: Callable[..., T], args: tuple[Any, ...], send: Callable[[flo
 def engine(workers: int, cluster: str | None, listener: Listener | None = None) -> Iterator[Engine]:
     """The engine for ``workers`` local processes, or for the Dask cluster ``cluster``; an
     error or Ctrl-C in the body stops it at once (queued jobs dropped, running ones
-    abandoned). ``listener`` hears the local workers' job reports (on another thread)."""
+    abandoned). ``listener`` hears the jobs' progress reports (on another thread)."""
     if cluster is not None:
         with _dask_engine(workers, check_cluster(cluster), listener) as found:
             yield found

@@ -41,7 +41,7 @@ def report_progress(fraction: float) -> None:
     it under :func:`reporting_to`, ignored elsewhere."""
     reporter = _reporter.get()
     if reporter is not None:
-        reporter(min(max(fraction, 0.0), 1.0))
+        reporter(min(max(float(fraction), 0.0), 1.0))  # a plain float: Dask sends msgpack
 
 
 @contextmanager
