@@ -173,11 +173,11 @@ def test_a_thumbnail_draws_at_most_its_cap_of_the_most_opaque(
     scene's order (its render of 5M Gaussians took the process to 6 GB)."""
     monkeypatch.setattr(inputs, "THUMBNAIL_GAUSSIANS", 10)
     g = static_gaussians(50, seed=3)
-    kept = inputs._most_opaque(g)
+    kept = inputs._most_opaque_of([g])
     expected = np.sort(np.argsort(-g.opacities, kind="stable")[:10])
     assert np.array_equal(kept.opacities, g.opacities[expected])
     small = g.subset(np.arange(8))
-    assert inputs._most_opaque(small) is small
+    assert inputs._most_opaque_of([small]) is small
     # reduced piece by piece (a container chunk by chunk): the same Gaussians, same order
     pieces = [g.subset(np.arange(a, b)) for a, b in ((0, 20), (20, 35), (35, 50))]
     assert np.array_equal(inputs._most_opaque_of(pieces).opacities, g.opacities[expected])

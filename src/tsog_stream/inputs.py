@@ -151,6 +151,8 @@ def _most_opaque_of(pieces: Iterable[Gaussians]) -> Gaussians:
         kept.append(piece)
         if sum(map(len, kept)) > THUMBNAIL_GAUSSIANS:
             kept = _most_opaque_pieces(kept)
+    if len(kept) == 1:
+        return kept[0]  # one piece (a scene of one chunk): drawn as it is, not copied
     return Gaussians.concat(kept) if kept else Gaussians.empty()
 
 
@@ -166,11 +168,3 @@ def _most_opaque_pieces(pieces: Sequence[Gaussians]) -> list[Gaussians]:
         mine = keep[first:end]
         cut.append(g if mine.all() else g.subset(np.flatnonzero(mine)))
     return cut
-
-
-def _most_opaque(g: Gaussians) -> Gaussians:
-    """``g``, or its THUMBNAIL_GAUSSIANS most opaque Gaussians (in their order)."""
-    if len(g) <= THUMBNAIL_GAUSSIANS:
-        return g
-    keep = np.argpartition(-g.opacities, THUMBNAIL_GAUSSIANS - 1)[:THUMBNAIL_GAUSSIANS]
-    return g.subset(np.sort(keep))
