@@ -483,9 +483,8 @@ def _submitted(
     """Each part's info and the future of its payload, submitted as it is asked for (this
     process keeps no part once it is handed over)."""
     for part in parts:
-        token = meter.start(part_work(part))
-        info, future = describe_part(part, plan), _submit(running, token, part, options)
-        meter.ends_with(token, future)
+        info = describe_part(part, plan)
+        future = _submit(running, meter, part, part_work(part), options)
         del part
         yield info, future
 
@@ -513,13 +512,25 @@ def _awaited(future: Future[_Result], meter: Meter) -> _Result:
     return future.result()
 
 
-def _submit(running: Engine, token: int, part: Part, options: SegmentOptions) -> Future[bytes]:
-    """Encode ``part`` on the engine as the meter's job ``token`` (its Gaussians dropped here
-    once sent)."""
+def _submit(
+    running: Engine, meter: Meter, part: Part, work: float, options: SegmentOptions
+) -> Future[bytes]:
+    """Encode ``part`` on the engine as a job of ``work`` on the meter (its Gaussians dropped
+    here once sent)."""
     has_bands = part.sh_of is not None
-    scene = HandOver(part.scene)
-    args = (scene, options.seed, options.quality, has_bands)
-    return running.submit(token, encode_job_payload, *args)
+    args = (HandOver(part.scene), options.seed, options.quality, has_bands)
+    return _metered(running, meter, work, encode_job_payload, *args)
+
+
+def _metered(
+    running: Engine, meter: Meter, work: float, job: Callable[..., _Result], *args: Any
+) -> Future[_Result]:
+    """Run ``job(*args)`` on the engine as one job of ``work`` on the meter, from now until
+    its future completes (its progress reports heard by the meter)."""
+    token = meter.start(work)
+    future = running.submit(token, job, *args)
+    meter.ends_with(token, future)
+    return future
 
 
 def _largest_first(
@@ -538,9 +549,7 @@ def _largest_first(
         i = next(order, None)
         if i is not None:
             part = parts.make(jobs[i])
-            token = meter.start(parts.work(jobs[i]))
-            future = _submit(running, token, part, options)
-            meter.ends_with(token, future)
+            future = _submit(running, meter, part, parts.work(jobs[i]), options)
             in_flight[future] = (i, describe_part(part, plan))
 
     for _ in range(running.slots):
@@ -860,12 +869,8 @@ def _sequence_encoded(
 
 def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple[PartInfo, bytes]]]:
     """Start a window job on the engine, counted by the meter."""
-    token = meter.start(
-        sum(_frames_work(job.frames.shapes, job.frames.sh_coeffs, job.layering.sh_apart))
-    )
-    future = running.submit(token, encode_window, job)
-    meter.ends_with(token, future)
-    return future
+    work = sum(_frames_work(job.frames.shapes, job.frames.sh_coeffs, job.layering.sh_apart))
+    return _metered(running, meter, work, encode_window, job)
 
 
 def _frames_work(shapes: Sequence[tuple[int, int]], sh_coeffs: int, sh_apart: bool) -> list[float]:
