@@ -23,6 +23,7 @@ from aiohttp import web
 from tsog_stream import Scene, TimelineType
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.constants import U16_MAX
+from tsog_stream.segment.meter import report_progress
 from tsog_stream.server.app import start_server
 from tsog_stream.temporal import evaluate_all, lifespans, reference_times, visibility_half_width
 
@@ -238,3 +239,11 @@ def wait_until(check: Callable[[], object], timeout: float, what: str) -> None:
         if time.monotonic() > deadline:
             pytest.fail(f"timed out waiting for {what}")
         time.sleep(0.01)
+
+
+def reporting_job(steps: int) -> int:
+    """Run on a worker (pool or Dask): a job that says how far it got, ``steps`` times; its
+    process id."""
+    for step in range(1, steps + 1):
+        report_progress(step / steps)
+    return os.getpid()

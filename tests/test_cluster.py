@@ -16,6 +16,7 @@ from typing import Any
 import pytest
 from distributed import Client, LocalCluster
 
+from helpers import reporting_job, wait_until
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
@@ -26,7 +27,6 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Scene
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment import engines
-from tsog_stream.segment.meter import report_progress
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
@@ -176,23 +176,14 @@ def test_a_lost_worker_s_jobs_run_again_and_the_bytes_do_not_change(
     assert path.read_bytes() == reference
 
 
-def _reporting(steps: int) -> int:
-    """Run on a Dask worker: a job that says how far it got."""
-    for step in range(1, steps + 1):
-        report_progress(step / steps)
-    return os.getpid()
-
-
 def test_dask_jobs_progress_reaches_the_listener(scheduler: str) -> None:
     """A job's progress (its SH palette's) reaches the client as it runs, as Dask events: the
     ETA of a run on a cluster need not wait for a finished job."""
     heard: list[tuple[int, float]] = []
     with engines.engine(2, scheduler, lambda token, done: heard.append((token, done))) as running:
-        futures = [running.submit(token, _reporting, 4) for token in (7, 8, 9)]
+        futures = [running.submit(token, reporting_job, 4) for token in (7, 8, 9)]
         assert os.getpid() not in {future.result(timeout=60) for future in futures}
-        deadline = time.monotonic() + 20
-        while len(heard) < 15 and time.monotonic() < deadline:  # events come asynchronously
-            time.sleep(0.05)
+        wait_until(lambda: len(heard) >= 15, 20, "the jobs' progress events")  # asynchronous
     for token in (7, 8, 9):  # each job: its start, then its reports in order
         assert [done for t, done in heard if t == token] == [0.0, 0.25, 0.5, 0.75, 1.0]
     assert len(heard) == 15

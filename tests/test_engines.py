@@ -11,8 +11,8 @@ from typing import cast
 
 import pytest
 
+from helpers import reporting_job
 from tsog_stream.segment import engines
-from tsog_stream.segment.meter import report_progress
 
 
 def _threads_environ() -> dict[str, str | None]:
@@ -55,19 +55,12 @@ def test_a_handed_over_argument_is_dropped_here_once_sent() -> None:
     assert pickle.loads(pickle.dumps(engines.HandOver([1, 2]))) == [1, 2]
 
 
-def _reporting(steps: int) -> int:
-    """Run in a pool worker: a job that says how far it got."""
-    for step in range(1, steps + 1):
-        report_progress(step / steps)
-    return os.getpid()
-
-
 def test_pool_jobs_reports_reach_the_listener_with_their_tokens() -> None:
     """A 5M scene's first ETA came ~40 s in, with its first finished job: a job's progress
     (its SH palette's) goes back to the parent as it runs, tagged with the job's token."""
     heard: list[tuple[int, float]] = []
     with engines.engine(2, None, lambda token, done: heard.append((token, done))) as running:
-        futures = [running.submit(token, _reporting, 4) for token in (7, 8, 9)]
+        futures = [running.submit(token, reporting_job, 4) for token in (7, 8, 9)]
         pids = {future.result(timeout=60) for future in futures}
     assert os.getpid() not in pids
     for token in (7, 8, 9):  # each job: its start, then its reports in order
@@ -77,7 +70,7 @@ def test_pool_jobs_reports_reach_the_listener_with_their_tokens() -> None:
 
 def test_jobs_run_here_report_nothing_without_a_listener() -> None:
     """Outside a pool worker (a Dask worker, this process) a job runs as it is."""
-    assert engines.run_reported(3, _reporting, 2) == os.getpid()
+    assert engines.run_reported(3, reporting_job, 2) == os.getpid()
 
 
 def test_a_sigint_while_workers_may_start_is_delivered_after_the_start() -> None:
