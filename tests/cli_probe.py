@@ -21,6 +21,7 @@ import os
 import resource
 import signal
 import sys
+import tempfile
 import time
 import traceback
 from typing import Any
@@ -136,12 +137,10 @@ def main() -> None:
     runs = json.load(sys.stdin)
     for name in PRELOADED:
         importlib.import_module(name)
-    scratch = os.environ.get("TMPDIR", "/tmp")
-    scratch = os.path.join(scratch, f"cli-probe-{os.getpid()}")
-    os.makedirs(scratch, exist_ok=True)
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     base = _idle_child_rss()
-    json.dump(_run_all(runs, scratch, base), sys.stdout)
+    with tempfile.TemporaryDirectory(prefix="stderr-") as scratch:
+        json.dump(_run_all(runs, scratch, base), sys.stdout)
 
 
 if __name__ == "__main__":

@@ -95,16 +95,16 @@ class Outcome:
 
 def probe(runs: list[dict[str, Any]]) -> list[Outcome]:
     """Run command lines through tests/cli_probe.py and return what each did."""
-    cache = tempfile.mkdtemp(prefix="tsog-view-cache-")  # tsog view's copies, never ~/.cache
-    done = subprocess.run(
-        [sys.executable, str(PROBE)],
-        env={**os.environ, "TSOG_CACHE_DIR": cache},
-        input=json.dumps(runs),
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=60 + sum(r["timeout_s"] + 10 for r in runs),
-    )
+    with tempfile.TemporaryDirectory(prefix="tsog-cli-probe-") as scratch:
+        done = subprocess.run(  # tsog view's copies go to the scratch folder, never ~/.cache
+            [sys.executable, str(PROBE)],
+            env={**os.environ, "TSOG_CACHE_DIR": scratch, "TMPDIR": scratch},
+            input=json.dumps(runs),
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=60 + sum(r["timeout_s"] + 10 for r in runs),
+        )
     return [Outcome(**r) for r in json.loads(done.stdout)]
 
 
