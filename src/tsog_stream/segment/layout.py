@@ -24,7 +24,7 @@ from ..codec.chunk import encode_chunk
 from ..container.header import HEADER_SIZE, PREFIX_SIZE
 from ..errors import InputError
 from ..model import Scene
-from ..morton import morton_order
+from ..morton import morton_run
 from ..schemas.manifest import Policy
 from ..temporal import lifespans, time_range
 from .plan import (
@@ -204,9 +204,7 @@ def measure_costs(scene: Scene, max_count: int, seed: int = 0, quality: int = 10
     n = min(len(scene), SAMPLE_GAUSSIANS)
     if n < 16:
         return Costs(per_gaussian=32.0, per_chunk=2048.0, max_count=max_count)
-    order = morton_order(scene.gaussians.means)
-    middle = (len(order) - n) // 2
-    big = order[middle : middle + n]
+    big = morton_run(scene.gaussians.means, (len(scene) - n) // 2, n)
     small = big[: n // 8]
     big_bytes = len(bundle_bytes(encode_chunk(scene.subset(big), seed=seed, quality=quality)))
     small_bytes = len(bundle_bytes(encode_chunk(scene.subset(small), seed=seed, quality=quality)))
