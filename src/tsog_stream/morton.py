@@ -76,7 +76,7 @@ def morton_run(positions: npt.ArrayLike, start: int, count: int) -> npt.NDArray[
     if not 0 <= start <= start + count <= total:
         raise ValueError(f"run {start}..{start + count} outside 0..{total}")
     codes = _codes(pts)
-    if codes is None or count == 0 or count == total:
+    if codes is None or count in (0, total):
         return morton_order(pts)[start : start + count]
     bounds = [start, start + count - 1]
     picked = np.argpartition(codes, bounds)[start : start + count]
