@@ -5,6 +5,7 @@ states, against the same chunk at quality 100; files shrink as the quality drops
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from tsog_stream.codec.precision import (
     Budgets,
     budget_fraction,
     coarsen,
+    most_frequent,
 )
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
@@ -113,6 +115,38 @@ def test_coarsen_rounds_to_the_coarsest_grid_within_the_tolerance() -> None:
     assert np.all(np.abs(out.astype(int) - codes.astype(int)) <= [[0, 4, 256, 256]])
     plain = coarsen(codes[:1], np.array([[0.4, 7.9, 300.0, 300.0]]))  # grids through code 0
     assert plain.tolist() == [[0, 1000, 65535, 39936]]
+
+
+def _coarsen_by_the_formula(codes: np.ndarray, tolerance: np.ndarray, shared: bool) -> np.ndarray:
+    """coarsen written as its definition: steps 2^floor(log2(2 tol)) (1 below a tolerance of
+    0.5, at most half the range), round half up on a grid through the anchor, in int64."""
+    top = int(np.iinfo(codes.dtype).max)
+    tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(top)), codes.shape)
+    bits = np.floor(np.log2(np.maximum(2.0 * tol, 1.0)))
+    grid = np.left_shift(1, np.clip(bits, 0, top.bit_length() - 1).astype(np.int64))
+    q = codes.astype(np.int64)
+    anchor = most_frequent(codes) if shared else 0
+    rounded = (q - anchor + grid // 2) // grid * grid + anchor
+    return np.where((rounded > top) | (rounded < 0), q, rounded).astype(codes.dtype)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_coarsen_equals_its_formula(seed: int) -> None:
+    """The int32 bit arithmetic (frexp for the step, & -grid for the floor) gives the
+    formula's codes for 8- and 16-bit codes, tolerances of every shape and kind (0, below
+    0.5, huge, negative, NaN, infinite), grids through 0 or the most frequent code."""
+    rng = np.random.default_rng(seed)
+    for dtype in (np.uint8, np.uint16):
+        codes: Any = rng.integers(0, int(np.iinfo(dtype).max) + 1, (3000, 3)).astype(dtype)
+        codes[:1000] = codes[0]
+        for shape in [(3000, 3), (3000, 1), (3,)]:
+            tol = np.exp(rng.normal(0.0, 5.0, shape))
+            for value in (np.inf, np.nan, 0.0, 0.5, -3.0):
+                tol[rng.random(shape) < 0.04] = value
+            for shared in (False, True):
+                out = coarsen(codes, tol, shared=shared)
+                assert out.dtype == codes.dtype
+                np.testing.assert_array_equal(out, _coarsen_by_the_formula(codes, tol, shared))
 
 
 def test_a_value_many_gaussians_share_stays_one_value() -> None:

@@ -27,6 +27,7 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -93,12 +94,13 @@ def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
     through each channel's most frequent code, so a value many Gaussians share (a zero rate of
     turn) stays one value whatever their steps; else through code 0."""
     top = int(np.iinfo(codes.dtype).max)
-    tol = np.broadcast_to(np.nan_to_num(tolerance, nan=0.0, posinf=float(top)), codes.shape)
-    bits = np.floor(np.log2(np.maximum(2.0 * tol, 1.0)))
-    grid = np.left_shift(1, np.clip(bits, 0, top.bit_length() - 1).astype(np.int64))
-    q = codes.astype(np.int64)
-    anchor = most_frequent(codes) if shared else 0
-    rounded = (q - anchor + grid // 2) // grid * grid + anchor
+    tol = np.nan_to_num(tolerance, nan=0.0, posinf=float(top))
+    bits = np.frexp(np.maximum(tol, 0.5))[1]  # floor(log2(2 tol)); 0 below a tolerance of 0.5
+    shift = np.minimum(bits, top.bit_length() - 1).astype(np.int32)
+    grid = np.broadcast_to(np.left_shift(np.int32(1), shift), codes.shape)
+    q = codes.astype(np.int32)  # codes, grids and sums all fit: half the memory of int64
+    anchor = most_frequent(codes).astype(np.int32) if shared else np.int32(0)
+    rounded = ((q - anchor + (grid >> 1)) & -grid) + anchor  # & -grid: floor to the grid
     return np.where((rounded > top) | (rounded < 0), q, rounded).astype(codes.dtype)
 
 
@@ -164,8 +166,9 @@ class Budgets:
     def _at(cls, scene: Scene, f: float) -> Budgets:
         """The budgets at a budget fraction f > 0, numpy's warnings silenced (see :meth:`of`)."""
         sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
-        position = _finite_or_zero(f * POSITION_AT_ZERO * sigmas.min(axis=1))  # no budget for
-        spread = _finite_or_zero(sigmas.max(axis=1) - sigmas.min(axis=1))  # non-finite scales
+        smallest, largest = across(np.minimum, sigmas), across(np.maximum, sigmas)
+        position = _finite_or_zero(f * POSITION_AT_ZERO * smallest)  # no budget for
+        spread = _finite_or_zero(largest - smallest)  # non-finite scales
         rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
         timeline = scene.timeline
@@ -213,6 +216,13 @@ class Budgets:
         return out
 
 
+def across(pick: np.ufunc, values: F64) -> F64:
+    """``pick`` (np.minimum, np.maximum) over the columns of (N, C) ``values``, row by row:
+    the same values as ``.min(axis=1)``, NaN included, 10x faster for a few columns (numpy
+    reduces along a short axis row by row)."""
+    return np.asarray(functools.reduce(pick, values.T))
+
+
 def _finite_or_zero(values: F64) -> F64:
     """``values`` with every non-finite entry 0 (such a Gaussian keeps its codes as they are)."""
     return np.where(np.isfinite(values), values, 0.0)
@@ -221,9 +231,12 @@ def _finite_or_zero(values: F64) -> F64:
 def _top_speed(coeffs: F64, reach: F64) -> F64:
     """A bound on |d position / dt| over |t - t_ref| <= reach: sum over orders k of
     k |c_k| reach^(k-1), the largest axis."""
-    k = np.arange(1, coeffs.shape[1] + 1, dtype=np.float64)[None, :, None]
-    terms = k * np.abs(coeffs) * reach[:, None, None] ** (k - 1)
-    return np.asarray(terms.sum(axis=1).max(axis=1))
+    speed = np.zeros((coeffs.shape[0], coeffs.shape[2]))
+    power = np.ones_like(reach)  # reach^(k-1) by products: 3x faster than float powers
+    for k in range(1, coeffs.shape[1] + 1):
+        speed += (k * np.abs(coeffs[:, k - 1, :])) * power[:, None]
+        power = power * reach
+    return across(np.maximum, speed)
 
 
 def _time_budget(timeline: Timeline | None, f: float) -> F64:
