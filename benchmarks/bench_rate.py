@@ -20,6 +20,7 @@ import argparse
 import datetime as dt
 import itertools
 import json
+import math
 import re
 import sys
 import time
@@ -60,7 +61,9 @@ QUALITIES = (100, 90, 75, 50, 25, 0)
 LIFESPANS = {"long": (0.5, 1.0), "medium": (0.05, 0.2), "short": (0.005, 0.02)}
 SIZE = (320, 240)
 ENCODE_ROUNDS = 5
-"""Rounds of encodes at every quality whose median time is reported."""
+"""Rounds of encodes at every quality whose median time is reported (at least)."""
+ENCODE_BUDGET_S = 30.0
+"""Seconds of encoding a scene's timing may take: more rounds for a small scene."""
 
 
 def scenes() -> list[tuple[str, Scene]]:
@@ -79,11 +82,15 @@ def scenes() -> list[tuple[str, Scene]]:
 
 
 def encode_times(scene: Scene) -> dict[int, float]:
-    """Seconds to encode the scene at each quality: the median of ENCODE_ROUNDS rounds, each
-    round every quality in turn (this machine's speed drifts by 10-20 % within a minute)."""
+    """Seconds to encode the scene at each quality: the median of at least ENCODE_ROUNDS
+    rounds (more for a small scene, ENCODE_BUDGET_S in all), each round every quality in turn
+    (this machine's speed drifts by 10-20 % within a minute)."""
     taken: dict[int, list[float]] = {q: [] for q in QUALITIES}
+    start = time.perf_counter()
     encode_chunk(scene, quality=QUALITIES[0])  # warm: first-touch memory, caches
-    for _ in range(ENCODE_ROUNDS):
+    one = time.perf_counter() - start
+    rounds = max(ENCODE_ROUNDS, math.ceil(ENCODE_BUDGET_S / (one * len(QUALITIES))))
+    for _ in range(rounds):
         for quality in QUALITIES:
             start = time.perf_counter()
             encode_chunk(scene, quality=quality)
@@ -258,8 +265,9 @@ def markdown(all_rows: list[dict[str, Any]], stamp: str, views: int, times: int)
         f"against the exact source at {times} times x {views} orbit views ({SIZE[0]}x{SIZE[1]}); "
         "PSNR in dB (mean over the images; worst image). *x .4dgs*: bytes against `.4dgs`'s; "
         "at `.4dgs`'s PSNR, interpolated between qualities (< when even quality 0 is above it). "
-        f"*encode s*: the median of {ENCODE_ROUNDS} rounds encoding the scene at every quality in "
-        "turn; *encode x q100*: against quality 100 in the same rounds.",
+        f"*encode s*: the median of {ENCODE_ROUNDS} or more rounds (~{ENCODE_BUDGET_S:g} s of "
+        "encoding in all) encoding the scene at every quality in turn; *encode x q100*: "
+        "against quality 100 in the same rounds.",
         "Charts: "
         + ", ".join(
             f"[{name}](rate/{chart_name(name)})"

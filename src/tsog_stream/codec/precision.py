@@ -94,14 +94,22 @@ def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
     through each channel's most frequent code, so a value many Gaussians share (a zero rate of
     turn) stays one value whatever their steps; else through code 0."""
     top = int(np.iinfo(codes.dtype).max)
-    tol = np.nan_to_num(tolerance, nan=0.0, posinf=float(top))
-    bits = np.frexp(np.maximum(tol, 0.5))[1]  # floor(log2(2 tol)); 0 below a tolerance of 0.5
+    tol = np.minimum(np.fmax(tolerance, 0.5), float(top))  # NaN, -inf and < 0.5: 0.5; inf: top
+    bits = np.frexp(tol)[1]  # floor(log2(2 tol)): 0 for a tolerance under one code
     shift = np.minimum(bits, top.bit_length() - 1).astype(np.int32)
-    grid = np.broadcast_to(np.left_shift(np.int32(1), shift), codes.shape)
-    q = codes.astype(np.int32)  # codes, grids and sums all fit: half the memory of int64
-    anchor = most_frequent(codes).astype(np.int32) if shared else np.int32(0)
+    out = codes.copy()
+    moved = np.flatnonzero(np.broadcast_to(shift, codes.shape))  # grids over one code: at
+    if moved.size == 0:  # high quality most codes keep their value, so only these are worked
+        return out
+    q = np.take(codes, moved).astype(np.int32)  # codes, grids and sums all fit in int32
+    grid = np.left_shift(np.int32(1), np.take(np.broadcast_to(shift, codes.shape), moved))
+    anchor: npt.NDArray[np.int32] | int = 0
+    if shared:
+        modes = np.broadcast_to(most_frequent(codes).astype(np.int32), codes.shape)
+        anchor = np.take(modes, moved)
     rounded = ((q - anchor + (grid >> 1)) & -grid) + anchor  # & -grid: floor to the grid
-    return np.where((rounded > top) | (rounded < 0), q, rounded).astype(codes.dtype)
+    out.reshape(-1)[moved] = np.where((rounded > top) | (rounded < 0), q, rounded)
+    return out
 
 
 def most_frequent(codes: CodesT) -> npt.NDArray[np.int64]:
