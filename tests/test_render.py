@@ -29,6 +29,7 @@ from tsog_stream.render import (
     scene_orbit,
     to_uint8,
 )
+from tsog_stream.render.plot import Series, line_chart
 from tsog_stream.render.sh import SH_C1, sh_basis, sh_colors
 
 project_module = importlib.import_module("tsog_stream.render.project")  # shadowed by project()
@@ -368,3 +369,17 @@ def test_to_uint8_and_save_png(tmp_path: Path) -> None:
     with Image.open(tmp_path / "x.png") as png:
         assert png.mode == "RGB"
         assert np.array_equal(np.asarray(png), to_uint8(image))
+
+
+@pytest.mark.parametrize("keys", [2, 3, 4])
+def test_every_legend_key_is_drawn_inside_the_chart(keys: int) -> None:
+    """Keys too wide for one row wrap onto a second one instead of running off the left
+    edge: every series' colour shows in the band between the title and the plot."""
+    colours = [(200, 30 * k, 10) for k in range(keys)]
+    series = [
+        Series(f"a long description of variant number {k}", colour, [(1.0, 1.0), (2.0, 2.0)])
+        for k, colour in enumerate(colours)
+    ]
+    band = np.asarray(line_chart("title", ("x", "y"), series))[24:57]
+    for colour in colours:
+        assert np.all(band == colour, axis=-1).any(), colour

@@ -8,6 +8,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Final
 
 from PIL import Image, ImageDraw, ImageFont
 
@@ -127,13 +128,31 @@ def _overlap(a: tuple[float, float, float, float], b: tuple[float, float, float,
 
 
 def _legend(draw: ImageDraw.ImageDraw, font: Font, series: Sequence[Series]) -> None:
-    """Colour keys above the plot area, right-aligned."""
-    widths = [40 + font.getlength(s.label) + 18 for s in series]
-    x = SIZE[0] - MARGIN[2] - sum(widths)
-    for entry, width in zip(series, widths, strict=True):
-        draw.line([(x, 40), (x + 22, 40)], fill=entry.colour, width=3)
-        draw.text((x + 28, 40), entry.label, fill=INK, font=font, anchor="lm")
-        x += width
+    """Colour keys above the plot area, right-aligned; on two rows when one would run off
+    the left edge."""
+    rows = _legend_rows([40 + font.getlength(s.label) + 18 for s in series])
+    for (first, stop, width), y in zip(rows, LEGEND_ROWS_Y[len(rows)], strict=True):
+        x = SIZE[0] - MARGIN[2] - width
+        for entry in series[first:stop]:
+            draw.line([(x, y), (x + 22, y)], fill=entry.colour, width=3)
+            draw.text((x + 28, y), entry.label, fill=INK, font=font, anchor="lm")
+            x += 40 + font.getlength(entry.label) + 18
+
+
+LEGEND_ROWS_Y: Final = {1: (40,), 2: (31, 48)}
+"""Where one or two rows of colour keys sit, between the title and the plot area."""
+
+
+def _legend_rows(widths: Sequence[float]) -> list[tuple[int, int, float]]:
+    """(first, stop, width) of the keys on each row: one row if it fits across the chart,
+    else two, the first as full as it can be (the charts here have at most four keys)."""
+    room = SIZE[0] - MARGIN[2] - 8  # from the left edge, as the y label
+    if sum(widths) <= room or len(widths) < 2:
+        return [(0, len(widths), sum(widths))]
+    cut = 1
+    while cut < len(widths) - 1 and sum(widths[: cut + 1]) <= room:
+        cut += 1
+    return [(0, cut, sum(widths[:cut])), (cut, len(widths), sum(widths[cut:]))]
 
 
 def line_chart(
