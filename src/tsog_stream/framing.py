@@ -161,7 +161,7 @@ def framing_camera(
         height=height,
         fx=focal,
         fy=focal,
-        position=_vec3(eye),
+        position=vec3(eye),
         rotation=_rows(w2c[:3, :3].T),
     )
 
@@ -208,9 +208,10 @@ def default_view(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> Capt
         return None
 
 
-def _vec3(v: F64) -> tuple[float, float, float]:
+def vec3(v: F64) -> tuple[float, float, float]:
+    """A length-3 array as plain floats (for schemas and JSON)."""
     return float(v[0]), float(v[1]), float(v[2])
 
 
 def _rows(m: F64) -> tuple[tuple[float, float, float], ...]:
-    return tuple(_vec3(row) for row in m)
+    return tuple(vec3(row) for row in m)

@@ -34,7 +34,7 @@ from ..constants import (
 )
 from ..container.objects import container_output
 from ..errors import InputError
-from ..framing import dense_core, framing_sample, opening_view
+from ..framing import dense_core, framing_sample, opening_view, vec3
 from ..io.sequence import FrameSequence, FrameWindow
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..morton import morton_order
@@ -125,7 +125,7 @@ class Views:
             centre, radius = dense_core(sample)
         except InputError:
             return cls(list(cameras), cameras[0] if cameras else None, None, "nothing visible")
-        core = {"center": _vec3(centre), "radius": radius}
+        core = {"center": vec3(centre), "radius": radius}
         view, why = opening_view(sample, cameras, (centre, radius))
         return cls(list(cameras), view, core, why)
 
@@ -380,12 +380,7 @@ def _bounds(scene: Scene, start: float, end: float) -> Box:
             hi = np.maximum(hi, (at + margin).max(axis=0))
     if not np.all(np.isfinite(lo)):
         lo = hi = np.zeros(3)
-    return Box(min=_vec3(lo), max=_vec3(hi))
-
-
-def _vec3(v: np.ndarray) -> tuple[float, float, float]:
-    """A length-3 array as the index's plain floats."""
-    return float(v[0]), float(v[1]), float(v[2])
+    return Box(min=vec3(lo), max=vec3(hi))
 
 
 def _interval(scene: Scene, node: tuple[float, float]) -> tuple[float, float]:
