@@ -197,7 +197,7 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     splits = np.zeros((groups + 1, band), np.intp)
     low = np.zeros(band, np.intp)  # each end's first candidate split, in band terms
     for m in range(2, groups + 1):
-        # end j = m - 1 + i, split s in [low[i], low[i] + width): cost[j, m - 1 + s] + row[s]
+        # end j = m - 1 + i, splits s from low[i] on (inf past i): cost[j, m - 1 + s] + row[s]
         candidates = low[:, None] + np.arange(int((ends - low).max()) + 1)
         total = np.take(flat, ((m - 1) * (stride + 1) + ends * stride)[:, None] + candidates)
         total += np.take(row, candidates)

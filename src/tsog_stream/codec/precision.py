@@ -98,8 +98,10 @@ def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
     bits = np.frexp(tol)[1]  # floor(log2(2 tol)): 0 for a tolerance under one code
     shift = np.minimum(bits, top.bit_length() - 1).astype(np.int32)
     out = codes.copy()
-    moved = np.flatnonzero(np.broadcast_to(shift, codes.shape))  # grids over one code: at
-    if moved.size == 0:  # high quality most codes keep their value, so only these are worked
+    # Only codes on a grid of over one code can move: at high quality few do, so the rest
+    # are left as they are rather than rounded to themselves.
+    moved = np.flatnonzero(np.broadcast_to(shift, codes.shape))
+    if moved.size == 0:
         return out
     q = np.take(codes, moved).astype(np.int32)  # codes, grids and sums all fit in int32
     grid = np.left_shift(np.int32(1), np.take(np.broadcast_to(shift, codes.shape), moved))
@@ -226,7 +228,7 @@ class Budgets:
 
 def across(pick: np.ufunc, values: F64) -> F64:
     """``pick`` (np.minimum, np.maximum) over the columns of (N, C) ``values``, row by row:
-    the same values as ``.min(axis=1)``, NaN included, 10x faster for a few columns (numpy
+    the same values as ``.min(axis=1)``, NaN included, 3.6x faster on three columns (numpy
     reduces along a short axis row by row)."""
     return np.asarray(functools.reduce(pick, values.T))
 
