@@ -96,15 +96,15 @@ def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
     top = int(np.iinfo(codes.dtype).max)
     tol = np.minimum(np.fmax(tolerance, 0.5), float(top))  # NaN, -inf and < 0.5: 0.5; inf: top
     bits = np.frexp(tol)[1]  # floor(log2(2 tol)): 0 for a tolerance under one code
-    shift = np.minimum(bits, top.bit_length() - 1).astype(np.int32)
+    shift = np.broadcast_to(np.minimum(bits, top.bit_length() - 1).astype(np.int32), codes.shape)
     out = codes.copy()
     # Only codes on a grid of over one code can move: at high quality few do, so the rest
     # are left as they are rather than rounded to themselves.
-    moved = np.flatnonzero(np.broadcast_to(shift, codes.shape))
+    moved = np.flatnonzero(shift)
     if moved.size == 0:
         return out
     q = np.take(codes, moved).astype(np.int32)  # codes, grids and sums all fit in int32
-    grid = np.left_shift(np.int32(1), np.take(np.broadcast_to(shift, codes.shape), moved))
+    grid = np.left_shift(np.int32(1), np.take(shift, moved))
     anchor: npt.NDArray[np.int32] | int = 0
     if shared:
         modes = np.broadcast_to(most_frequent(codes).astype(np.int32), codes.shape)

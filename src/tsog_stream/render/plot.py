@@ -130,13 +130,14 @@ def _overlap(a: tuple[float, float, float, float], b: tuple[float, float, float,
 def _legend(draw: ImageDraw.ImageDraw, font: Font, series: Sequence[Series]) -> None:
     """Colour keys above the plot area, right-aligned; on two rows when one would run off
     the left edge."""
-    rows = _legend_rows([40 + font.getlength(s.label) + 18 for s in series])
+    widths = [40 + font.getlength(s.label) + 18 for s in series]
+    rows = _legend_rows(widths)
     for (first, stop, width), y in zip(rows, LEGEND_ROWS_Y[len(rows)], strict=True):
         x = SIZE[0] - MARGIN[2] - width
-        for entry in series[first:stop]:
+        for entry, step in zip(series[first:stop], widths[first:stop], strict=True):
             draw.line([(x, y), (x + 22, y)], fill=entry.colour, width=3)
             draw.text((x + 28, y), entry.label, fill=INK, font=font, anchor="lm")
-            x += 40 + font.getlength(entry.label) + 18
+            x += step
 
 
 LEGEND_ROWS_Y: Final = {1: (40,), 2: (31, 48)}
