@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from common import SPLAT_TRANSFORM as TOOL
 from common import run_measured, write_section
 from tsog_stream import Scene
 from tsog_stream.codec.chunk import decode_chunk, decode_chunk_bytes, texel_order
@@ -33,7 +34,6 @@ from tsog_stream.io.ply import read_ply, write_ply
 from tsog_stream.synthetic import static_gaussians
 
 REPO = Path(__file__).resolve().parents[1]
-TOOL = REPO / "node_modules" / ".bin" / "splat-transform"
 TSOG = REPO / ".venv" / "bin" / "tsog"
 RESULTS = REPO / "benchmarks" / "results" / "codec.json"
 DECODE_REPEATS = 9

@@ -18,6 +18,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ import numpy as np
 from fourdgs.indexed_reader import open_indexed  # type: ignore[import-untyped]
 from fourdgs.readable import BytesReadable  # type: ignore[import-untyped]
 
-from common import run_measured, sample, write_section
+from common import SPLAT_TRANSFORM, run_measured, sample, write_section
 from tsog_stream import TimelineType
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
@@ -285,6 +286,8 @@ def _content_cases(work: Path) -> list[tuple[str, Path, list[int] | None, Scene 
         path.write_bytes(bundle_bytes(encode_chunk(Scene(static_gaussians(30_000, seed=50 + k)))))
         sizes.append(path.stat().st_size)
     cases.append(("12 independent generated frames (SOG)", generated, sizes, None))
+    resampled, sizes = _resampled_frames(work)
+    cases.append(("12 re-sampled donut frames (splat-transform SOG)", resampled, sizes, None))
     for clip in SPLATV:
         path = sample(f"4d/splatv/macaburguera_{clip}.splatv", in_tree=False)
         cases.append((f"{clip}.splatv (1 s)", path, None, load_scene(path).scene))
@@ -295,6 +298,40 @@ def _content_cases(work: Path) -> list[tuple[str, Path, list[int] | None, Scene 
         path.write_bytes(bundle_bytes(encode_chunk(scene)))
         cases.append((f"donut FreeTimeGS {label} ({life[0]:.1%}-{life[1]:.0%})", path, None, scene))
     return cases
+
+
+def _resampled_frames(work: Path, count: int = 12) -> tuple[Path, list[int]]:
+    """A flipbook as a user would hold one of separately trained frames of a real scene: each
+    frame 90 % of the real donut's Gaussians, drawn anew, moved by up to about their smallest
+    axis and with every attribute perturbed (so nothing corresponds within a merge's
+    tolerance), written by splat-transform, the reference SOG codec. Its folder and sizes."""
+    donut = load_scene(sample("3dgs/v3dg_donut_fused.ply")).scene.gaussians
+    folder = work / "resampled"
+    folder.mkdir()
+    for k in range(count):
+        rng = np.random.default_rng(100 + k)
+        g = donut.subset(np.sort(rng.choice(len(donut), int(0.9 * len(donut)), replace=False)))
+        axis = np.exp(g.scales.astype(np.float64)).min(axis=1, keepdims=True)
+        g = replace(
+            g,
+            means=_noisy(rng, g.means, axis),
+            scales=_noisy(rng, g.scales, 0.05),
+            opacities=_noisy(rng, g.opacities, 0.2),
+            sh0=_noisy(rng, g.sh0, 0.03),
+            quats=_noisy(rng, g.quats, 0.03),
+        )
+        ply = work / "frame.ply"
+        write_ply(ply, g)
+        out = folder / f"frame_{k:03d}.sog"
+        m = run_measured([str(SPLAT_TRANSFORM), "-w", "-g", "cpu", str(ply), str(out)], 600)
+        if not m["finished"] or not out.exists():
+            raise SystemExit(f"splat-transform failed on frame {k}: {m.get('error', '')}")
+    return folder, [p.stat().st_size for p in sorted(folder.iterdir())]
+
+
+def _noisy(rng: np.random.Generator, values: np.ndarray, sigma: np.ndarray | float) -> np.ndarray:
+    """``values`` plus normal noise of deviation ``sigma``, as float32."""
+    return (values + rng.normal(0.0, 1.0, values.shape) * sigma).astype(np.float32)
 
 
 def _own_sog_bytes(frame: Path) -> int:
@@ -329,7 +366,7 @@ def _memory_figures(folder: Path, work: Path) -> dict[str, float]:
     `tsog segment` on two frames of 64 Gaussians (imports, worker processes, the renderer
     that draws the thumbnail), and one frame's decoded arrays (MiB)."""
     tiny = work / "tiny"
-    tiny.mkdir()
+    tiny.mkdir(exist_ok=True)  # measured again beside each folder: the same fixed cost
     for k in range(2):  # one file is not a sequence: the command would only fail
         frame = bundle_bytes(encode_chunk(Scene(static_gaussians(64, seed=k))))
         (tiny / f"frame_{k:03d}.sog").write_bytes(frame)
@@ -365,7 +402,7 @@ def content(args: argparse.Namespace) -> None:
             }
             if frames is not None:
                 row["own_bytes"] = sum(frames)
-            if frames is not None and path.name == "independent":
+            if frames is not None and path.name in ("independent", "resampled"):
                 by_process, in_process, encode_peak = _frames_encode_seconds(path, Path(tmp))
                 row["frames_encode_s"] = round(by_process, 2)
                 row["frames_encode_in_process_s"] = round(in_process, 2)

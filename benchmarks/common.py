@@ -17,6 +17,8 @@ from tsog_stream.synthetic import SceneSpec, generate_scene
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "benchmarks.md"
 IN_TREE = REPO / "tests" / "data" / "real"
+SPLAT_TRANSFORM = REPO / "node_modules" / ".bin" / "splat-transform"
+"""The reference SOG codec (npm ``@playcanvas/splat-transform``, installed by scripts/setup)."""
 SAMPLE_DATA_ENV = "TSOG_SAMPLE_DATA"
 
 

@@ -24,6 +24,7 @@ from tsog_stream.merge.features import (
     tolerances,
 )
 from tsog_stream.merge.fit import fit_tracks
+from tsog_stream.merge.runs import FrameMerger
 from tsog_stream.merge.sequence import merge_frames, merge_sequence, probe_merge
 from tsog_stream.model import Gaussians, Scene, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
@@ -287,3 +288,18 @@ def test_floaters_do_not_widen_the_search_reach() -> None:
     assert np.all(spread > 300) and np.all((extent > np.ptp(blob, axis=0)) & (extent < 5))
     np.testing.assert_allclose(robust_extent(blob), blob.max(axis=0) - blob.min(axis=0))
     np.testing.assert_array_equal(robust_extent(np.full((3, 3), np.nan)), np.zeros(3))
+
+
+def test_fitted_tracks_hold_only_the_frames_seen(parts: dict[str, Gaussians]) -> None:
+    """A fitting merge keeps each open run's track as wide as the longest run so far (a probe
+    of 8 frames held 32 frames of track per Gaussian: 3.5 kB each), up to its frame limit."""
+    frames = sequence_frames(parts, blink=range(0))
+    first = frames[0]
+    merger = FrameMerger(
+        Steps.of(first), Tolerance(), FPS, first.shN.shape[1], fit=True, max_frames=8
+    )
+    for k, g in enumerate(frames, start=1):
+        merger.add(g)
+        assert merger._open is not None
+        assert merger._open.history.shape[1] == min(k, 8), k
+    assert len(merger.scene()) > 0

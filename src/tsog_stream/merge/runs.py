@@ -13,7 +13,7 @@ every frame within tolerance; its SH rest coefficients must stay static.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -61,7 +61,8 @@ tolerances (one frame gives no rate of change); the fit over the run then decide
 @dataclass
 class _Runs:
     """Open runs: per-column range, quaternion range and reference, first frame, index in the
-    previous frame, frames so far, and the track of the first ``max_frames`` frames."""
+    previous frame, frames so far, and the track of the first ``max_frames`` frames (as wide as
+    the longest run needs: a run of n frames reads columns 0..n-1 only)."""
 
     lo: F64
     hi: F64
@@ -78,6 +79,11 @@ class _Runs:
 
     @staticmethod
     def join(parts: list[_Runs]) -> _Runs:
+        width = max(p.history.shape[1] for p in parts)
+        parts = [
+            p if p.history.shape[1] == width else replace(p, history=_widened(p.history, width))
+            for p in parts
+        ]
         return _Runs(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(_Runs)))
 
     def __len__(self) -> int:
@@ -241,7 +247,8 @@ class FrameMerger:
     def _extend(self, runs: _Runs, b: Side, ib: I64) -> _Runs:
         """The runs with one more frame each, b[ib]."""
         q = align_signs(b.quats[ib], runs.qref)
-        history = runs.history.copy()
+        longest = int(runs.count.max(initial=0)) + 1
+        history = _widened(runs.history, min(self.max_frames, longest) if self.fit else 0)
         room = np.flatnonzero(runs.count < history.shape[1])
         history[room, runs.count[room]] = track_values(b.cols[ib[room]], q[room])
         return _Runs(
@@ -259,7 +266,7 @@ class FrameMerger:
     def _start(self, b: Side, index: I64, frame: int) -> _Runs:
         """New runs, one per Gaussian of ``b``."""
         n = len(b)
-        history = np.zeros((n, self.max_frames if self.fit else 0, TRACK_WIDTH))
+        history = np.zeros((n, 1 if self.fit else 0, TRACK_WIDTH))
         if self.fit:
             history[:, 0] = track_values(b.cols, b.quats)
         return _Runs(
@@ -367,6 +374,14 @@ class FrameMerger:
         motion = motion[order]
         self.stats.moving_out = int(np.any(motion != 0, axis=(1, 2)).sum())
         return Scene(g, timeline, _temporal(motion, self.fps))
+
+
+def _widened(history: F64, width: int) -> F64:
+    """A copy of ``history`` with room for at least ``width`` frames (zeros beyond its own):
+    tracks grow as runs do, so a probe of 8 frames never holds 32 frames per Gaussian."""
+    out = np.zeros((history.shape[0], max(width, history.shape[1]), history.shape[2]))
+    out[:, : history.shape[1]] = history
+    return out
 
 
 def _temporal(motion: F64, fps: float) -> dict[str, npt.NDArray[np.float32]]:

@@ -971,6 +971,7 @@ def segment_sequence(
     sampled = _sampled_frames(seq)
     views = Views.of(Gaussians.concat([frame.gaussians for frame in sampled.values()]), cameras)
     layering = _sequence_layers(seq, sampled, views.view, options.layers, options.sh_apart)
+    del sampled  # not held while the frames are encoded: memory is a window's
     total = _sequence_chunks(seq, per_window, max_count, layering)
     stage(_encoding(total, seq.gaussians, options.workers))
     meter = Meter(sum(_frames_work(seq.shapes, seq.sh_coeffs, layering.sh_apart)))
