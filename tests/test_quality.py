@@ -16,6 +16,7 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.precision import (
     ALPHA_AT_ZERO,
     COLOUR_AT_ZERO,
+    CORE_AT_ZERO,
     MAX_TURN,
     POSITION_AT_ZERO,
     SCALE_AT_ZERO,
@@ -27,6 +28,7 @@ from tsog_stream.codec.precision import (
 )
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
+from tsog_stream.framing import dense_core
 from tsog_stream.model import Scene, Timeline, TimelineType
 from tsog_stream.opacity import logit_to_alpha
 from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
@@ -64,7 +66,9 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     assert full.timeline is not None and cut.timeline is not None
     f = budget_fraction(quality)
     sigmas = np.exp(full.gaussians.scales.astype(np.float64))
-    budget = f * POSITION_AT_ZERO * sigmas.min(axis=1)
+    _, radius = dense_core(scene.gaussians)  # the chunk's core: the same Gaussians, any order
+    by_core = np.minimum(CORE_AT_ZERO * radius, POSITION_AT_ZERO * sigmas.max(axis=1))
+    budget = f * np.maximum(POSITION_AT_ZERO * sigmas.min(axis=1), by_core)
     start, end = lifespans(full.timeline)
     first, last = time_range(full.timeline)  # nothing is drawn outside the scene's range
     start, end = np.maximum(start, first), np.minimum(end, last)
@@ -89,6 +93,27 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     assert np.all(_turn(cut.gaussians.quats, full.gaussians.quats) <= turn_budget + 1e-3)
     if quality <= 50:
         assert worst.max() > budget.max() / 100  # the budget is used, not ignored
+
+
+def test_flat_gaussians_move_by_their_share_of_the_core() -> None:
+    """Flat Gaussians (smallest sigma 1e-6) kept 16-bit positions when the budget followed the
+    smallest sigma alone; at quality 0 they now move by up to CORE_AT_ZERO of the chunk's core
+    radius, never beyond half their largest sigma, and the means images shrink."""
+    g = static_gaussians(4000, seed=8)
+    g.scales[:, 0] = np.log(1e-6)
+    g.scales[:1000, 1:] = np.log(1e-4)  # a quarter too small to use the core's share
+    flat = Scene(g)
+    _, radius = dense_core(flat.gaussians)
+    order = texel_order(flat)
+    full, cut = (encode_chunk(flat, quality=q) for q in (100, 0))
+    moved = np.abs(decode_chunk(cut).gaussians.means - decode_chunk(full).gaussians.means)
+    largest = np.exp(flat.gaussians.scales[order].astype(np.float64)).max(axis=1)
+    bound = np.minimum(CORE_AT_ZERO * radius, POSITION_AT_ZERO * largest)
+    assert np.all(moved.max(axis=1) <= bound * 1.0001 + 1e-7)
+    big = largest > 1e-3
+    assert moved[big].max() > bound[big].max() / 4  # the core's share is used
+    sizes = [len(f["means_l.webp"]) for f in (full, cut)]
+    assert sizes[1] < 0.8 * sizes[0], sizes
 
 
 def test_lower_quality_writes_fewer_bytes(scene: Scene) -> None:

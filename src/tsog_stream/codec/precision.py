@@ -8,7 +8,9 @@ quality level guarantees is stated in docs/spec.md §5.1.
 
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
 - position: ``f * POSITION_AT_ZERO`` times its smallest sigma (so a thin Gaussian never
-  crosses a surface it lies on: the mean sigma cost 10 dB on a .splatv capture), at every
+  crosses a surface it lies on: the mean sigma cost 10 dB on a .splatv capture), or, when
+  larger, ``f * CORE_AT_ZERO`` of the chunk's dense-core radius up to ``f *
+  POSITION_AT_ZERO`` times its largest sigma (a shift under a pixel), at every
   time it is visible inside the scene's time range; when it moves, a third each for the
   base position, the orders of its motion (over that part of its lifespan) and the shift of
   its reference time (times its top speed);
@@ -36,7 +38,8 @@ import numpy.typing as npt
 
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
-from ..model import Scene, Timeline, TimelineType
+from ..framing import dense_core
+from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..temporal import lifespans, reference_times, scale_cap, time_range
 
 F64 = npt.NDArray[np.float64]
@@ -65,11 +68,20 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-26): on every scene measured its rendered PSNR is within 0.1 dB of
-quality 100's, worst view unchanged, for 0.6-7.2 % fewer bytes; 75 already costs up to 2.3 dB
+bench_rate.py, 2026-11-27): on every scene measured its rendered PSNR is within 0.1 dB of
+quality 100's, worst view unchanged, for 3.4-10 % fewer bytes; 75 already costs up to 2.3 dB
 (mean, the long donut) and 2.5 dB (worst view, coffee10.splatv)."""
 POSITION_AT_ZERO = 0.5
 """At quality 0 a Gaussian's position may move by this fraction of its smallest sigma."""
+CORE_AT_ZERO = 2.0**-9
+"""At quality 0 a Gaussian's position may also move by this fraction of its chunk's
+dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core), up
+to POSITION_AT_ZERO of its largest sigma. Flat Gaussians' smallest sigma alone kept captures
+at 16 bits (spinach .splatv: the median Gaussian could lose none): with it qualities 0-50
+write 6-25 % fewer bytes on bench_rate's 4D scenes for at most 0.2 dB (4x this share cost
+0.3 dB on the long donut and 8 dB on spinach's worst view at quality 50)."""
+CORE_SAMPLE = 8192
+"""At most this many Gaussians of a chunk (evenly strided) measure its dense core."""
 TIME_AT_ZERO = 0.25
 """At quality 0 a lifespan's centre, start, scale or duration may move by this fraction of the
 Gaussian's temporal scale."""
@@ -177,8 +189,11 @@ class Budgets:
         """The budgets at a budget fraction f > 0, numpy's warnings silenced (see :meth:`of`)."""
         sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
         smallest, largest = across(np.minimum, sigmas), across(np.maximum, sigmas)
-        position = _finite_or_zero(f * POSITION_AT_ZERO * smallest)  # no budget for
-        spread = _finite_or_zero(largest - smallest)  # non-finite scales
+        by_core = np.minimum(
+            CORE_AT_ZERO * _core_radius(scene.gaussians), largest * POSITION_AT_ZERO
+        )
+        position = _finite_or_zero(f * np.maximum(POSITION_AT_ZERO * smallest, by_core))
+        spread = _finite_or_zero(largest - smallest)  # no budget for non-finite scales
         rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
         timeline = scene.timeline
@@ -231,6 +246,17 @@ def across(pick: np.ufunc, values: F64) -> F64:
     the same values as ``.min(axis=1)``, NaN included, 3.6x faster on three columns (numpy
     reduces along a short axis row by row)."""
     return np.asarray(functools.reduce(pick, values.T))
+
+
+def _core_radius(gaussians: Gaussians) -> float:
+    """The dense-core radius of ``gaussians`` (at most CORE_SAMPLE of them, evenly strided:
+    quantiles of a 5M chunk cost seconds); 0 when none is visible."""
+    step = -(-len(gaussians) // CORE_SAMPLE)
+    sample = gaussians if step <= 1 else gaussians.subset(np.arange(0, len(gaussians), step))
+    try:
+        return dense_core(sample)[1]
+    except InputError:
+        return 0.0
 
 
 def _finite_or_zero(values: F64) -> F64:
