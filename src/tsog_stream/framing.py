@@ -110,9 +110,10 @@ def weighted_centres(gaussians: Gaussians) -> tuple[F64, F64]:
     return means[keep], alpha[keep]
 
 
-def framing_sample(gaussians: Gaussians) -> Gaussians:
-    """``gaussians``, or every k-th of them when there are more than FRAMING_SAMPLE."""
-    step = -(-len(gaussians) // FRAMING_SAMPLE)
+def framing_sample(gaussians: Gaussians, at_most: int | None = None) -> Gaussians:
+    """``gaussians``, or every k-th of them when there are more than ``at_most`` (by default
+    FRAMING_SAMPLE)."""
+    step = -(-len(gaussians) // (FRAMING_SAMPLE if at_most is None else at_most))
     return gaussians if step <= 1 else gaussians.subset(np.arange(0, len(gaussians), step))
 
 

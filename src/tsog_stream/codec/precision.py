@@ -38,7 +38,7 @@ import numpy.typing as npt
 
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
-from ..framing import dense_core
+from ..framing import dense_core, framing_sample
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..temporal import lifespans, reference_times, scale_cap, time_range
 
@@ -251,10 +251,8 @@ def across(pick: np.ufunc, values: F64) -> F64:
 def _core_radius(gaussians: Gaussians) -> float:
     """The dense-core radius of ``gaussians`` (at most CORE_SAMPLE of them, evenly strided:
     quantiles of a 5M chunk cost seconds); 0 when none is visible."""
-    step = -(-len(gaussians) // CORE_SAMPLE)
-    sample = gaussians if step <= 1 else gaussians.subset(np.arange(0, len(gaussians), step))
     try:
-        return dense_core(sample)[1]
+        return dense_core(framing_sample(gaussians, CORE_SAMPLE))[1]
     except InputError:
         return 0.0
 

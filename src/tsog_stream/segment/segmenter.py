@@ -10,7 +10,7 @@ import contextlib
 import itertools
 import os
 from collections import deque
-from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Generator, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
@@ -34,7 +34,7 @@ from ..constants import (
 )
 from ..container.objects import container_output
 from ..errors import InputError
-from ..framing import dense_core, framing_sample, opening_view, vec3
+from ..framing import FRAMING_SAMPLE, dense_core, framing_sample, opening_view, vec3
 from ..io.sequence import FrameSequence, FrameWindow
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..morton import morton_order
@@ -969,7 +969,8 @@ def segment_sequence(
     }
     stage("measuring quality layers (rendering sampled frames)")
     sampled = _sampled_frames(seq)
-    views = Views.of(Gaussians.concat([frame.gaussians for frame in sampled.values()]), cameras)
+    views = Views.of(_framing_samples(sampled.values()), cameras)
+    sampled = {k: sampled[k] for k in _spread(seq.count, MEASURE_TIMES)}  # the layers' frames
     layering = _sequence_layers(seq, sampled, views.view, options.layers, options.sh_apart)
     del sampled  # not held while the frames are encoded: memory is a window's
     total = _sequence_chunks(seq, per_window, max_count, layering)
@@ -1007,6 +1008,13 @@ def _sampled_frames(seq: FrameSequence) -> dict[int, Scene]:
     first frame alone can be a launching rocket whose explosion fills the later frames) and
     for measuring the layers."""
     return {k: seq.read(k, k + 1).scene for k in _spread(seq.count, VIEW_FRAMES)}
+
+
+def _framing_samples(frames: Collection[Scene]) -> Gaussians:
+    """The frames' Gaussians joined as Views.of samples them (FRAMING_SAMPLE in all, each
+    frame its share), not every frame whole: five 500k-Gaussian frames were copied whole."""
+    share = max(1, FRAMING_SAMPLE // max(len(frames), 1))
+    return Gaussians.concat([framing_sample(frame.gaussians, share) for frame in frames])
 
 
 def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Choice:
