@@ -78,8 +78,9 @@ CORE_AT_ZERO = 2.0**-9
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core), up
 to POSITION_AT_ZERO of its largest sigma. Flat Gaussians' smallest sigma alone kept captures
 at 16 bits (spinach .splatv: the median Gaussian could lose none): with it qualities 0-50
-write 6-25 % fewer bytes on bench_rate's 4D scenes for at most 0.2 dB (4x this share cost
-0.3 dB on the long donut and 8 dB on spinach's worst view at quality 50)."""
+write 6-25 % fewer bytes on bench_rate's 4D scenes for at most 0.2 dB (larger shares, tried
+before the rotation followed: 2.5x cost the long donut 0.3 dB at quality 50, 5x spinach's
+worst view 8 dB)."""
 CORE_SAMPLE = 8192
 """At most this many Gaussians of a chunk (evenly strided) measure its dense core."""
 TIME_AT_ZERO = 0.25
