@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import functools
 import json
 import sys
 import tempfile
@@ -362,11 +363,19 @@ def _frames_encode_seconds(folder: Path, work: Path) -> tuple[float, float, floa
 
 
 def _memory_figures(folder: Path, work: Path) -> dict[str, float]:
-    """What segmenting a frame folder holds beyond a process's fixed cost: the peak RSS of
-    `tsog segment` on two frames of 64 Gaussians (imports, worker processes, the renderer
-    that draws the thumbnail), and one frame's decoded arrays (MiB)."""
+    """What segmenting a frame folder holds beyond a process's fixed cost (see
+    :func:`_fixed_cost_mib`), and one frame's decoded arrays (MiB)."""
+    g = load_scene(sorted(folder.iterdir())[0]).scene.gaussians
+    arrays = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
+    return {"baseline_mib": _fixed_cost_mib(work), "window_arrays_mib": arrays / 2**20}
+
+
+@functools.cache
+def _fixed_cost_mib(work: Path) -> float:
+    """The peak RSS of `tsog segment` on two frames of 64 Gaussians (imports, worker
+    processes, the renderer that draws the thumbnail): measured once per run."""
     tiny = work / "tiny"
-    tiny.mkdir(exist_ok=True)  # measured again beside each folder: the same fixed cost
+    tiny.mkdir()
     for k in range(2):  # one file is not a sequence: the command would only fail
         frame = bundle_bytes(encode_chunk(Scene(static_gaussians(64, seed=k))))
         (tiny / f"frame_{k:03d}.sog").write_bytes(frame)
@@ -374,9 +383,7 @@ def _memory_figures(folder: Path, work: Path) -> dict[str, float]:
     base = run_measured([*cmd, "--workers", "2"])
     if not (work / "tiny.tsogs").exists():
         raise SystemExit("the baseline segmentation did not write its container")
-    g = load_scene(sorted(folder.iterdir())[0]).scene.gaussians
-    arrays = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
-    return {"baseline_mib": base["peak_mib"], "window_arrays_mib": arrays / 2**20}
+    return float(base["peak_mib"])
 
 
 def content(args: argparse.Namespace) -> None:

@@ -900,19 +900,19 @@ def _sequence_chunks(
 
 def _sequence_layers(
     seq: FrameSequence,
-    sampled: dict[int, Scene],
+    measured: dict[int, Scene],
     view: CaptureCamera | None,
     layers: int | None,
     sh_apart: bool = True,
 ) -> LayerPlan:
-    """The layers of a frame sequence, measured on MEASURE_TIMES frames spread over it (each
-    frame its own group, as when the chunks are cut), taken from ``sampled`` (the frames
-    :func:`_sampled_frames` read: MEASURE_TIMES spread frames are among VIEW_FRAMES ones)."""
+    """The layers of a frame sequence, measured on ``measured`` (frames by number: the
+    MEASURE_TIMES spread ones among those :func:`_sampled_frames` read), each frame its own
+    group, as when the chunks are cut."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
-    picks = _spread(seq.count, MEASURE_TIMES)
-    frames = [sampled[k] for k in picks]
+    picks = list(measured)
+    frames = list(measured.values())
     timelines = [f.timeline for f in frames if f.timeline is not None]
     sample = Scene(
         Gaussians.concat([f.gaussians for f in frames]),
@@ -970,9 +970,10 @@ def segment_sequence(
     stage("measuring quality layers (rendering sampled frames)")
     sampled = _sampled_frames(seq)
     views = Views.of(_framing_samples(sampled.values()), cameras)
-    sampled = {k: sampled[k] for k in _spread(seq.count, MEASURE_TIMES)}  # the layers' frames
-    layering = _sequence_layers(seq, sampled, views.view, options.layers, options.sh_apart)
-    del sampled  # not held while the frames are encoded: memory is a window's
+    measured = {k: sampled[k] for k in _spread(seq.count, MEASURE_TIMES)}
+    del sampled  # only the layers' frames are kept past the view, and none while encoding
+    layering = _sequence_layers(seq, measured, views.view, options.layers, options.sh_apart)
+    del measured
     total = _sequence_chunks(seq, per_window, max_count, layering)
     stage(_encoding(total, seq.gaussians, options.workers))
     meter = Meter(sum(_frames_work(seq.shapes, seq.sh_coeffs, layering.sh_apart)))
