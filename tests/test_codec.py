@@ -6,6 +6,7 @@ import io
 import json
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
 from tsog_stream.codec.rotations import decode_quats
+from tsog_stream.codec.sog_decode import decode_sh
 from tsog_stream.codec.webp import decode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
@@ -191,3 +193,24 @@ def test_table_decoders_equal_the_float64_formulas_bit_for_bit() -> None:
     colours = np.asarray(meta["sh0"]["codebook"], np.float32)[sh0[:, :3]]
     assert np.array_equal(decoded.sh0, colours)
     assert np.array_equal(decoded.opacities, alpha_to_logit(sh0[:, 3] / 255.0))
+
+
+def test_sh_labels_past_the_palette_decode_to_zero() -> None:
+    """A label at or past the palette's count gives zero SH (as splat-transform does); the
+    others their palette entry's codebook values, coefficient by coefficient."""
+    codebook = np.linspace(-1.0, 1.0, 256).astype(np.float32).tolist()
+    entries = np.arange(2 * 3 * 4, dtype=np.uint8).reshape(1, 6, 4) * 7  # 2 entries x 3 coeffs
+    labels = np.zeros((1, 4, 4), np.uint8)
+    labels[0, :, 0] = [1, 0, 2, 44]  # low bytes: 1, 0, 2 (past the count), 300 (past)
+    labels[0, 3, 1] = 1
+    shn = SimpleNamespace(bands=1, files=["c", "l"], codebook=codebook, count=2)
+    out = decode_sh(shn, {"c": entries, "l": labels}, 4)
+    table = np.asarray(codebook, np.float32)
+    palette = table[entries.reshape(2, 3, 4)[:, :, :3]]
+    assert out.shape == (4, 3, 3) and out.dtype == np.float32
+    assert np.array_equal(out[0], palette[1]) and np.array_equal(out[1], palette[0])
+    assert not out[2:].any()
+    every = decode_sh(shn, {"c": entries, "l": labels[:, :2]}, 2)
+    assert np.array_equal(every, palette[[1, 0]])
+    empty = SimpleNamespace(bands=1, files=["c", "l"], codebook=codebook, count=0)
+    assert not decode_sh(empty, {"c": entries, "l": labels}, 4).any()
