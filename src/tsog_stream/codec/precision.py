@@ -12,15 +12,17 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
   larger, ``f * CORE_AT_ZERO`` of the chunk's dense-core radius up to ``f *
   POSITION_AT_ZERO`` times its largest sigma (a shift under a pixel), at every
   time it is visible inside the scene's time range; when it moves, a third each for the
-  base position, the orders of its motion (over that part of its lifespan) and the shift of
-  its reference time (times its top speed);
+  base position, the orders of its motion (as a root mean square over that part of its
+  lifespan, see :func:`coarsen_motion`) and the shift of its reference time (times its top
+  speed);
 - rotation: the turn that moves its ellipsoid's surface by the position budget;
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
   COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
   entries of the same 256-entry codebook; opacity within ``f * ALPHA_AT_ZERO``;
 - the motion of rotations, scales, colours and opacity (their temporal coefficients): over
   the Gaussian's lifespan, each may add as much again as its base may move (the rotation
-  budget; the scale, colour and opacity slacks), split evenly over the orders;
+  budget; the scale, colour and opacity slacks), split evenly over the orders, as a root
+  mean square over the lifespan;
 - timeline (type 2 centre and scale, type 1 start and duration): ``f * TIME_AT_ZERO`` times
   its temporal scale (type 2 scale as stored; type 1 duration), the reference time less when
   the position budget asks, and not at all when other attributes move (their polynomials
@@ -159,6 +161,9 @@ class Budgets:
     reach: F64
     """(N,) seconds from its reference time to the far end of its lifespan, with the room a
     coarsened lifespan may add."""
+    around_reference: npt.NDArray[np.bool_]
+    """(N,) whether that part of its lifespan holds its reference time: its motion's error
+    may then be budgeted as a root mean square (:func:`coarsen_motion`)."""
     moving: bool
     """Whether the chunk stores motion of the means: the position budget is then split in
     three (base, motion, reference time)."""
@@ -198,7 +203,8 @@ class Budgets:
         rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
         timeline = scene.timeline
-        reach = _reach(timeline) * (1.0 + f * TIME_AT_ZERO)
+        reach, around_reference = _reach(timeline)
+        reach = reach * (1.0 + f * TIME_AT_ZERO)
         time = _time_budget(timeline, f)
         if set(scene.temporal) - {"means"}:
             time[:, 0] = 0.0  # t_ref of rotations, colours or opacities that move: kept exact
@@ -210,6 +216,7 @@ class Budgets:
             position,
             time,
             reach,
+            around_reference,
             motion is not None,
             rotation,
             scale_slack=f * SCALE_AT_ZERO,
@@ -289,18 +296,19 @@ def _time_budget(timeline: Timeline | None, f: float) -> F64:
     return np.stack([share, share], axis=1)
 
 
-def _reach(timeline: Timeline | None) -> F64:
+def _reach(timeline: Timeline | None) -> tuple[F64, npt.NDArray[np.bool_]]:
     """Seconds from each reference time to the far end of the part of its lifespan inside the
     scene's time range (nothing is drawn outside it: a .splatv Gaussian may live for hours
-    in a 1 s clip)."""
+    in a 1 s clip), and whether that part holds the reference time."""
     if timeline is None:
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0, bool)
     first, last = time_range(timeline)
     start, end = lifespans(timeline)
     start, end = np.maximum(start, first), np.minimum(end, last)
     ref = reference_times(timeline)
     reach = np.maximum(np.abs(start - ref), np.abs(end - ref))
-    return np.where(end >= start, reach, 0.0)
+    seen = end >= start
+    return np.where(seen, reach, 0.0), seen & (start <= ref) & (ref <= end)
 
 
 def coarsen_positions(codes: U16, mins: F64, maxs: F64, means: F64, budget: F64) -> U16:
@@ -346,6 +354,12 @@ def coarsen_timeline(codes: U16, mins: F64, maxs: F64, budget: F64) -> U16:
     return coarsen(codes, to_codes(budget, mins, maxs))
 
 
+def rms_room(order: int) -> float:
+    """sqrt(2k + 1): the worst-case change of order ``k`` over what its root mean square over
+    the lifespan may be (:func:`coarsen_motion`)."""
+    return float(np.sqrt(2 * order + 1))
+
+
 def coarsen_motion(
     codes: U16,
     mins: F64,
@@ -357,9 +371,20 @@ def coarsen_motion(
     budgets: Budgets,
 ) -> U16:
     """Codes of order ``order`` of the motion of ``attr`` coarsened so that, over the
-    Gaussian's own lifespan (``|t - t_ref| <= reach``), it moves the attribute by at most its
-    share of :meth:`Budgets.change_over_lifespan`, split evenly over the ``orders``."""
-    share = budgets.change_over_lifespan(attr, codes.shape[1]) / orders
+    Gaussian's own lifespan (``|t - t_ref| <= reach``), the change it makes to the attribute
+    has a root mean square within its share of :meth:`Budgets.change_over_lifespan`, split
+    evenly over the ``orders`` (their sum's too, by Minkowski's inequality).
+
+    An error d in the coefficient moves the attribute by d |t - t_ref|^k, whose mean square
+    over an interval holding t_ref inside ``|t - t_ref| <= reach`` is at most
+    (d reach^k)² / (2k + 1): the share may be :func:`rms_room` = sqrt(2k + 1) times the
+    worst case's there (its largest change, at the far end, is that much above the share).
+    Where the lifespan inside the scene does not hold t_ref (a type-2 centre outside the
+    clip) the largest change is kept within the share itself. Bounding the largest change
+    spent 3-8 % more bytes at quality 0-50 on the .splatv captures for no PSNR
+    (docs/design/chunk-codec.md)."""
+    room = np.where(budgets.around_reference, rms_room(order), 1.0)[:, None]
+    share = budgets.change_over_lifespan(attr, codes.shape[1]) / orders * room
     shared = attr != "means"  # rates of turn, scale, colour, opacity: mostly one value (zero)
     reach = budgets.reach[:, None] ** order
     with np.errstate(divide="ignore"):
@@ -380,5 +405,6 @@ __all__ = [
     "coarsen_positions",
     "coarsen_rotations",
     "coarsen_timeline",
+    "rms_room",
     "thin_labels",
 ]
