@@ -71,7 +71,7 @@ QUALITY_MAX = 100
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
 bench_rate.py, 2026-11-27): on every scene measured its rendered PSNR is within 0.1 dB of
-quality 100's, worst view unchanged, for 3.4-10 % fewer bytes; 75 already costs up to 2.3 dB
+quality 100's, worst view unchanged, for 4.4-11 % fewer bytes; 75 already costs up to 2.4 dB
 (mean, the long donut) and 2.5 dB (worst view, coffee10.splatv)."""
 POSITION_AT_ZERO = 0.5
 """At quality 0 a Gaussian's position may move by this fraction of its smallest sigma."""
