@@ -84,10 +84,8 @@ def _moved(full: Scene, cut: Scene) -> tuple[np.ndarray, np.ndarray]:
     start, end = np.maximum(start, first), np.minimum(end, last)
     worst, squares = np.zeros(len(full)), np.zeros((len(full), 3))
     for share in (np.arange(SAMPLES) + 0.5) / SAMPLES:  # midpoints: never above the true mean
-        moved = np.abs(
-            _positions(cut, start + share * (end - start))
-            - _positions(full, start + share * (end - start))
-        )
+        t = start + share * (end - start)
+        moved = np.abs(_positions(cut, t) - _positions(full, t))
         worst, squares = np.maximum(worst, moved.max(axis=1)), squares + moved**2
     return worst, np.sqrt(squares / SAMPLES).max(axis=1)
 
