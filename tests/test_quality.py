@@ -65,10 +65,11 @@ def test_quality_100_is_todays_precision(scene: Scene) -> None:
     assert encode_chunk(scene, quality=100) == encode_chunk(scene)
 
 
-def _position_budget(scene: Scene, full: Scene, quality: int) -> np.ndarray:
-    """P of docs/spec.md §5.1 for each Gaussian of the decoded chunk ``full``."""
+def _position_budget(scene: Scene, quality: int) -> np.ndarray:
+    """P of docs/spec.md §5.1 for each Gaussian of ``scene``, in its chunk's texel order."""
     f = budget_fraction(quality)
-    sigmas = np.exp(full.gaussians.scales.astype(np.float64))
+    scales = scene.gaussians.scales[texel_order(scene)]  # the source's, as the encoder sees
+    sigmas = np.exp(scales.astype(np.float64))
     _, radius = dense_core(scene.gaussians)  # the chunk's core: the same Gaussians, any order
     by_core = np.minimum(CORE_AT_ZERO * radius, POSITION_AT_ZERO * sigmas.max(axis=1))
     return np.asarray(f * np.maximum(POSITION_AT_ZERO * sigmas.min(axis=1), by_core))
@@ -96,9 +97,10 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     cut = decode_chunk(encode_chunk(scene, quality=quality))
     assert full.timeline is not None and cut.timeline is not None
     f = budget_fraction(quality)
-    budget = _position_budget(scene, full, quality)
+    budget = _position_budget(scene, quality)
     worst, rms = _moved(full, cut)
-    budgets = Budgets.of(scene.subset(texel_order(scene)), quality)
+    ordered = scene.subset(texel_order(scene))  # the decoded chunks' order
+    budgets = Budgets.of(ordered, quality)
     assert budgets is not None and budgets.around_reference.all()  # centres inside the clip
     assert np.all(rms <= budget * 1.0001 + 1e-6)
     linear = (2 + rms_room(1)) / 3  # base and t_ref a third each; the motion sqrt(3) of one
@@ -106,7 +108,7 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     span_budget = f * TIME_AT_ZERO * full.timeline.t1
     assert np.all(np.abs(cut.timeline.t0 - full.timeline.t0) <= span_budget * 1.0001 + 1e-9)
     assert np.all(np.abs(cut.timeline.t1 - full.timeline.t1) <= span_budget * 1.0001 + 1e-9)
-    source = scene.subset(texel_order(scene)).gaussians  # the decoded chunks' order
+    source = ordered.gaussians
     for attr, slack in (("scales", f * SCALE_AT_ZERO), ("sh0", f * COLOUR_AT_ZERO / SH_C0)):
         was = np.abs(getattr(full.gaussians, attr) - getattr(source, attr))
         now = np.abs(getattr(cut.gaussians, attr) - getattr(source, attr))
@@ -134,7 +136,7 @@ def test_motion_seen_away_from_its_reference_time_keeps_the_worst_case_bound() -
     scene = Scene(base.gaussians, timeline, base.temporal)
     full = decode_chunk(encode_chunk(scene))
     cut = decode_chunk(encode_chunk(scene, quality=0))
-    budget = _position_budget(scene, full, 0)
+    budget = _position_budget(scene, 0)
     worst, rms = _moved(full, cut)
     budgets = Budgets.of(scene.subset(texel_order(scene)), 0)
     assert budgets is not None
@@ -159,12 +161,10 @@ def test_flat_gaussians_move_by_their_share_of_the_core() -> None:
     g.scales[:, 0] = np.log(1e-6)
     g.scales[:1000, 1:] = np.log(1e-4)  # a quarter too small to use the core's share
     flat = Scene(g)
-    _, radius = dense_core(flat.gaussians)
-    order = texel_order(flat)
     full, cut = (encode_chunk(flat, quality=q) for q in (100, 0))
     moved = np.abs(decode_chunk(cut).gaussians.means - decode_chunk(full).gaussians.means)
-    largest = np.exp(flat.gaussians.scales[order].astype(np.float64)).max(axis=1)
-    bound = np.minimum(CORE_AT_ZERO * radius, POSITION_AT_ZERO * largest)
+    largest = np.exp(flat.gaussians.scales[texel_order(flat)].astype(np.float64)).max(axis=1)
+    bound = _position_budget(flat, 0)  # the core's share: half of 1e-6 adds nothing
     assert np.all(moved.max(axis=1) <= bound * 1.0001 + 1e-7)
     big = largest > 1e-3
     assert moved[big].max() > bound[big].max() / 4  # the core's share is used
