@@ -9,7 +9,13 @@ import numpy.typing as npt
 import pytest
 
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
-from tsog_stream.temporal import evaluate_all, lifespans, time_range, visibility_half_width
+from tsog_stream.temporal import (
+    evaluate_all,
+    lifespans,
+    opacity_at,
+    time_range,
+    visibility_half_width,
+)
 
 
 def f64(values: list[float]) -> npt.NDArray[np.float64]:
@@ -74,6 +80,35 @@ def test_evaluate_all_keeps_alignment() -> None:
     tl = Timeline(TimelineType.FRAME, f64([0, 1]), np.zeros(2), fps=1)
     g, mask = evaluate_all(Scene(_gaussians(2), tl), 0.5)
     assert len(g) == 2 and mask.tolist() == [True, False]
+
+
+@pytest.mark.parametrize("kind", list(TimelineType))
+def test_opacity_at_is_what_evaluation_gives_the_visible(kind: TimelineType) -> None:
+    """opacity_at: the evaluated opacity of every visible Gaussian (temporal opacity and the
+    type-2 factor included), -inf for the others, without evaluating anything else."""
+    n = 6
+    rng = np.random.default_rng(2)
+    g = _gaussians(n)
+    g = Gaussians(g.means, g.scales, g.quats, rng.normal(0, 2, n).astype(np.float32), g.sh0)
+    t0 = {
+        TimelineType.FRAME: f64([0, 4, 4, 2, 4, 0]),
+        TimelineType.START_DURATION: f64([0, 3, 5, 9, 1, 2]),
+    }
+    t1 = {TimelineType.FRAME: np.zeros(n), TimelineType.START_DURATION: f64([4, 4, 1, 2, 8, 1])}
+    if kind is TimelineType.CENTER_SCALE:
+        tl = Timeline(
+            kind, f64([0.1, 0.4, 0.45, 0.9, 0.3, 2.0]), f64([0.1, 0.2, 0.05, 0.1, 1, 0.1])
+        )
+    else:
+        tl = Timeline(kind, t0[kind], t1[kind], fps=10)
+    opacity = rng.normal(0, 1, (n, 2, 1)).astype(np.float32)
+    scene = Scene(g, tl, {"opacity": opacity})
+    evaluated, shown = evaluate_all(scene, 0.4)
+    got = opacity_at(scene, 0.4)
+    assert 0 < shown.sum() < n
+    assert np.array_equal(got[shown], scene.at(0.4).opacities)
+    assert np.array_equal(got[shown], evaluated.opacities[shown])
+    assert np.all(got[~shown] == -np.inf)
 
 
 def test_time_range_prefers_declared_length() -> None:

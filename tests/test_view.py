@@ -12,7 +12,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -22,9 +22,11 @@ from PIL import Image
 
 from helpers import ThreadedServer
 from tsog_stream import inputs
+from tsog_stream.model import Gaussians, Scene
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
+from tsog_stream.temporal import evaluate_all
 
 FRAMES = "4d/tztechno_fireworks_frames"
 START_TIMEOUT_S = 120
@@ -173,15 +175,63 @@ def test_a_thumbnail_draws_at_most_its_cap_of_the_most_opaque(
     scene's order (its render of 5M Gaussians took the process to 6 GB)."""
     monkeypatch.setattr(inputs, "THUMBNAIL_GAUSSIANS", 10)
     g = static_gaussians(50, seed=3)
-    kept = inputs._most_opaque_of([g])
+    kept = inputs._most_opaque_at([Scene(g)], 0.0)
     expected = np.sort(np.argsort(-g.opacities, kind="stable")[:10])
     assert np.array_equal(kept.opacities, g.opacities[expected])
     small = g.subset(np.arange(8))
-    assert inputs._most_opaque_of([small]) is small
+    assert inputs._most_opaque_at([Scene(small)], 0.0) is small
     # reduced piece by piece (a container chunk by chunk): the same Gaussians, same order
-    pieces = [g.subset(np.arange(a, b)) for a, b in ((0, 20), (20, 35), (35, 50))]
-    assert np.array_equal(inputs._most_opaque_of(pieces).opacities, g.opacities[expected])
-    assert len(inputs._most_opaque_of([])) == 0
+    pieces = [Scene(g.subset(np.arange(a, b))) for a, b in ((0, 20), (20, 35), (35, 50))]
+    assert np.array_equal(inputs._most_opaque_at(pieces, 0.0).opacities, g.opacities[expected])
+    assert len(inputs._most_opaque_at([], 0.0)) == 0
+
+
+def test_a_thumbnail_cuts_each_piece_once_and_holds_little(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Pieces in any order (least opaque first, most opaque first, shuffled) give the cap's
+    most opaque; what is held when the kept ones are re-selected stays within twice the cap
+    and one piece, and most opaque first they are re-selected once."""
+    cap, piece = 10, 10
+    monkeypatch.setattr(inputs, "THUMBNAIL_GAUSSIANS", cap)
+    g = static_gaussians(120, seed=5)
+    expected = np.sort(g.opacities)[-cap:]
+    rising = np.argsort(g.opacities, kind="stable")
+    orders = {"rising": rising, "falling": rising[::-1]}
+    orders["shuffled"] = np.random.default_rng(0).permutation(len(g))
+    select = inputs._most_opaque_pieces
+    for name, order in orders.items():
+        held: list[int] = []
+
+        def counted(kept: Sequence[Gaussians], held: list[int] = held) -> list[Gaussians]:
+            held.append(sum(map(len, kept)))
+            return select(kept)
+
+        monkeypatch.setattr(inputs, "_most_opaque_pieces", counted)
+        pieces = [Scene(g.subset(part)) for part in np.array_split(order, len(g) // piece)]
+        kept = inputs._most_opaque_at(pieces, 0.0)
+        assert np.array_equal(np.sort(kept.opacities), expected), name
+        assert all(h <= 2 * cap + piece for h in held), (name, held)
+        if name == "falling":
+            assert len(held) == 1, held
+
+
+def test_a_thumbnail_evaluates_the_most_opaque_at_t(monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a moving scene in pieces, the thumbnail keeps the cap's most opaque Gaussians at t
+    (temporal opacity included) and evaluates them as the whole frame at t does."""
+    cap = 40
+    monkeypatch.setattr(inputs, "THUMBNAIL_GAUSSIANS", cap)
+    scene = generate_scene(SceneSpec(background=300, objects=2, per_object=60))
+    t = 0.4
+    whole = scene.at(t)
+    shown = evaluate_all(scene, t)[1]
+    pieces = [scene.subset(part) for part in np.array_split(np.arange(len(scene)), 3)]
+    kept = inputs._most_opaque_at(pieces, t)
+    top = np.sort(np.argsort(-whole.opacities, kind="stable")[:cap])
+    assert len(kept) == cap and shown.sum() > cap
+    assert np.array_equal(kept.opacities, whole.opacities[top])  # pieces in order: same order
+    assert np.array_equal(kept.means, whole.means[top])
+    assert np.array_equal(kept.quats, whole.quats[top])
 
 
 def test_a_container_is_drawn_a_chunk_at_a_time(tmp_path: Path) -> None:

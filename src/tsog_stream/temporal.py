@@ -129,6 +129,21 @@ def _threshold(threshold: float | None) -> float:
     return VISIBILITY_THRESHOLD if threshold is None else threshold
 
 
+def opacity_at(scene: Scene, t: float, threshold: float | None = None) -> npt.NDArray[np.float32]:
+    """Every Gaussian's opacity logit at ``t``, index-aligned with the scene and -inf where it
+    is not visible: what :func:`evaluate_at` gives the visible ones, evaluating nothing else
+    (a caller that keeps only the most opaque evaluates only those)."""
+    _check_time(t)
+    if scene.timeline is None:
+        return scene.gaussians.opacities
+    mask, factor = _visible(scene.timeline, t, _threshold(threshold))
+    index = np.flatnonzero(mask)
+    dt = t - reference_times(scene.timeline)[index]
+    out = np.full(len(scene), -np.inf, np.float32)
+    out[index] = _opacity(scene, index, dt, None if factor is None else factor[index])
+    return out
+
+
 def _evaluate(
     scene: Scene, timeline: Timeline, t: float, index: npt.NDArray[np.bool_], factor: F64 | None
 ) -> Gaussians:
@@ -140,19 +155,28 @@ def _evaluate(
         "scales": g.scales.astype(np.float64),
         "quats": g.quats.astype(np.float64),
         "sh0": g.sh0.astype(np.float64),
-        "opacity": g.opacities.astype(np.float64)[:, None],
     }
     for attr, coeffs in scene.temporal.items():
-        attrs[attr] = attrs[attr] + _polynomial(coeffs[index], dt)
+        if attr in attrs:
+            attrs[attr] = attrs[attr] + _polynomial(coeffs[index], dt)
     quats = attrs["quats"]
     norm = np.linalg.norm(quats, axis=1, keepdims=True)
     quats = np.divide(quats, norm, out=np.tile([1.0, 0, 0, 0], (len(quats), 1)), where=norm > 0)
-    opacity = attrs["opacity"][:, 0]
-    if factor is not None:
-        opacity = _scale_opacity(opacity, factor)
+    opacity = _opacity(scene, index, dt, factor)
     return Gaussians.from_arrays(
         attrs["means"], attrs["scales"], quats, opacity, attrs["sh0"], shN=g.shN
     )
+
+
+def _opacity(
+    scene: Scene, index: npt.NDArray[np.bool_] | npt.NDArray[np.intp], dt: F64, factor: F64 | None
+) -> F64:
+    """Opacity logits at t of the selected Gaussians (``dt``: t minus their reference times)."""
+    logits = scene.gaussians.opacities[index].astype(np.float64)
+    coeffs = scene.temporal.get("opacity")
+    if coeffs is not None:
+        logits = logits + _polynomial(coeffs[index], dt)[:, 0]
+    return logits if factor is None else _scale_opacity(logits, factor)
 
 
 def _scale_opacity(logits: F64, factor: F64) -> F64:

@@ -52,8 +52,9 @@ class Source:
     """Capture cameras the input carries, sits beside, or its container stores."""
     opening: Callable[[], CaptureCamera | None] = lambda: None
     """Where a viewer opens the scene (framing.default_view), computed when asked."""
-    pieces: Callable[[float], Iterator[Gaussians]] | None = None
-    """The Gaussians visible at t a chunk at a time (a container); None: ``frame`` whole."""
+    pieces: Callable[[float], Iterator[Scene]] | None = None
+    """The scenes of the chunks that show t, a chunk at a time (a container); None: ``frame``
+    whole."""
 
     def at(self, t: float) -> Gaussians:
         """The Gaussians visible at ``t`` seconds."""
@@ -62,8 +63,14 @@ class Source:
     def parts_at(self, t: float) -> Iterator[Gaussians]:
         """The Gaussians visible at ``t`` in pieces that together are :meth:`at`'s, so a
         caller that reduces them never holds a big scene whole."""
+        for scene in self.scenes_at(t):
+            yield scene.at(t)
+
+    def scenes_at(self, t: float) -> Iterator[Scene]:
+        """Scenes whose Gaussians visible at ``t`` together are :meth:`at`'s, a chunk at a time
+        (a caller that keeps a few evaluates only those: ``temporal.opacity_at``)."""
         if self.pieces is None:
-            yield self.frame(t)
+            yield Scene(self.frame(t))
         else:
             yield from self.pieces(t)
 
