@@ -11,6 +11,7 @@ import pytest
 
 from tsog_stream.errors import InputError
 from tsog_stream.sh_palette import (
+    PASS_ENTRY_WEIGHT,
     PASS_WEIGHT,
     SETUP_WEIGHT,
     _Work,
@@ -140,11 +141,12 @@ ROUNDS_200K = (200000, 144386, 109174, 85053, 72215, 67238, 65873, 65596, 65550,
 def test_progress_follows_the_work_of_a_measured_fit() -> None:
     """Replaying a real fit's rounds, the progress said after each step is within 0.1 of the
     share of the whole fit's work (SETUP_WEIGHT per vector first, round visits, PASS_WEIGHT per
-    vector and pass) then done;
+    vector and PASS_ENTRY_WEIGHT per entry a pass) then done;
     counting merged clusters had said 0.47 where 0.30 of the work was done."""
     k, seen = 65536, list[float]()
     work = _Work(ROUNDS_200K[0], k, 2, seen.append)
-    steps = [float(c) for c in ROUNDS_200K] + [PASS_WEIGHT * ROUNDS_200K[0]] * 2
+    one_pass = PASS_WEIGHT * ROUNDS_200K[0] + PASS_ENTRY_WEIGHT * k
+    steps = [float(c) for c in ROUNDS_200K] + [one_pass] * 2
     setup = SETUP_WEIGHT * ROUNDS_200K[0]
     done = (setup + np.cumsum(steps)) / (setup + sum(steps))
     lefts = [*ROUNDS_200K[1:], k]

@@ -54,15 +54,21 @@ REFINE_TOLERANCE: Final = 1e-3
 ROUND_LEFT: Final = 0.3
 """Share of the clusters still to merge that a merging round leaves (0.18-0.59 measured on
 200k random SH3 vectors into 65536): how many more rounds the progress expects."""
-PASSES_PER_RATIO: Final = 0.8
+PASSES_PER_RATIO: Final = 1.0
 """Refinement passes the progress expects before the tolerance stops them, per vector per
-palette entry, at least 2 (random SH3 vectors into 65536: 2 passes at 200k, 7 at 600k)."""
-SETUP_WEIGHT: Final = 0.4
+palette entry, at least 2 (into 65536 entries: 4 passes on 200k random SH3 vectors and on
+300k realistic ones, 10 (the cap) on 833k random ones)."""
+SETUP_WEIGHT: Final = 0.65
 """Work before the first merging round (distinct rows, principal axes) per vector, against a
-round's per cluster (about 0.45 measured on 200k random SH3 vectors)."""
-PASS_WEIGHT: Final = 0.5
-"""Work of a refinement pass per vector, against a merging round's per cluster (3-5.5 us
-against 7-9 us measured on 200k and 600k random SH3 vectors)."""
+round's per cluster (0.62-0.66 measured on 200k and 833k random and 300k realistic SH3
+vectors)."""
+PASS_WEIGHT: Final = 0.21
+"""Work of a refinement pass per vector, against a merging round's per cluster; with
+PASS_ENTRY_WEIGHT per palette entry (each pass finds the entries' neighbours), fitted to
+passes measured on 200k and 833k random SH3 vectors into 65536 (0.8 and 0.35 of a visit per
+vector in all), within 2 % on 300k realistic ones."""
+PASS_ENTRY_WEIGHT: Final = 1.8
+"""Work of a refinement pass per palette entry (see PASS_WEIGHT)."""
 
 
 def palette_size(n: int) -> int:
@@ -286,15 +292,15 @@ def _neighbours(points: F32, axes: tuple[F32, F32], count: int, rng: np.random.G
 
 class _Work:
     """Progress of a fit as the share of its work done: a merging round costs about one visit
-    of each cluster it starts with, a refinement pass PASS_WEIGHT of one per vector, what
-    comes before the first round SETUP_WEIGHT of one per vector. Rounds
-    merge most of what is left early and a few hundred near k, each still a full pass, so
-    counting merged clusters ran ahead of the time (0.47 reported at 0.30 of a 200k fit);
-    the rounds still to come are estimated from ROUND_LEFT."""
+    of each cluster it starts with, a refinement pass PASS_WEIGHT of one per vector and
+    PASS_ENTRY_WEIGHT per palette entry, what comes before the first round SETUP_WEIGHT of
+    one per vector. Rounds merge most of what is left early and a few hundred near k, each
+    still a full pass, so counting merged clusters ran ahead of the time (0.47 reported at
+    0.30 of a 200k fit); the rounds still to come are estimated from ROUND_LEFT."""
 
     def __init__(self, points: int, k: int, passes: int, report: Progress) -> None:
         self._k, self._passes, self._report = k, passes, report
-        self._pass = PASS_WEIGHT * points
+        self._pass = PASS_WEIGHT * points + PASS_ENTRY_WEIGHT * k
         self._done, self._refined, self._said = SETUP_WEIGHT * points, 0, 0.0
 
     def merged(self, clusters: int, left: int) -> None:

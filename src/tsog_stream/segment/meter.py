@@ -1,7 +1,7 @@
 """How far encoding has got and how long it has left, measured in work, not chunks.
 
-Chunks differ a lot in cost (a chunk with an SH palette costs ~15x one without, measured on
-1M Gaussians: 36.6 s against 2.5 s) and parallel jobs finish in bursts, so counting written
+Chunks differ a lot in cost (a chunk with an SH3 palette costs ~7-8x one without, measured on
+400k Gaussians: 9.2-11.1 s against 1.4 s) and parallel jobs finish in bursts, so counting written
 chunks gave ETAs off by 2-3x (a 5M scene: 220 s announced after its first chunk, 85 s left in
 fact). The meter weighs each job by :func:`encode_work`, learns the rate of one worker slot
 from the work done (finished jobs, and the share running jobs report of themselves: a job's SH
@@ -20,10 +20,11 @@ from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Any
 
-SH_COST_PER_COEFF = 1.0
+SH_COST_PER_COEFF = 0.45
 """A Gaussian's encode cost per SH coefficient beyond DC (an RGB triple), in units of a
 Gaussian without SH: the palette's distance work grows with the vector's length (SH3, 15
-coefficients: 16x; measured 14.6x)."""
+coefficients: 7.75x; a 400k chunk measured 6.8x with realistic SH3, 8.1x with random, after
+the palette's 2x speed-up of 2026-11-27; 14.6x before it)."""
 
 TICK_S = 5.0
 """Seconds between two :meth:`Meter.tick` calls of its ``on_tick`` (an ETA redrawn while no
