@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from tsog_stream import sh_palette
 from tsog_stream.errors import InputError
 from tsog_stream.sh_palette import (
     PASS_ENTRY_WEIGHT,
@@ -109,6 +110,29 @@ def test_exact_when_palette_holds_every_distinct_vector() -> None:
     assert len(centroids) == len(np.unique(points, axis=0))
     assert palette_mse(points, centroids, labels) == 0.0
     np.testing.assert_array_equal(centroids[labels], points)
+
+
+@pytest.mark.parametrize("hashes", ["real", "colliding"])
+def test_distinct_rows_are_found_by_bytes_even_when_hashes_collide(
+    hashes: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Identical vectors (-0.0 and 0.0 are different bytes) collapse to one weighted row; a
+    hash shared by distinct rows (forced here: every row hashes alike) falls back to the
+    rows' bytes, with the same distinct rows and counts."""
+    if hashes == "colliding":
+        monkeypatch.setattr(sh_palette, "_row_hashes", lambda data: np.zeros(len(data), np.uint64))
+    rng = np.random.default_rng(21)
+    distinct = rng.normal(0, 0.05, (40, 9)).astype(np.float32)
+    distinct[1] = 0.0
+    distinct[2] = -0.0
+    pick = rng.integers(0, 40, 700)
+    points = distinct[pick]
+    unique, inverse, weights = sh_palette._unique_rows(points)
+    expected = np.unique(points.view(np.uint32), axis=0)
+    assert len(unique) == len(expected) == len(np.unique(pick))
+    np.testing.assert_array_equal(unique[inverse].view(np.uint32), points.view(np.uint32))
+    assert weights.sum() == len(points)
+    np.testing.assert_array_equal(np.bincount(inverse, minlength=len(unique)), weights)
 
 
 def test_small_k_gives_the_weighted_mean() -> None:
