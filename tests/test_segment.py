@@ -503,7 +503,7 @@ def test_jobs_are_encoded_costliest_first_and_written_in_order() -> None:
     one the in-order encoder makes."""
     src = make_scene(TimelineType.CENTER_SCALE, background=300, objects=2, per_object=50, seed=4)
     plan = Plan(0.0, 2.0, 2.0, 1, {}, 0)
-    cuts = [np.arange(0, 20), np.arange(20, 60), np.arange(60, len(src))]
+    cuts = [np.arange(0, 20), np.arange(20, 120), np.arange(120, len(src))]
     jobs = [ChunkJob(NodeKey(0, 0), idx) for idx in cuts]
     started: list[int] = []
 
@@ -521,10 +521,10 @@ def test_jobs_are_encoded_costliest_first_and_written_in_order() -> None:
         _encoded(JobParts(jobs, make, by_size), plan, replace(options, workers=1), Meter(0.0))
     )
     assert [p for _, p in parallel] == [p for _, p in serial]
-    assert [info.count for info, _ in parallel] == [20, 40, len(src) - 60]
+    assert [info.count for info, _ in parallel] == [20, 100, len(src) - 120]
     # the order follows the cost, not the count: a small job with SH bands goes first
     started.clear()
-    with_bands = {1: 15}  # 40 Gaussians with SH3 weigh 640, more than the 340 without
+    with_bands = {1: 15}  # 100 Gaussians with SH3 weigh 775, more than the 280 without
     list(
         _encoded(
             JobParts(
