@@ -149,8 +149,8 @@ def _most_opaque_at(scenes: Iterable[Scene], t: float) -> Gaussians:
     their order), evaluated at t. Reduced scene by scene, memory holds at most twice that
     many and one scene, not the whole (a 5M container's thumbnail: 5.0 -> 2.3 GB); each scene
     gives only what is at least as opaque as the THUMBNAIL_GAUSSIANS-th so far, and only that
-    is evaluated (evaluating all 5M, then re-selecting the kept ones at every chunk, was 5 of
-    the 11 s of a 5M thumbnail)."""
+    is evaluated (all were, and the kept ones re-selected at every chunk: a 5M container's
+    thumbnail now holds 150-200 MB less and takes ~0.7 s less of ~7.5 s)."""
     kept: list[Gaussians] = []
     floor = -np.inf  # nothing less opaque can be among the most opaque any more
     for scene in scenes:
