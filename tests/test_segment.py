@@ -570,6 +570,11 @@ def test_progress_reports_every_chunk(tmp_path: Path) -> None:
     assert [text.split()[0] for text, _ in stages] == ["choosing", "measuring", "encoding"]
     assert stages[-1] == (f"encoding {report.chunks} chunks ({report.stored} Gaussians stored) "
                           "on one process", 0)  # fmt: skip
+    # one layer asked: nothing is measured, and the stage says what runs instead
+    stages.clear()
+    one = SegmentOptions(window_s=1.0, max_pixels=16 * 16, layers=1)
+    segment_scene(src, tmp_path / "one.tsogs", one, on_stage=lambda t: stages.append((t, 0)))
+    assert [text.split()[0] for text, _ in stages] == ["choosing", "cutting", "encoding"]
 
 
 def test_a_failed_segmentation_leaves_the_destination_untouched(tmp_path: Path) -> None:

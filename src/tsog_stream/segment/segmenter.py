@@ -709,7 +709,11 @@ def segment_scene(
     views = Views.of(scene.gaussians, cameras)
     groups = node_groups(scene, plan, options.slice_s)
     members = [g for _, g in groups]
-    stage("measuring quality layers (rendering)")
+    stage(
+        "cutting the scene into chunks"
+        if options.layers == 1
+        else "measuring quality layers (rendering)"
+    )
     layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
     layer_of = None
     if layering.layers > 1:
