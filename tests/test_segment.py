@@ -23,6 +23,8 @@ from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.constants import DEFAULT_MAX_PIXELS
+from tsog_stream.io.ply import write_ply
+from tsog_stream.io.sequence import open_sequence
 from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment import layout, segmenter
 from tsog_stream.segment import meter as meter_module
@@ -37,9 +39,10 @@ from tsog_stream.segment.segmenter import (
     SegmentReport,
     _encoded,
     segment_scene,
+    segment_sequence,
 )
 from tsog_stream.summary import chunk_summary
-from tsog_stream.synthetic import SceneSpec, generate_scene
+from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 from tsog_stream.temporal import (
     evaluate_all,
     lifespans,
@@ -575,6 +578,14 @@ def test_progress_reports_every_chunk(tmp_path: Path) -> None:
     one = SegmentOptions(window_s=1.0, max_pixels=16 * 16, layers=1)
     segment_scene(src, tmp_path / "one.tsogs", one, on_stage=lambda t: stages.append((t, 0)))
     assert [text.split()[0] for text, _ in stages] == ["choosing", "cutting", "encoding"]
+    # a frame sequence likewise: with one layer its sampled frames are read for the view only
+    stages.clear()
+    for k in range(2):
+        (tmp_path / "frames").mkdir(exist_ok=True)
+        write_ply(tmp_path / "frames" / f"f_{k}.ply", static_gaussians(64, seed=k))
+    seq = open_sequence(tmp_path / "frames", fps=10.0)
+    segment_sequence(seq, tmp_path / "seq.tsogs", one, on_stage=lambda t: stages.append((t, 0)))
+    assert [text.split()[0] for text, _ in stages] == ["choosing", "reading", "encoding"]
 
 
 def test_a_failed_segmentation_leaves_the_destination_untouched(tmp_path: Path) -> None:

@@ -242,7 +242,7 @@ def test_a_container_is_drawn_a_chunk_at_a_time(tmp_path: Path) -> None:
     segment_scene(scene, out, SegmentOptions(window_s=1.0, max_pixels=16 * 16, layers=1))
     with inputs.open_source(out) as source:
         t = sum(source.span or (0.0, 0.0)) / 2
-        pieces = list(source.parts_at(t))
+        pieces = [scene.at(t) for scene in source.scenes_at(t)]
         whole = source.at(t)
     assert len(pieces) > 2
     assert np.array_equal(np.concatenate([p.means for p in pieces]), whole.means)

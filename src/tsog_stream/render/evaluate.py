@@ -60,12 +60,6 @@ class Source:
         """The Gaussians visible at ``t`` seconds."""
         return self.frame(t)
 
-    def parts_at(self, t: float) -> Iterator[Gaussians]:
-        """The Gaussians visible at ``t`` in pieces that together are :meth:`at`'s, so a
-        caller that reduces them never holds a big scene whole."""
-        for scene in self.scenes_at(t):
-            yield scene.at(t)
-
     def scenes_at(self, t: float) -> Iterator[Scene]:
         """Scenes whose Gaussians visible at ``t`` together are :meth:`at`'s, a chunk at a time
         (a caller that keeps a few evaluates only those: ``temporal.opacity_at``)."""

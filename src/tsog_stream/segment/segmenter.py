@@ -682,6 +682,12 @@ def _layers(layering: LayerPlan, entries: Sequence[ChunkEntry]) -> list[Layer]:
     ]
 
 
+def _layers_stage(layers: int | None, measuring: str, otherwise: str) -> str:
+    """The stage line before the quality layers are planned: what renders to measure them, or
+    what runs instead when one layer is asked (nothing is measured then)."""
+    return otherwise if layers == 1 else f"measuring quality layers ({measuring})"
+
+
 def segment_scene(
     scene: Scene,
     path: str | os.PathLike[str],
@@ -709,11 +715,7 @@ def segment_scene(
     views = Views.of(scene.gaussians, cameras)
     groups = node_groups(scene, plan, options.slice_s)
     members = [g for _, g in groups]
-    stage(
-        "cutting the scene into chunks"
-        if options.layers == 1
-        else "measuring quality layers (rendering)"
-    )
+    stage(_layers_stage(options.layers, "rendering", "cutting the scene into chunks"))
     layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
     layer_of = None
     if layering.layers > 1:
@@ -971,7 +973,11 @@ def segment_sequence(
         "temporal": {},
         "sh_bands": SH_BANDS_BY_COEFFS[seq.sh_coeffs],
     }
-    stage("measuring quality layers (rendering sampled frames)")
+    stage(
+        _layers_stage(
+            options.layers, "rendering sampled frames", "reading sampled frames for the view"
+        )
+    )
     sampled = _sampled_frames(seq)
     views = Views.of(_framing_samples(sampled.values()), cameras)
     measured = {k: sampled[k] for k in _spread(seq.count, MEASURE_TIMES)}
