@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import io
 import json
+import multiprocessing
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -18,7 +20,7 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
 from tsog_stream.codec.rotations import decode_quats
 from tsog_stream.codec.sog_decode import decode_sh
-from tsog_stream.codec.webp import decode_webp
+from tsog_stream.codec.webp import ImageDecoder, decode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
 from tsog_stream.opacity import alpha_to_logit
@@ -214,3 +216,49 @@ def test_sh_labels_past_the_palette_decode_to_zero() -> None:
     assert np.array_equal(every, palette[[1, 0]])
     empty = SimpleNamespace(bands=1, files=["c", "l"], codebook=codebook, count=0)
     assert not decode_sh(empty, {"c": entries, "l": labels}, 4).any()
+
+
+def _same_scene(a: Scene, b: Scene) -> bool:
+    """Whether two decoded scenes hold the same Gaussians, to the bit."""
+    fields = ("means", "scales", "quats", "opacities", "sh0", "shN")
+    return all(np.array_equal(getattr(a.gaussians, f), getattr(b.gaussians, f)) for f in fields)
+
+
+def test_chunks_decoded_from_many_threads_at_once_equal_one_by_one() -> None:
+    """The decoding pools are the process's: chunks decoded by eight threads at once (as the
+    client's prefetch does) each give what decoding them alone gives."""
+    chunks = [encode_chunk(Scene(static_gaussians(3000, sh_bands=k % 2, seed=k))) for k in range(8)]
+    alone = [decode_chunk(files) for files in chunks]
+    with ThreadPoolExecutor(8) as pool:
+        together = list(pool.map(decode_chunk, chunks))
+    assert all(_same_scene(a, b) for a, b in zip(alone, together, strict=True))
+
+
+def test_a_forked_child_decodes_with_pools_of_its_own() -> None:
+    """A process forked after its parent decoded has none of the parent's pool threads: it
+    must make its own rather than queue work for threads that do not exist there."""
+    files = encode_chunk(Scene(static_gaussians(2000, seed=4)))
+    expected = decode_chunk(files)  # the parent's pools exist from here
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        means = pool.apply_async(_decoded_means, (files,)).get(timeout=60)
+    assert np.array_equal(means, expected.gaussians.means)
+
+
+def _decoded_means(files: dict[str, bytes]) -> np.ndarray:
+    """The decoded positions of a chunk (run in a child process)."""
+    return decode_chunk(files).gaussians.means
+
+
+def test_a_failed_decode_leaves_none_of_its_work_running() -> None:
+    """Leaving a decoder by an error cancels its work not yet started and waits for the rest:
+    nothing of a refused chunk runs on in the shared pools."""
+    files = encode_chunk(Scene(static_gaussians(4000, seed=5)))
+    images = {name: data for name, data in files.items() if name.endswith(".webp")}
+    images["means_l.webp"] = images["means_l.webp"][:40]  # a header, then nothing
+    futures = []
+    with pytest.raises(SogError, match=r"means_l\.webp"), ImageDecoder(images, where="x") as dec:
+        for name in images:
+            futures.append(dec.then([name], lambda got: sum(int(a.sum()) for a in got.values())))
+        futures[0].result()
+    assert all(future.done() for future in futures)

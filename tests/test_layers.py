@@ -63,8 +63,9 @@ FORMAT_LAYER = (
 )
 """Modules that turn bytes into values and back and must do no I/O themselves."""
 IO_MODULES = {"pathlib", "asyncio", "aiohttp", "socket", "shutil", "tempfile", "subprocess"}
-OS_ALLOWED = {"cpu_count"}
-"""The only names of ``os`` the format layer may use (sizing its thread pools)."""
+OS_ALLOWED = {"cpu_count", "register_at_fork"}
+"""The only names of ``os`` the format layer may use (sizing its thread pools, and making new
+ones in a forked child)."""
 PUBLIC = [
     "AccessError",
     "FormatError",
