@@ -336,6 +336,26 @@ def test_local_paths_and_file_urls(container: Path) -> None:
             assert same(client.frame_at(1.2), want)
 
 
+def test_the_sync_facade_works_inside_a_running_event_loop(origin: Origin, container: Path) -> None:
+    """Made where a loop already runs (a Jupyter cell, async code), the facade runs its own
+    loop on a thread of its own: the same frames from a file and over HTTP, and closing it
+    leaves no thread behind."""
+    want = local_frames(container, TIMES)
+
+    async def in_a_loop() -> list[list[Gaussians]]:
+        got = []
+        for target in (str(container), origin.url()):
+            with open_stream(target, http=FAST) as clip:
+                got.append([clip.frame_at(t) for t in TIMES])
+        return got
+
+    before = {t.ident for t in threading.enumerate()}
+    for frames in asyncio.run(in_a_loop()):
+        assert all(same(a, b) for a, b in zip(frames, want, strict=True))
+    left = [t.name for t in threading.enumerate() if t.ident not in before]
+    assert not [name for name in left if name == "tsog-stream-loop"], left
+
+
 def test_cli_fetch_and_play(
     origin: Origin, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -1,14 +1,17 @@
 """``Stream``: the thin synchronous facade over :class:`StreamClient` (for scripts and the CLI).
 
 It owns one event loop (``asyncio.Runner``) and forwards every call to the async core; no
-logic of its own. It cannot be used inside a running event loop (Jupyter, async code): use
-:class:`StreamClient` there.
+logic of its own. Made where an event loop already runs (a Jupyter cell, async code), its loop
+runs on a thread of its own and each call blocks until it is done there (async code should
+await :class:`StreamClient` instead).
 """
 
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import os
+import threading
 from collections.abc import Callable, Coroutine
 from types import TracebackType
 from typing import Any, TypeVar
@@ -36,7 +39,9 @@ class Stream:
         coalesce_gap: int | None = 64 * 1024,
         http: HttpOptions | None = None,
     ) -> None:
-        self._runner = asyncio.Runner()
+        self._runner: asyncio.Runner | _LoopThread = (
+            _LoopThread() if _loop_running() else asyncio.Runner()
+        )
         opening = StreamClient.open(
             target,
             cache_bytes=cache_bytes,
@@ -146,6 +151,50 @@ class Stream:
         self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def _loop_running() -> bool:
+    """Whether this thread is inside a running event loop (a Jupyter cell, async code)."""
+    try:
+        asyncio.get_running_loop()
+    except RuntimeError:
+        return False
+    return True
+
+
+class _LoopThread:
+    """An event loop on a thread of its own, driven like ``asyncio.Runner`` (``run``, ``close``):
+    the facade's loop where the caller's thread already runs one, which cannot run another."""
+
+    def __init__(self) -> None:
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(
+            target=self._loop.run_forever, name="tsog-stream-loop", daemon=True
+        )
+        self._thread.start()
+
+    def run(self, coro: Coroutine[Any, Any, T]) -> T:
+        """Run ``coro`` on the loop's thread and wait for it; an interrupt cancels it there."""
+        future = asyncio.run_coroutine_threadsafe(coro, self._loop)
+        try:
+            return future.result()
+        except BaseException:
+            future.cancel()
+            raise
+
+    def close(self) -> None:
+        """Finish the loop's async generators and executor, stop it and join its thread."""
+        if self._loop.is_closed():
+            return
+        try:
+            self.run(self._loop.shutdown_asyncgens())
+            self.run(self._loop.shutdown_default_executor())
+        except (RuntimeError, concurrent.futures.CancelledError):
+            pass  # a loop already stopping: nothing left to finish
+        finally:
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join()
+            self._loop.close()
 
 
 async def _collect(
