@@ -22,6 +22,7 @@ from PIL import Image
 
 from helpers import ThreadedServer
 from tsog_stream import inputs
+from tsog_stream.cli import view_cache
 from tsog_stream.model import Gaussians, Scene
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
@@ -102,7 +103,9 @@ def test_view_segments_once_serves_the_player_and_reuses_the_copy(
     (frames / "frame_005.ply").unlink()
     with tsog_view(str(frames), "--fps", "6", cache=cache) as (_, before):
         assert not any("reusing" in line for line in before)
-    assert len(list(cache.glob("*/fireworks.tsogs"))) == 3
+        # the copy of the frames as they were can never be used again: removed
+        assert any("cache: removed 1 older" in line for line in before)
+    assert len(list(cache.glob("*/fireworks.tsogs"))) == 2
 
 
 def test_view_serves_a_container_as_it_is(samples: Path, tmp_path: Path) -> None:
@@ -247,3 +250,67 @@ def test_a_container_is_drawn_a_chunk_at_a_time(tmp_path: Path) -> None:
     assert len(pieces) > 2
     assert np.array_equal(np.concatenate([p.means for p in pieces]), whole.means)
     assert np.array_equal(np.concatenate([p.opacities for p in pieces]), whole.opacities)
+
+
+def _copy(root: Path, key: str, source: dict[str, object], size: int, used: float) -> Path:
+    """A cache folder as ``tsog view`` leaves one: a container of ``size`` bytes, its record
+    last used at ``used``."""
+    folder = root / key
+    folder.mkdir(parents=True)
+    (folder / "clip.tsogs").write_bytes(b"\0" * size)
+    view_cache.record(folder, source)
+    os.utime(folder / view_cache.SOURCE_FILE, (used, used))
+    return folder
+
+
+def test_a_new_copy_removes_earlier_versions_of_its_input_read_the_same_way(
+    tmp_path: Path,
+) -> None:
+    """The copy of an input whose files changed can never be used again: making the new one
+    removes it. Copies of other inputs, or of the same input read another way, stay."""
+    same = {"input": "/data/clip", "options": [None, None, 6.0], "version": "1"}
+    other_fps = {**same, "options": [None, None, 12.0]}
+    old = _copy(tmp_path, "a" * 24, same, 10, 1000.0)
+    kept = [
+        _copy(tmp_path, "b" * 24, other_fps, 10, 1001.0),
+        _copy(tmp_path, "c" * 24, {**same, "input": "/data/other"}, 10, 1002.0),
+    ]
+    made = _copy(tmp_path, "d" * 24, same, 10, 2000.0)
+    assert view_cache.evict(tmp_path, made) == [old]
+    assert not old.exists() and made.exists() and all(f.exists() for f in kept)
+
+
+def test_the_least_recently_used_copies_go_when_the_cache_is_over_its_limit(
+    tmp_path: Path,
+) -> None:
+    """Over the limit, copies go oldest use first until the rest fit; the one just made stays
+    even when it alone is over; folders that are not copies are left alone."""
+    copies = [
+        _copy(tmp_path, f"{k:x}" * 24, {"input": f"/in/{k}"}, 100, 1000.0 + k) for k in range(1, 5)
+    ]
+    stranger = tmp_path / "notes"  # not a copy: another name, no record
+    stranger.mkdir()
+    (stranger / "x").write_bytes(b"\0" * 1000)
+    no_record = tmp_path / ("e" * 24)  # a copy being made (no record yet)
+    no_record.mkdir()
+    (no_record / "clip.tsogs").write_bytes(b"\0" * 1000)
+    made = _copy(tmp_path, "f" * 24, {"input": "/in/new"}, 100, 3000.0)
+    limit = sum(f.stat().st_size for c in (made, *copies[2:]) for f in c.iterdir())
+    removed = view_cache.evict(tmp_path, made, limit)
+    assert removed == copies[:2]
+    assert [c.exists() for c in copies] == [False, False, True, True]
+    assert made.exists() and stranger.exists() and no_record.exists()
+    assert view_cache.evict(tmp_path, made, 0) == copies[2:]
+    assert made.exists()
+
+
+def test_a_copy_being_served_is_never_removed(tmp_path: Path) -> None:
+    """A running tsog view holds its copy (a shared lock on its record): neither a newer
+    version nor the size limit removes it; once the server stops, it can go."""
+    source = {"input": "/data/clip", "options": []}
+    served = _copy(tmp_path, "a" * 24, source, 10, 1000.0)
+    made = _copy(tmp_path, "b" * 24, source, 10, 2000.0)
+    with view_cache.serving(served):
+        assert view_cache.evict(tmp_path, made, 0) == []
+        assert (served / view_cache.SOURCE_FILE).is_file()
+    assert view_cache.evict(tmp_path, made, 0) == [served]

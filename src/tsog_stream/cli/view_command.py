@@ -17,6 +17,7 @@ import json
 import os
 import webbrowser
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 from .._version import __version__
@@ -28,18 +29,29 @@ from ..io.sequence import list_frames
 from ..server import make_app, start_server
 from .common import Integer, Subparsers, add_cameras, add_common, add_input
 from .progress import Progress
+from .view_cache import (
+    KEY_LENGTH,
+    MAX_CACHE_BYTES,
+    SOURCE_FILE,
+    evict,
+    mark_used,
+    record,
+    serving,
+)
 
 CACHE_ENV = "TSOG_CACHE_DIR"
 MAX_FINGERPRINT_FILES = 100_000
 """A folder with more files than this is refused rather than walked for ever."""
 
-VIEW_EPILOG = """examples:
+VIEW_EPILOG = f"""examples:
   tsog view clip.splatv --duration-s 10       segment once (cached), serve, print the URL
   tsog view frames/ --fps 30 --open           a frame folder, opened in the browser
   tsog view clip.tsogs --port 8080            a container is served as it is
 
 The segmented copy lives in $TSOG_CACHE_DIR, else $XDG_CACHE_HOME/tsog-stream/view, else
-~/.cache/tsog-stream/view (--cache DIR to choose), one folder per input version; delete it
+~/.cache/tsog-stream/view (--cache DIR to choose), one folder per input version. Making a
+copy removes the copies of earlier versions of that input, then the least recently used
+ones beyond {MAX_CACHE_BYTES >> 30} GiB in all (never one being served); delete the folder
 freely. The server listens on 127.0.0.1 only; Ctrl-C stops it."""
 
 
@@ -87,15 +99,27 @@ def _files_of(target: Path) -> list[Path]:
     return [p for p in list_frames(str(target)) if isinstance(p, Path)]
 
 
-def fingerprint(args: argparse.Namespace) -> str:
-    """A key that changes when the input's files, the reading options or the version do."""
+def source_of(args: argparse.Namespace) -> dict[str, Any]:
+    """What a copy is of: the input's path, the reading options and this program's version."""
     if is_object_url(args.input):
         raise InputError(
             "tsog view opens local inputs; segment a stored one with tsog segment and view the "
             "container, or serve it",
             where=args.input,
         )
-    items: list[object] = [__version__, str(Path(args.input).resolve())]
+    options = [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
+    cameras = str(Path(args.cameras).resolve()) if args.cameras else None
+    return {
+        "input": str(Path(args.input).resolve()),
+        "options": [cameras, *options],
+        "version": __version__,
+    }
+
+
+def fingerprint(args: argparse.Namespace) -> str:
+    """A key that changes when the input's files, the reading options or the version do."""
+    source = source_of(args)
+    items: list[object] = [source["version"], source["input"]]
     sources = _files_of(Path(args.input))
     if args.cameras is not None:
         sources += _files_of(Path(args.cameras))
@@ -104,7 +128,7 @@ def fingerprint(args: argparse.Namespace) -> str:
         items.append([str(path.resolve()), st.st_size, st.st_mtime_ns])
     options = [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
     items.append([str(args.cameras) if args.cameras else None, *options])
-    return hashlib.sha256(json.dumps(items).encode()).hexdigest()[:24]
+    return hashlib.sha256(json.dumps(items).encode()).hexdigest()[:KEY_LENGTH]
 
 
 def _scene_name(target: str) -> str:
@@ -119,10 +143,15 @@ def _segmented(args: argparse.Namespace, progress: Progress) -> Path:
     from .main import build_parser  # noqa: PLC0415 - the segment command, as typed
     from .stream_commands import cmd_segment  # noqa: PLC0415
 
-    folder = cache_root(args.cache) / fingerprint(args)
+    root = cache_root(args.cache)
+    folder = root / fingerprint(args)
     container = folder / f"{_scene_name(args.input)}.tsogs"
     if container.is_file():
         print(f"{container}: reusing the copy segmented earlier (the input is unchanged)")
+        if (folder / SOURCE_FILE).is_file():
+            mark_used(folder)
+        else:  # a copy made before the cache kept records: it joins the eviction order
+            record(folder, source_of(args))
         return container
     folder.mkdir(parents=True, exist_ok=True)
     argv = ["segment", args.input, "-o", str(container)]
@@ -142,6 +171,10 @@ def _segmented(args: argparse.Namespace, progress: Progress) -> Path:
         with contextlib.suppress(OSError):
             folder.rmdir()  # only when empty: a failed segment publishes nothing
         raise
+    record(folder, source_of(args))
+    removed = evict(root, folder)
+    if removed:
+        print(f"  cache: removed {len(removed)} older or least recently used copies ({root})")
     return container
 
 
@@ -158,11 +191,13 @@ def cmd_view(args: argparse.Namespace, progress: Progress) -> int:
         target = Path(args.input)
         root = target if kind == "tsogs" else target.parent
         name = target.name.removesuffix(".tsogs")
+        held: contextlib.AbstractContextManager[None] = contextlib.nullcontext()
     else:
         root = _segmented(args, progress)
         name = root.name.removesuffix(".tsogs")
+        held = serving(root.parent)  # no other tsog view evicts it while it is served
     progress.done()
-    with contextlib.suppress(KeyboardInterrupt):
+    with held, contextlib.suppress(KeyboardInterrupt):
         asyncio.run(_serve(root, name, args.port, args.open))
     return 0
 
