@@ -15,6 +15,7 @@ import urllib.request
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -252,7 +253,7 @@ def test_a_container_is_drawn_a_chunk_at_a_time(tmp_path: Path) -> None:
     assert np.array_equal(np.concatenate([p.opacities for p in pieces]), whole.opacities)
 
 
-def _copy(root: Path, key: str, source: dict[str, object], size: int, used: float) -> Path:
+def _copy(root: Path, key: str, source: dict[str, Any], size: int, used: float) -> Path:
     """A cache folder as ``tsog view`` leaves one: a container of ``size`` bytes, its record
     last used at ``used``."""
     folder = root / key
