@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import io
+import re
+import struct
 import tracemalloc
 import zipfile
 from pathlib import Path
@@ -311,3 +313,49 @@ def test_npz_garbage_and_truncation_raise_format_errors() -> None:
     ):
         with pytest.raises(FormatError):
             parse_freetimegs_npz(bad)
+
+
+def _member_data(data: bytes, member: str) -> tuple[int, int]:
+    """(offset, length) of a stored member's bytes in an npz."""
+    with zipfile.ZipFile(io.BytesIO(data)) as zf:
+        info = zf.getinfo(member)
+    name_length, extra_length = struct.unpack_from("<HH", data, info.header_offset + 26)
+    return info.header_offset + 30 + name_length + extra_length, info.file_size
+
+
+def test_a_local_npz_file_reads_its_stored_members_as_its_bytes_do(tmp_path: Path) -> None:
+    """From a file, stored members are read straight into their arrays (two at a time) and
+    compressed ones through zipfile: both give what parsing the bytes gives."""
+    truth = freetime_truth(n=3000, sh_bands=2)
+    stored = tmp_path / "stored.npz"
+    stored.write_bytes(freetime_npz(truth))
+    compressed = tmp_path / "compressed.npz"
+    with zipfile.ZipFile(io.BytesIO(stored.read_bytes())) as src:
+        arrays = {n.removesuffix(".npy"): np.load(io.BytesIO(src.read(n))) for n in src.namelist()}
+    np.savez_compressed(compressed, **arrays)
+    want = parse_freetimegs_npz(stored.read_bytes()).scene
+    for path in (stored, compressed):
+        with open(path, "rb") as file:
+            got = parse_freetimegs_npz(file).scene
+        for name in ("means", "scales", "quats", "opacities", "sh0", "shN"):
+            assert np.array_equal(getattr(got.gaussians, name), getattr(want.gaussians, name))
+        assert got.timeline is not None and want.timeline is not None
+        assert np.array_equal(got.timeline.t0, want.timeline.t0)
+        assert np.array_equal(got.temporal["means"], want.temporal["means"])
+
+
+def test_a_damaged_or_cut_npz_file_is_a_format_error_naming_the_array(tmp_path: Path) -> None:
+    """A changed byte inside a stored member fails its CRC-32 (a FormatError naming the
+    array, as zipfile's own reading says); a file cut inside a member is no readable zip."""
+    data = freetime_npz(freetime_truth(n=3000, sh_bands=1))
+    offset, length = _member_data(data, "shN.npy")
+    damaged = bytearray(data)
+    damaged[offset + length - 7] ^= 0x40
+    cases = {"damaged": bytes(damaged), "cut": data[: offset + length // 2]}
+    for label, content in cases.items():
+        path = tmp_path / f"{label}.npz"
+        path.write_bytes(content)
+        with open(path, "rb") as file, pytest.raises(FormatError) as error:
+            parse_freetimegs_npz(file, name=str(path))
+        expected = "shN.*CRC-32" if label == "damaged" else "not a readable npz"
+        assert re.search(expected, str(error.value)), (label, error.value)

@@ -27,10 +27,14 @@ from __future__ import annotations
 
 import io
 import math
+import os
+import struct
 import zipfile
 import zlib
-from collections.abc import Mapping
-from typing import IO, BinaryIO, Final, Literal, cast
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import IO, Any, BinaryIO, Final, Literal, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -257,16 +261,47 @@ def _load_npz(data: bytes | memoryview | BinaryIO, name: str) -> dict[str, Float
             if missing:
                 raise FormatError(f"missing array {', '.join(missing)}", where=name)
             wanted = [k for k in (*NPZ_REQUIRED, "shN", "use_velocity") if k in members]
-            return {k: _read_npy(zf, members[k], f"{name}: {k}", k in NPZ_REQUIRED) for k in wanted}
+            fd = _file_descriptor(source)
+            with ThreadPoolExecutor(READ_THREADS) as pool:
+                pending = {
+                    k: _read_npy(
+                        zf, members[k], f"{name}: {k}", floats=k in NPZ_REQUIRED, fd=fd, pool=pool
+                    )
+                    for k in wanted
+                }
+                return {k: read() for k, read in pending.items()}
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, NotImplementedError) as exc:
         raise FormatError(f"not a readable npz (zip) file: {exc}", where=name) from None
     except RuntimeError as exc:  # encrypted members
         raise UnsupportedError(f"cannot read the zip: {exc}", where=name) from None
 
 
-def _read_npy(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, floats: bool) -> Floats:
+def _file_descriptor(source: object) -> int | None:
+    """The OS file descriptor of an open local file (its stored members are then read with
+    ``os.pread``, straight into their arrays, on two threads); None for bytes or a stream."""
+    fileno = getattr(source, "fileno", None)
+    if fileno is None:
+        return None
+    try:
+        fd = int(fileno())
+    except (OSError, ValueError, io.UnsupportedOperation):
+        return None
+    return fd if hasattr(os, "pread") else None
+
+
+def _read_npy(
+    zf: zipfile.ZipFile,
+    info: zipfile.ZipInfo,
+    where: str,
+    *,
+    floats: bool,
+    fd: int | None,
+    pool: ThreadPoolExecutor,
+) -> Callable[[], Floats]:
     """One ``.npy`` member: float (else any numeric) dtype, a declared size that fits it; read
-    straight into its array (no second copy), float32 kept."""
+    straight into its array (no second copy), float32 kept. The header is read now; the
+    returned function gives the array, read on ``pool`` when the member is stored in a local
+    file (``fd``)."""
     with zf.open(info) as f:
         try:
             version = np.lib.format.read_magic(f)
@@ -286,18 +321,77 @@ def _read_npy(zf: zipfile.ZipFile, info: zipfile.ZipInfo, where: str, floats: bo
             raise FormatError(
                 f"shape {shape} needs {nbytes} bytes, the member has fewer", where=where
             )
-        flat = np.empty(math.prod(shape), dtype)
-        got = _read_into(f, flat.view(np.uint8))
-    if got != nbytes:
-        raise FormatError(f"truncated: {got} of {nbytes} bytes", where=where)
-    array = flat.reshape(shape, order="F" if fortran else "C")
-    if array.dtype == np.float32:
-        return array
-    return array.astype(np.float64)
+        npy = _Npy(np.empty(math.prod(shape), dtype), shape, bool(fortran), where)
+        start = _stored_start(fd, info)
+        if fd is None or start is None:
+            got = _read_into(f, npy.flat.view(np.uint8))
+            return lambda: npy.array(got)
+        header = f.tell()
+    reading = pool.submit(_pread_member, fd, info, start, header, npy)
+    return lambda: npy.array(reading.result())
+
+
+@dataclass(frozen=True)
+class _Npy:
+    """A member's declared array, its buffer allocated before it is read."""
+
+    flat: npt.NDArray[Any]
+    shape: tuple[int, ...]
+    fortran: bool
+    where: str
+
+    def array(self, got: int) -> Floats:
+        """The array once ``got`` bytes were read into it: shaped, float32 kept, any other
+        dtype as float64 (a short read is a truncated file)."""
+        if got != self.flat.nbytes:
+            raise FormatError(f"truncated: {got} of {self.flat.nbytes} bytes", where=self.where)
+        array = self.flat.reshape(self.shape, order="F" if self.fortran else "C")
+        if array.dtype == np.float32:
+            return cast("Floats", array)
+        return array.astype(np.float64)
+
+
+def _stored_start(fd: int | None, info: zipfile.ZipInfo) -> int | None:
+    """Where a member's bytes start in the file, when it is stored (not compressed, not
+    encrypted) in a local file; else None (read through zipfile)."""
+    if fd is None or info.compress_type != zipfile.ZIP_STORED or info.flag_bits & 0x1:
+        return None
+    local = os.pread(fd, LOCAL_HEADER_SIZE, info.header_offset)
+    if len(local) < LOCAL_HEADER_SIZE or local[:4] != LOCAL_HEADER_MAGIC:
+        raise FormatError("bad local header", where=info.filename)
+    name_length, extra_length = struct.unpack_from("<HH", local, 26)
+    return int(info.header_offset + LOCAL_HEADER_SIZE + name_length + extra_length)
+
+
+def _pread_member(fd: int, info: zipfile.ZipInfo, start: int, header: int, npy: _Npy) -> int:
+    """Read a stored member's array bytes (``header`` bytes past its ``start``: the npy
+    header) straight into its buffer, and check the member's CRC-32 as zipfile does; the
+    count of array bytes read."""
+    view = npy.flat.view(np.uint8).data
+    got = 0
+    while got < len(view):
+        n = os.preadv(fd, [view[got:]], start + header + got)
+        if n <= 0:
+            break
+        got += n
+    crc = zlib.crc32(os.pread(fd, header, start))
+    crc = zlib.crc32(view[:got], crc)
+    rest = info.file_size - header - got
+    if rest > 0:  # bytes past the array (none in a file numpy wrote)
+        crc = zlib.crc32(os.pread(fd, rest, start + header + got), crc)
+    if got == len(view) and crc != info.CRC:
+        raise FormatError("bad CRC-32: the file is damaged", where=npy.where)
+    return got
 
 
 READ_BLOCK = 1 << 20
 """Bytes of an npz member decompressed at a time into its array."""
+READ_THREADS = 2
+"""Stored members of a local file read at once (the copy from the page cache is bound by
+fresh pages: two threads read a 1.28 GB checkpoint in about half the time of one)."""
+LOCAL_HEADER_SIZE = 30
+"""Bytes of a zip local file header before its name and extra field."""
+LOCAL_HEADER_MAGIC = b"PK\x03\x04"
 
 
 def _read_into(f: IO[bytes], out: npt.NDArray[np.uint8]) -> int:
