@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tsog_stream.morton import morton_order, morton_run
+from tsog_stream.morton import morton_order, morton_parts, morton_run
 
 
 def test_is_a_permutation_and_deterministic() -> None:
@@ -62,3 +62,23 @@ def test_a_run_of_crowded_or_degenerate_points_is_still_a_run() -> None:
         assert run.size == 40 and np.unique(run).size == 40
     with pytest.raises(ValueError, match="outside"):
         morton_run(crowded, 4_990, 20)
+
+
+def test_parts_are_the_runs_of_the_whole_order_cut_as_array_split_cuts() -> None:
+    """morton_parts cuts by partial selection: on distinct cells each part is exactly that
+    run of the full sort (as np.array_split sizes the runs), its members ascending; crowded
+    or degenerate points still give every index once, in parts of those sizes."""
+    pts = np.random.default_rng(5).normal(size=(20_011, 3)).astype(np.float32)
+    whole = morton_order(pts)
+    for parts in (1, 2, 6, 7):
+        got = morton_parts(pts, parts)
+        runs = np.array_split(whole, parts)
+        assert [p.size for p in got] == [r.size for r in runs]
+        for part, run in zip(got, runs, strict=True):
+            np.testing.assert_array_equal(part, np.sort(run))
+    crowded = np.random.default_rng(4).integers(0, 4, (5_000, 3)).astype(np.float32)
+    for pts in (crowded, np.zeros((300, 3), np.float32), np.full((50, 3), np.nan, np.float32)):
+        got = morton_parts(pts, 4)
+        assert [p.size for p in got] == [a.size for a in np.array_split(np.arange(len(pts)), 4)]
+        assert np.array_equal(np.sort(np.concatenate(got)), np.arange(len(pts)))
+        assert all(np.all(np.diff(p) > 0) for p in got)

