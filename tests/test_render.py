@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -383,3 +385,28 @@ def test_every_legend_key_is_drawn_inside_the_chart(keys: int) -> None:
     band = np.asarray(line_chart("title", ("x", "y"), series))[24:57]
     for colour in colours:
         assert np.all(band == colour, axis=-1).any(), colour
+
+
+def test_warming_loads_the_kernel_a_picture_then_uses() -> None:
+    """render.warm (run by tsog segment while its last jobs encode) loads the numba kernel's
+    one specialisation, the one any picture then uses: drawing adds none (in a fresh process,
+    where nothing is loaded yet)."""
+    if not numba_available():
+        pytest.skip("numba is not installed (pip install 'tsog-stream[render]')")
+    code = (
+        "import numpy as np\n"
+        "from tsog_stream.render import Camera, look_at, raster_numba, render, warm\n"
+        "from tsog_stream.synthetic import static_gaussians\n"
+        "assert raster_numba._KERNEL is None\n"
+        "warm()\n"
+        "loaded = list(raster_numba._KERNEL.signatures)\n"
+        "eye = look_at([0.0, 0.0, 0.0], [0.1, 0.0, 6.0], [0, -1, 0])\n"
+        "camera = Camera(64, 48, 60.0, 60.0, 32.0, 24.0, eye)\n"
+        "image = render(static_gaussians(500, seed=1), camera)\n"
+        "assert len(loaded) == 1 and list(raster_numba._KERNEL.signatures) == loaded\n"
+        "print('ok')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]

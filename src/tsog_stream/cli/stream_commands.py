@@ -7,8 +7,10 @@ path, a ``file://`` URL or an http(s) URL of a ``.tsogs`` file or an unpacked fo
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import re
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -266,6 +268,7 @@ def _segment(
     """Segment an opened or loaded input as the options say, and report the result."""
     source = held.source
     assert source is not None
+    warming = _RendererWarmUp()
     if isinstance(source, FrameSequence):
         fps: float | None = source.fps
     else:
@@ -285,6 +288,8 @@ def _segment(
         note(f"removed {stale}, left by an interrupted run")
 
     def on_chunk(done: int, total: int, eta_s: float | None) -> None:
+        if done >= total - options.workers:  # the last jobs run: their parts are sent
+            warming.start()
         left = "ETA    ?" if eta_s is None else f"ETA {eta_s:4.0f}s"
         progress.bar(f"chunk {done}/{total}, {left}", done / total)
 
@@ -335,6 +340,7 @@ def _segment(
     print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
     print(f"  {_cameras_line(cameras, cameras_source, report)}")
     print(f"  {_layers_line(report)}")
+    warming.join()
     _write_thumbnail(args.output, progress)
     for level, size in sorted(report.bytes_per_level.items()):
         print(f"  level {level}: {size} bytes")
@@ -350,6 +356,38 @@ def _layers_line(report: SegmentReport) -> str:
         return report.layers_why or "one layer"
     sizes = ", ".join(f"{layer.bytes}" for layer in report.layers)
     return f"{report.layers_why}; bytes per layer: {sizes}"
+
+
+class _RendererWarmUp:
+    """The renderer loaded on a thread while the last jobs are encoded (numba's import and its
+    kernel's cache: about 1 s and 200 MB), when this process mostly waits for its workers and
+    holds no job's part any more, so the thumbnail drawn at the end starts at once. Started
+    with the encoding it raised the 5M checkpoint's peak by 230 MB (the parts being sent);
+    started at once it slowed the serial start, whose Python work (merging frames) it held
+    the GIL from. A failure is left for the thumbnail to report."""
+
+    def __init__(self) -> None:
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Start loading, once."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=_load_renderer, name="tsog-warm", daemon=True)
+            self._thread.start()
+
+    def join(self) -> None:
+        """Wait until the renderer is loaded (it is loaded here when encoding never ran)."""
+        self.start()
+        assert self._thread is not None
+        self._thread.join()
+
+
+def _load_renderer() -> None:
+    """Load the renderer's compiled kernel (render.warm), ignoring any failure."""
+    with contextlib.suppress(Exception):
+        from ..render import warm  # noqa: PLC0415 - numba, only when segmenting
+
+        warm()
 
 
 def _write_thumbnail(container: str, progress: Progress) -> None:
