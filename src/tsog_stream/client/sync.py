@@ -183,10 +183,12 @@ class _LoopThread:
             raise
 
     def close(self) -> None:
-        """Finish the loop's async generators and executor, stop it and join its thread."""
+        """Cancel the loop's tasks left, finish its async generators and executor (as
+        ``asyncio.Runner.close`` does), stop it and join its thread."""
         if self._loop.is_closed():
             return
         try:
+            self.run(_cancel_the_rest())
             self.run(self._loop.shutdown_asyncgens())
             self.run(self._loop.shutdown_default_executor())
         except (RuntimeError, concurrent.futures.CancelledError):
@@ -195,6 +197,14 @@ class _LoopThread:
             self._loop.call_soon_threadsafe(self._loop.stop)
             self._thread.join()
             self._loop.close()
+
+
+async def _cancel_the_rest() -> None:
+    """Cancel every other task of the running loop and wait for them to end."""
+    tasks = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+    for task in tasks:
+        task.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
 
 
 async def _collect(
