@@ -3,7 +3,8 @@
     .venv/bin/python benchmarks/bench_cluster.py [--gaussians 1000000] [--frames 24]
         [--checkpoint 5000000] [--checkpoint-only]
 
-Two inputs, each segmented in one run by every engine with 1 and 2 workers: wall time,
+Two inputs, each segmented in one run by every engine with 1 and 2 workers, each run in a
+fresh process: wall time,
 Gaussians per second, CPU use (the parent's, its children's and the Dask workers'), peak RSS
 of the parent and of each worker, and whether every container of an input is byte-identical.
 - A generated FreeTimeGS-style SH3 clip (10 s, lifespans 60-100 % of it: the issue's kind of
@@ -24,6 +25,7 @@ import argparse
 import contextlib
 import datetime as dt
 import hashlib
+import json
 import os
 import pickle
 import re
@@ -70,9 +72,11 @@ class Run:
     wall_s: float
     cpu_percent: float
     digest: str
-    report: SegmentReport
+    container_bytes: int
     worker_peak_mib: float
     """The largest worker's RSS, sampled every 0.2 s (0: encoded in the parent)."""
+    parent_peak_mib: float = 0.0
+    """The peak RSS of the process that segmented (a fresh one for each run)."""
 
 
 def scene_of(n: int) -> Scene:
@@ -162,10 +166,10 @@ def measure(source: Scene | FrameSequence, engine: str, workers: int, path: Path
     digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
     if workers == 1 and cluster is None:
         peak = 0.0  # encoded in the parent
-    return Run(engine, workers, wall, 100 * cpu_used / wall, digest, report, peak)
+    return Run(engine, workers, wall, 100 * cpu_used / wall, digest, report.bytes, peak)
 
 
-def job_bytes(seq: FrameSequence, report: SegmentReport) -> tuple[float, float, float]:
+def job_bytes(seq: FrameSequence, container_bytes: int) -> tuple[float, float, float]:
     """Mean bytes per window: sent to a worker (the pickled window job), the window's arrays,
     and what comes back (its chunks)."""
     plan = Plan(0.0, seq.count / seq.fps, 1 / seq.fps, seq.count, {}, 0)
@@ -177,18 +181,41 @@ def job_bytes(seq: FrameSequence, report: SegmentReport) -> tuple[float, float, 
     ]
     arrays = [seq.read(k, k + 1).scene.gaussians for k in range(min(seq.count, 3))]
     raw = sum(sum(a.nbytes for a in vars(g).values()) for g in arrays) / len(arrays)
-    return sum(sent) / len(sent), raw, report.bytes / seq.count
+    return sum(sent) / len(sent), raw, container_bytes / seq.count
 
 
-def run_all(source: Scene | FrameSequence, folder: Path, name: str) -> list[Run]:
-    """Every engine with 1 and 2 workers on ``source``."""
+def run_all(source: str, folder: Path, name: str) -> list[Run]:
+    """Every engine with 1 and 2 workers on ``source`` (a frame folder, or ``scene:N`` for
+    scene_of(N)), each run in a fresh process: run one after another in one process, the
+    later runs paid for the earlier ones (the 1M scene on two workers took 33 s after the
+    frame runs, 25 s in a process of its own)."""
     runs = []
     for engine in ("pool", "dask"):
         for workers in (1, 2):
-            run = measure(source, engine, workers, folder / f"{name}-{engine}{workers}.tsogs")
+            out = folder / f"{name}-{engine}{workers}.tsogs"
+            run = measure_in_child(source, engine, workers, out)
             runs.append(run)
             print(name, engine, workers, f"{run.wall_s:.1f} s", f"{run.cpu_percent:.0f} %")
     return runs
+
+
+def measure_in_child(source: str, engine: str, workers: int, out: Path) -> Run:
+    """:func:`measure` in a child process of its own (``--one``); its Run."""
+    argv = [sys.executable, __file__, "--one", source, engine, str(workers), str(out)]
+    done = subprocess.run(argv, check=True, capture_output=True, text=True, timeout=3600)
+    return Run(**json.loads(done.stdout.strip().splitlines()[-1]))
+
+
+def measure_here(source: str, engine: str, workers: int, out: Path) -> None:
+    """One run in this process (the child of :func:`measure_in_child`): its Run as JSON."""
+    what: Scene | FrameSequence
+    if source.startswith("scene:"):
+        what = scene_of(int(source.removeprefix("scene:")))
+    else:
+        what = open_sequence(source)
+    run = measure(what, engine, workers, out)
+    run.parent_peak_mib = _peak_mib()
+    print(json.dumps(vars(run)), flush=True)
 
 
 def table(runs: list[Run], gaussians: int) -> list[str]:
@@ -357,7 +384,14 @@ def main() -> None:
     parser.add_argument(
         "--checkpoint-only", action="store_true", help="only the checkpoint (its own section)"
     )
+    parser.add_argument(
+        "--one", nargs=4, metavar=("SOURCE", "ENGINE", "WORKERS", "OUT"), help=argparse.SUPPRESS
+    )
     args = parser.parse_args()
+    if args.one:
+        source, engine, workers, out = args.one
+        measure_here(source, engine, int(workers), Path(out))
+        return
     if args.checkpoint > 0:
         with tempfile.TemporaryDirectory() as tmp:
             npz = Path(tmp) / "checkpoint.npz"
@@ -377,31 +411,34 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as tmp:
         seq = frames_of(Path(tmp) / "frames", args.frames, args.per_frame)
-        seq_runs = run_all(seq, Path(tmp), "frames")
-        sent, window_raw, back = job_bytes(seq, seq_runs[0].report)
-        parent_seq = _peak_mib()
+        seq_runs = run_all(str(Path(tmp) / "frames"), Path(tmp), "frames")
+        sent, window_raw, back = job_bytes(seq, seq_runs[0].container_bytes)
+        parent_seq = max(r.parent_peak_mib for r in seq_runs if r.workers == 2)
         scene = scene_of(args.gaussians)
         raw = sum(a.nbytes for a in vars(scene.gaussians).values())
-        scene_runs = run_all(scene, Path(tmp), "scene")
+        del scene
+        scene_runs = run_all(f"scene:{args.gaussians}", Path(tmp), "scene")
+        parent_scene = max(r.parent_peak_mib for r in scene_runs if r.workers == 2)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     body = [
         "## Segmenting on the local pool and on Dask (issue 20)",
         "",
         f"Run {when} (`benchmarks/bench_cluster.py --gaussians {args.gaussians} --frames "
         f"{args.frames} --per-frame {args.per_frame}`), 2 cores. Each input segmented by each "
-        "engine in the same run, one layer: `--workers N` (local spawned processes; 1: in the "
-        "parent) and `--cluster` on a fresh Dask LocalCluster of N single-threaded worker "
-        "processes (its start not counted). CPU: the parent's, its children's and the Dask "
+        "engine in the same run, one layer, each run in a fresh process: `--workers N` (local "
+        "spawned processes; 1: in the parent) and `--cluster` on a fresh Dask LocalCluster of N "
+        "single-threaded worker processes (its start not counted). CPU: the parent's, its "
+        "children's and the Dask "
         "workers' over the wall time. Worker peak RSS: the largest of any worker process, "
         "sampled every 0.2 s (Dask's workers run with glibc's malloc thresholds set back: "
         "`engines.tune_malloc`).",
         "",
-        f"**A scene in memory**: a generated FreeTimeGS-style clip of {len(scene)} SH3 Gaussians "
+        f"**A scene in memory**: a generated FreeTimeGS-style clip of {args.gaussians} SH3 Gaussians "
         f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "
         "its Gaussians.",
         "",
-        *table(scene_runs, len(scene)),
-        f"The parent's peak RSS over the whole run: {_peak_mib():.0f} MiB (the scene, the jobs "
+        *table(scene_runs, args.gaussians),
+        f"The parent's peak RSS with two workers: {parent_scene:.0f} MiB (the scene, the jobs "
         "in flight and the finished chunks waiting for their turn).",
         "",
         f"**A frame sequence on disk**: {args.frames} generated SH3 PLY frames of "
@@ -409,9 +446,9 @@ def main() -> None:
         "its worker reads itself: a job sent to a worker is "
         f"{sent / 1024:.1f} KiB (the frames' paths and shapes, the plan) instead of the window's "
         f"{window_raw / MiB:.1f} MiB of arrays ({window_raw / sent:.0f}x less); what comes back "
-        f"is the window's chunks, {back / 1024:.0f} KiB a window. The parent's peak RSS up to "
-        f"here: {parent_seq:.0f} MiB (it reads only the few frames it samples for the layout, "
-        "the opening view and the layers).",
+        f"is the window's chunks, {back / 1024:.0f} KiB a window. The parent's peak RSS with "
+        f"two workers: {parent_seq:.0f} MiB (it reads only the few frames it samples for the "
+        "layout, the opening view and the layers).",
         "",
         *table(seq_runs, seq.gaussians),
         "",
