@@ -359,3 +359,26 @@ def test_a_damaged_or_cut_npz_file_is_a_format_error_naming_the_array(tmp_path: 
             parse_freetimegs_npz(file, name=str(path))
         expected = "shN.*CRC-32" if label == "damaged" else "not a readable npz"
         assert re.search(expected, str(error.value)), (label, error.value)
+
+
+def test_a_member_declaring_gigabytes_past_its_array_is_read_in_bounded_memory(
+    tmp_path: Path,
+) -> None:
+    """A stored member whose zip entry declares 3 GB (its array a few kB): the bytes past the
+    array are checked a block at a time up to the file's end, never allocated as declared,
+    and the CRC-32 then fails: a FormatError naming the array."""
+    data = bytearray(freetime_npz(freetime_truth(n=500, sh_bands=1)))
+    entry = data.find(b"shN.npy", data.find(b"PK\x01\x02"))  # its central directory name
+    start = data.rfind(b"PK\x01\x02", 0, entry)
+    assert start >= 0
+    struct.pack_into("<II", data, start + 20, 3 << 30, 3 << 30)  # compressed, uncompressed
+    path = tmp_path / "declares.npz"
+    path.write_bytes(bytes(data))
+    tracemalloc.start()
+    try:
+        with open(path, "rb") as file, pytest.raises(FormatError, match="shN"):
+            parse_freetimegs_npz(file, name=str(path))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 << 20, peak

@@ -286,7 +286,7 @@ def _file_descriptor(source: object) -> int | None:
         fd = int(fileno())
     except (OSError, ValueError, io.UnsupportedOperation):
         return None
-    return fd if hasattr(os, "pread") else None
+    return fd if hasattr(os, "pread") and hasattr(os, "preadv") else None
 
 
 def _read_npy(
@@ -376,9 +376,13 @@ def _pread_member(fd: int, info: zipfile.ZipInfo, start: int, header: int, npy: 
         got += n
     crc = zlib.crc32(os.pread(fd, header, start))
     crc = zlib.crc32(view[:got], crc)
-    rest = info.file_size - header - got
-    if rest > 0:  # bytes past the array (none in a file numpy wrote)
-        crc = zlib.crc32(os.pread(fd, rest, start + header + got), crc)
+    position, end = start + header + got, start + info.file_size
+    while position < end:  # bytes past the array (none in a file numpy wrote), a block at a time
+        block = os.pread(fd, min(READ_BLOCK, end - position), position)
+        if not block:
+            break
+        crc = zlib.crc32(block, crc)
+        position += len(block)
     if got == len(view) and crc != info.CRC:
         raise FormatError("bad CRC-32: the file is damaged", where=npy.where)
     return got
