@@ -107,13 +107,17 @@ def source_of(args: argparse.Namespace) -> dict[str, Any]:
             "container, or serve it",
             where=args.input,
         )
-    options = [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
     cameras = str(Path(args.cameras).resolve()) if args.cameras else None
     return {
         "input": str(Path(args.input).resolve()),
-        "options": [cameras, *options],
+        "options": [cameras, *_reading_options(args)],
         "version": __version__,
     }
+
+
+def _reading_options(args: argparse.Namespace) -> list[object]:
+    """The options that change how the input is read (part of a copy's key and record)."""
+    return [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
 
 
 def fingerprint(args: argparse.Namespace) -> str:
@@ -126,8 +130,7 @@ def fingerprint(args: argparse.Namespace) -> str:
     for path in sources:
         st = path.stat()
         items.append([str(path.resolve()), st.st_size, st.st_mtime_ns])
-    options = [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
-    items.append([str(args.cameras) if args.cameras else None, *options])
+    items.append([str(args.cameras) if args.cameras else None, *_reading_options(args)])
     return hashlib.sha256(json.dumps(items).encode()).hexdigest()[:KEY_LENGTH]
 
 
