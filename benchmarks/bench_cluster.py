@@ -42,12 +42,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 import psutil
-from distributed import LocalCluster
 
 from common import write_section
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.model import Scene
+from tsog_stream.segment.engines import local_cluster
 from tsog_stream.segment.layers import LayerPlan
 from tsog_stream.segment.plan import Plan
 from tsog_stream.segment.segmenter import (
@@ -138,17 +138,11 @@ def measure(source: Scene | FrameSequence, engine: str, workers: int, path: Path
     if isinstance(source, FrameSequence):
         base = SegmentOptions(workers=workers, layers=1, window_s=1 / source.fps)
     options = base
-    cluster = None
-    if engine == "dask":
-        cluster = LocalCluster(  # type: ignore[no-untyped-call]
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address="127.0.0.1:0",
-        )
-        options = replace(base, cluster=cluster.scheduler_address)
-    try:
+    with contextlib.ExitStack() as stack:
+        cluster = None
+        if engine == "dask":
+            cluster = stack.enter_context(local_cluster(workers))
+            options = replace(base, cluster=cluster.scheduler_address)
         cpu, began = _cpu_s(), time.monotonic()
         with ChildPeak() as children:
             report = _segment(source, path, options)
@@ -160,9 +154,6 @@ def measure(source: Scene | FrameSequence, engine: str, workers: int, path: Path
 
             with Client(cluster) as client:  # type: ignore[no-untyped-call]
                 cpu_used += sum(client.run(lambda: sum(os.times()[:2])).values())
-    finally:
-        if cluster is not None:
-            cluster.close()
     digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
     if workers == 1 and cluster is None:
         peak = 0.0  # encoded in the parent
@@ -430,8 +421,9 @@ def main() -> None:
         "single-threaded worker processes (its start not counted). CPU: the parent's, its "
         "children's and the Dask "
         "workers' over the wall time. Worker peak RSS: the largest of any worker process, "
-        "sampled every 0.2 s (Dask's workers run with glibc's malloc thresholds set back: "
-        "`engines.tune_malloc`).",
+        "sampled every 0.2 s. The LocalCluster is the one `--cluster local` starts "
+        "(`engines.local_cluster`: no profiler, event-loop tick and monitors at 1-5 s), its "
+        "workers with glibc's malloc thresholds set back (`engines.tune_malloc`).",
         "",
         f"**A scene in memory**: a generated FreeTimeGS-style clip of {args.gaussians} SH3 Gaussians "
         f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "

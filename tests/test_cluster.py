@@ -103,6 +103,26 @@ def test_a_local_cluster_is_started_for_the_run(
     assert path.read_bytes() == reference
 
 
+def _callback_ms(dask_worker: Any) -> dict[str, float]:
+    return {name: pc.callback_time for name, pc in dask_worker.periodic_callbacks.items()}
+
+
+def test_a_local_cluster_s_workers_leave_the_gil_to_the_encoding() -> None:
+    """The cluster tsog starts runs its workers without the statistical profiler and with
+    the event-loop tick and memory and system monitors at 1 s, 1 s and 5 s (each call takes
+    the GIL from the job), and its scheduler ticks at 1 s too."""
+    with engines.local_cluster(1) as cluster, Client(cluster) as client:  # type: ignore[no-untyped-call]
+        (worker,) = client.run(_callback_ms).values()
+        scheduler = client.run_on_scheduler(_callback_ms_of_scheduler)
+    assert "profile" not in worker and "profile-cycle" not in worker
+    assert (worker["tick"], worker["memory_monitor"], worker["monitor"]) == (1000, 1000, 5000)
+    assert scheduler["tick"] == 1000
+
+
+def _callback_ms_of_scheduler(dask_scheduler: Any) -> dict[str, float]:
+    return _callback_ms(dask_scheduler)
+
+
 @pytest.mark.parametrize("address", ["0", "nan", "http://127.0.0.1:8786", "tcp://host"])
 def test_a_malformed_cluster_address_is_one_line_before_any_work(
     address: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -44,6 +44,17 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 MALLOC_PLUGIN = "tsog-stream-malloc"
 PROGRESS_TOPIC = "tsog-stream-job-progress"
 """The Dask event topic a job's progress goes to the client on: [token, fraction]."""
+QUIET_DASK: dict[str, object] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+}
+"""Dask settings of the clusters tsog starts (``--cluster local``): no statistical profiler
+(it samples every thread's stack every 10 ms), the event-loop tick and the memory and system
+monitors at 1 s, 1 s and 5 s (20, 100 and 500 ms by default). Each takes the GIL from the
+encoding thread; 24 SH3 frames on two workers: 26.5-29.1 s with Dask's defaults, 22.9-26.0 s
+with these (bench_cluster; docs/design/cluster.md says how to set them on a cluster of yours)."""
 T = TypeVar("T")
 ONE_BLAS_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 """The environment a pool worker starts with unless the user set these (what Dask's nanny
@@ -256,24 +267,15 @@ def _dask_engine(workers: int, cluster: str, listener: Listener | None) -> Itera
     ``workers`` processes or on the scheduler at ``cluster``; as many jobs in flight as the
     cluster has worker threads; ``listener`` hears the jobs' progress events."""
     try:
-        from distributed import Client, LocalCluster  # noqa: PLC0415 - an optional extra
+        from distributed import Client  # noqa: PLC0415 - an optional extra
     except ImportError:
         raise InputError(
             "needs Dask: pip install 'tsog-stream[cluster]'", where="--cluster"
         ) from None
     with contextlib.ExitStack() as stack:
+        address: Any = cluster
         if cluster == LOCAL_CLUSTER:
-            address: Any = stack.enter_context(
-                LocalCluster(  # type: ignore[no-untyped-call]
-                    n_workers=workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address="127.0.0.1:0",  # loopback, any free port
-                    host="127.0.0.1",
-                )
-            )
-        else:
-            address = cluster
+            address = stack.enter_context(local_cluster(workers))
         try:
             client = stack.enter_context(
                 Client(address, timeout=CONNECT_TIMEOUT_S)  # type: ignore[no-untyped-call]
@@ -293,6 +295,26 @@ def _dask_engine(workers: int, cluster: str, listener: Listener | None) -> Itera
             except BaseException:
                 executor.shutdown(wait=False)
                 raise
+
+
+@contextlib.contextmanager
+def local_cluster(workers: int) -> Iterator[Any]:
+    """A Dask LocalCluster of ``workers`` single-threaded worker processes on loopback (its
+    dashboard on any free port), started with :data:`QUIET_DASK` (its workers take their
+    settings from the process that starts them)."""
+    import dask  # noqa: PLC0415 - an optional extra
+    from distributed import LocalCluster  # noqa: PLC0415
+
+    with dask.config.set(QUIET_DASK):
+        cluster = LocalCluster(  # type: ignore[no-untyped-call]
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address="127.0.0.1:0",
+            host="127.0.0.1",
+        )
+    with cluster:
+        yield cluster
 
 
 def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
