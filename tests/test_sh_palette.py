@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import weakref
 
 import numpy as np
 import numpy.typing as npt
@@ -210,3 +211,48 @@ def test_tiny_inputs_give_exactly_k_entries(n: int, dim: int) -> None:
     for k in sorted({1, max(1, n // 3), n - 1}):
         centroids, labels = fit_palette(points, k)
         assert centroids.shape == (k, dim) and int(labels.max()) < k
+
+
+def test_vectors_handed_over_are_freed_before_the_fit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Vectors passed with no other reference (as the encoder passes them) are gone once the
+    distinct rows are known: the fit holds one copy of the SH data, not two."""
+    gone: list[bool] = []
+    real_fit = sh_palette._fit
+
+    def watching(*args: object, **kwargs: object) -> object:
+        gone.append(handed() is None)
+        return real_fit(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(sh_palette, "_fit", watching)
+    held = [_sh_like(3000, 45, seed=4)]
+    handed = weakref.ref(held[0])
+    centroids, labels = fit_palette(held.pop(), 512, seed=1)
+    assert gone == [True] and len(centroids) == 512 and len(labels) == 3000
+
+
+def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Merging, leaf neighbours and the distinct-row check work a block of rows at a time to
+    bound memory; blocks of a few rows give the same results as one block of everything, and
+    a row matched to a different row is seen in the last block too."""
+    points = _sh_like(2000, 45, seed=8)
+    rng = np.random.default_rng(3)
+    mass = rng.random(2000) + 0.5
+    partner = rng.integers(0, 2000, 2000)
+    movers = sh_palette._pick_moves(partner, rng.random(2000), 600)
+    leaves = sh_palette._leaves(points[:, :4].copy(), 64)
+    repeated = points[rng.integers(0, 2000, 2000)]
+
+    def run() -> list[npt.NDArray[np.generic]]:
+        merged = sh_palette._merge(points, mass, movers, partner)
+        near = sh_palette._leaf_neighbours(points, *leaves, 3)
+        return [*merged, near, *sh_palette._unique_rows(repeated)]
+
+    whole = run()
+    monkeypatch.setattr(sh_palette, "BLOCK_BYTES", 1024)
+    for a, b in zip(whole, run(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    _, first, inverse = np.unique(repeated, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    assert sh_palette._each_matches(repeated, first, inverse)
+    inverse[-1] = (inverse[-1] + 1) % len(first)  # the last row matched to another row
+    assert not sh_palette._each_matches(repeated, first, inverse)

@@ -82,15 +82,14 @@ def encode_sh_palette(
     """Palette (k-means on f_rest), its codebook, the centroid image and the label image;
     ``on_palette`` hears the fitting's fraction done (most of an SH chunk's encoding)."""
     coeffs = gaussians.shN.shape[1]
-    vectors = _sh_rest(gaussians)
 
     def fitted(fraction: float) -> None:
         note(f"SH palette {100 * fraction:3.0f}%")
         if on_palette is not None:
             on_palette(fraction)
 
-    centroids, labels = fit_palette(
-        vectors, palette_size(len(gaussians)), seed=seed, progress=fitted
+    centroids, labels = fit_palette(  # handed over: freed once the distinct rows are known
+        _sh_rest(gaussians), palette_size(len(gaussians)), seed=seed, progress=fitted
     )
     count = centroids.shape[0]
     codebook = short_codebook(build_codebook(centroids))
