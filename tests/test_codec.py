@@ -23,6 +23,7 @@ from tsog_stream.codec.sog_decode import decode_sh
 from tsog_stream.codec.webp import ImageDecoder, decode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
+from tsog_stream.model import Gaussians
 from tsog_stream.opacity import alpha_to_logit
 from tsog_stream.synthetic import small_scene, static_gaussians
 from tsog_stream.temporal import (
@@ -64,6 +65,30 @@ def test_encoding_is_deterministic(sh3_scene: Scene) -> None:
     assert a == b
     assert bundle_bytes(a) == bundle_bytes(b)
     assert list(a)[-1] == "meta.json"
+
+
+def _dynamic_scene() -> Scene:
+    return small_scene(TimelineType.START_DURATION, sh_bands=2, seed=6)
+
+
+@pytest.mark.parametrize("writable", [True, False])
+def test_a_scene_given_up_is_ordered_in_its_own_arrays_into_the_same_files(
+    writable: bool,
+) -> None:
+    """``given_up``: the job's part is put in texel order in place (no second scene beside
+    it) and the files are the ones a copy gives; a scene with a read-only array is copied
+    and left as it was."""
+    scene = _dynamic_scene()
+    before = [a.copy() for a in scene.arrays()]
+    if not writable:
+        scene.temporal["means"].flags.writeable = False
+    expected = encode_chunk(_dynamic_scene(), seed=2, quality=80)
+    assert encode_chunk(scene, seed=2, quality=80, given_up=True) == expected
+    order = texel_order(Scene(Gaussians(*(a for a in before[:6]))))
+    now = scene.arrays()
+    assert len(now) == len(before) == 9  # six Gaussian arrays, two of lifespans, one motion
+    for was, got in zip(before, now, strict=True):
+        np.testing.assert_array_equal(got, np.take(was, order, axis=0) if writable else was)
 
 
 def test_bundle_round_trip_and_layout(sh3_scene: Scene) -> None:

@@ -255,6 +255,24 @@ class Scene:
         temporal = {k: rows(v, index) for k, v in self.temporal.items()}
         return Scene(self.gaussians.subset(index), timeline, temporal)
 
+    def arrays(self) -> list[np.ndarray]:
+        """Every per-Gaussian array of the scene (one row per Gaussian)."""
+        g = self.gaussians
+        out: list[np.ndarray] = [g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN]
+        if self.timeline is not None:
+            out += [self.timeline.t0, self.timeline.t1]
+        return out + list(self.temporal.values())
+
+    def reordered(self, order: npt.NDArray[np.intp]) -> Scene:
+        """The scene with its rows in ``order`` (a permutation), made in its own arrays, one
+        array's copy at a time, when they are all writable (the scene given up by its owner,
+        e.g. a job's part): ``subset`` would hold a second scene beside it. Otherwise a copy."""
+        arrays = self.arrays()
+        if len(order) != len(self) or not all(a.flags.writeable for a in arrays):
+            return self.subset(order)
+        for array in arrays:
+            array[...] = np.take(array, order, axis=0)
+        return self
     def at(self, t: float, threshold: float | None = None) -> Gaussians:
         """The static Gaussians visible at time ``t`` (seconds); see :mod:`tsog_stream.temporal`."""
         from .temporal import evaluate_at  # noqa: PLC0415 - temporal imports this module

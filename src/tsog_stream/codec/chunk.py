@@ -50,6 +50,7 @@ def encode_chunk(
     progress: Progress | None = None,
     quality: int = QUALITY_MAX,
     on_palette: FractionDone | None = None,
+    given_up: bool = False,
 ) -> dict[str, bytes]:
     """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
 
@@ -58,6 +59,9 @@ def encode_chunk(
     ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
     ``on_palette`` hears how far the SH palette's fitting got (0..1; it comes last and takes
     most of the time of a chunk with SH bands).
+    ``given_up``: the caller no longer needs ``scene`` as it is, so its rows are put in texel
+    order in its own arrays (:meth:`Scene.reordered`) instead of a copy beside them (an 833k
+    SH3 job: 210 MiB less at the encoder's peak).
     Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
     lossless WebP has at least one pixel, so SOG cannot hold it.
     """
@@ -66,7 +70,8 @@ def encode_chunk(
     _refuse_non_finite(scene)
     note = progress or (lambda _msg: None)
     note("ordering")
-    ordered = scene.subset(texel_order(scene) if order is None else order)
+    order = texel_order(scene) if order is None else order
+    ordered = scene.reordered(order) if given_up else scene.subset(order)
     width, height = image_size(len(ordered))
     budgets = Budgets.of(ordered, quality)
     sog = encode_sog(

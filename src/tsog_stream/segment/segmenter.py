@@ -339,7 +339,9 @@ def encode_job_payload(
     scene: Scene, seed: int, quality: int = QUALITY_MAX, sh_bands: bool = False
 ) -> bytes:
     """A chunk's standalone .sog bytes, or with ``sh_bands`` its SH-band chunk's bytes (run
-    in worker processes); the SH palette's progress reported as the job's (segment/meter.py)."""
+    in worker processes); the SH palette's progress reported as the job's (segment/meter.py).
+    ``scene`` is the job's own part: it is left in texel order (its count, lifespans and box,
+    all the index records of it, do not depend on the order)."""
     share = 1.0 if sh_bands else palette_share(scene.gaussians.shN.shape[1])
 
     def fitted(fraction: float) -> None:
@@ -347,7 +349,8 @@ def encode_job_payload(
 
     if sh_bands:
         return bundle_bytes(encode_sh_bands(scene, seed=seed, on_palette=fitted))
-    return bundle_bytes(encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted))
+    files = encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted, given_up=True)
+    return bundle_bytes(files)
 
 
 def _bounds(scene: Scene, start: float, end: float) -> Box:
