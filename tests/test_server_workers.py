@@ -3,6 +3,7 @@ a killed parent takes its workers with it, Ctrl-C stops them all."""
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import os
 import re
@@ -109,6 +110,26 @@ def test_ctrl_c_stops_every_worker_cleanly(served: tuple[subprocess.Popen[bytes]
     assert proc.wait(15) == 0
     wait_until(lambda: not any(alive(w) for w in workers), 10, "the workers to stop")
     assert proc.stderr is not None and b"Traceback" not in proc.stderr.read()
+
+
+def test_signals_while_stopping_end_every_process_quietly(
+    served: tuple[subprocess.Popen[bytes], int],
+) -> None:
+    """A terminal's Ctrl-C reaches the whole group and the parent then sends each worker
+    SIGTERM: signals that reach a worker while it stops are ignored, nothing is printed, the
+    parent exits 0."""
+    proc, _ = served
+    workers = children(proc.pid)
+    for pid in [*workers, proc.pid]:
+        os.kill(pid, signal.SIGINT)
+    for _ in range(50):
+        for pid in workers:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGTERM)
+    assert proc.wait(15) == 0
+    assert proc.stderr is not None
+    err = proc.stderr.read()
+    assert b"Traceback" not in err and b"Exception ignored" not in err, err
 
 
 def test_a_port_held_by_another_server_is_refused_not_shared(

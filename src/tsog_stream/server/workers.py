@@ -98,7 +98,23 @@ async def _serve_worker(site: Site, ready: int) -> None:
     try:
         await stop.wait()
     finally:
+        _ignore_stop_signals(loop)
         await runner.cleanup()
+
+
+def _ignore_stop_signals(loop: asyncio.AbstractEventLoop) -> None:
+    """Once stopping, SIGINT and SIGTERM are ignored (a group's Ctrl-C and then the parent's
+    SIGTERM both reach a worker) and their loop handlers removed before the loop closes:
+    asyncio closes its wakeup pipe before removing them, and a signal in between printed
+    "Exception ignored when trying to write to the signal wakeup fd"."""
+    stops = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, stops)  # none lands between the two calls
+    try:
+        for signum in stops:
+            loop.remove_signal_handler(signum)  # back to the default action, then ignored
+            signal.signal(signum, signal.SIG_IGN)
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, stops)
 
 
 PR_SET_PDEATHSIG: Final = 1
