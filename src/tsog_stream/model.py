@@ -273,6 +273,7 @@ class Scene:
         for array in arrays:
             array[...] = np.take(array, order, axis=0)
         return self
+
     def at(self, t: float, threshold: float | None = None) -> Gaussians:
         """The static Gaussians visible at time ``t`` (seconds); see :mod:`tsog_stream.temporal`."""
         from .temporal import evaluate_at  # noqa: PLC0415 - temporal imports this module
