@@ -70,6 +70,15 @@ def _sh_rest(gaussians: Gaussians) -> npt.NDArray[np.float32]:
     return np.ascontiguousarray(gaussians.shN.transpose(0, 2, 1).reshape(n, 3 * k))
 
 
+def _vectors_for_fit(gaussians: Gaussians, given_up: bool) -> npt.NDArray[np.float32]:
+    """The f_rest vectors the palette fit takes over; the SH bands of Gaussians their owner
+    gave up dropped once read (a fit of 833k SH3 vectors held them beside its own: 143 MiB)."""
+    vectors = _sh_rest(gaussians)
+    if given_up:
+        gaussians.shN = np.zeros((len(gaussians), 0, 3), np.float32)
+    return vectors
+
+
 def encode_sh_palette(
     gaussians: Gaussians,
     width: int,
@@ -78,10 +87,12 @@ def encode_sh_palette(
     note: Progress,
     *,
     on_palette: FractionDone | None = None,
+    given_up: bool = False,
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Palette (k-means on f_rest), its codebook, the centroid image and the label image;
-    ``on_palette`` hears the fitting's fraction done (most of an SH chunk's encoding)."""
-    coeffs = gaussians.shN.shape[1]
+    ``on_palette`` hears the fitting's fraction done (most of an SH chunk's encoding).
+    ``given_up``: the Gaussians' SH bands are dropped once read (their owner is done)."""
+    coeffs, bands = gaussians.shN.shape[1], gaussians.sh_bands
 
     def fitted(fraction: float) -> None:
         note(f"SH palette {100 * fraction:3.0f}%")
@@ -89,7 +100,10 @@ def encode_sh_palette(
             on_palette(fraction)
 
     centroids, labels = fit_palette(  # handed over: freed once the distinct rows are known
-        _sh_rest(gaussians), palette_size(len(gaussians)), seed=seed, progress=fitted
+        _vectors_for_fit(gaussians, given_up),
+        palette_size(len(gaussians)),
+        seed=seed,
+        progress=fitted,
     )
     count = centroids.shape[0]
     codebook = short_codebook(build_codebook(centroids))
@@ -107,7 +121,7 @@ def encode_sh_palette(
     }
     meta = {
         "count": int(count),
-        "bands": gaussians.sh_bands,
+        "bands": bands,
         "codebook": _floats(codebook),
         "files": [C.SHN_CENTROIDS, C.SHN_LABELS],
     }
@@ -123,10 +137,12 @@ def encode_sog(
     progress: Progress | None = None,
     budgets: Budgets | None = None,
     on_palette: FractionDone | None = None,
+    given_up: bool = False,
 ) -> SogParts:
     """Encode Gaussians already in texel order into SOG v2 images and meta keys; with
     ``budgets`` (codec/precision.py) positions and rotations keep only the bits they need.
-    The SH palette, if any, is fitted last (``on_palette`` hears its fraction done)."""
+    The SH palette, if any, is fitted last (``on_palette`` hears its fraction done; with
+    ``given_up`` the Gaussians' SH bands are dropped as it starts)."""
     note = progress or (lambda _msg: None)
     note("positions")
     mins, maxs, codes = encode_means(gaussians.means)
@@ -165,7 +181,7 @@ def encode_sog(
     if gaussians.sh_bands > 0 and len(gaussians) > 0:
         note("SH palette")
         sh_images, meta["shN"] = encode_sh_palette(
-            gaussians, width, height, seed, note, on_palette=on_palette
+            gaussians, width, height, seed, note, on_palette=on_palette, given_up=given_up
         )
         images.update(sh_images)
     return SogParts(images, meta)
