@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from tsog_stream.segment.meter import (
+    BEFORE_PALETTE,
     TICK_S,
     Meter,
     encode_work,
+    palette_progress,
     palette_share,
     report_progress,
     reporting_to,
@@ -139,6 +141,31 @@ def test_ticks_come_every_tick_period_and_after_drawing_none_is_due() -> None:
     assert ticks == [TICK_S]
 
 
+def test_the_first_eta_is_drawn_as_soon_as_it_is_known() -> None:
+    """Ticks wait TICK_S between draws, except for the first ETA: drawn at the first tick
+    after a job's report gives a rate (it waited up to TICK_S more), then every TICK_S."""
+    clock = Clock()
+    meter = Meter(4.0, clock=clock)
+    ticks: list[tuple[float, float | None]] = []
+    meter.on_tick = lambda: ticks.append((clock.now, meter.eta_s()))
+    token = meter.start(4.0)
+    meter.advance(token, 0.0)
+    clock.now = 1.0
+    meter.tick()
+    assert ticks == []  # no rate yet, no draw due
+    meter.advance(token, 0.25)
+    meter.tick()
+    assert len(ticks) == 1 and ticks[0][0] == 1.0
+    assert ticks[0][1] == pytest.approx(3.0)  # one unit a second, three left
+    clock.now = 2.0
+    meter.advance(token, 0.5)
+    meter.tick()
+    assert len(ticks) == 1  # the next draw is TICK_S after the first
+    clock.now = 1.0 + TICK_S
+    meter.tick()
+    assert [when for when, _ in ticks] == [1.0, 1.0 + TICK_S]
+
+
 def test_a_job_in_this_process_reports_to_its_meter_and_ticks() -> None:
     clock = Clock()
     meter = Meter(4.0, clock=clock)
@@ -165,6 +192,17 @@ def test_the_palette_share_follows_the_cost_model() -> None:
     assert palette_share(0) == 0.0
     sh3 = encode_work(1, 15) / encode_work(1, 0)
     assert palette_share(15) == pytest.approx(1 - 1 / sh3)  # the rest costs what SH0 does
+
+
+def test_a_job_s_progress_puts_part_of_the_rest_before_and_part_after_its_palette() -> None:
+    """The images are encoded after the palette: a job whose palette is done has not done
+    all its work (its first reports ran ahead of its time when it had)."""
+    rest = 1 - palette_share(15)
+    assert palette_progress(15, 0.0) == pytest.approx(rest * BEFORE_PALETTE)
+    assert palette_progress(15, 1.0) == pytest.approx(1 - rest * (1 - BEFORE_PALETTE))
+    assert 0 < BEFORE_PALETTE < 1
+    steps = [palette_progress(15, f) for f in np.linspace(0, 1, 11)]
+    assert steps == sorted(steps)
 
 
 def test_reports_are_plain_floats() -> None:

@@ -29,7 +29,7 @@ from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment import layout, segmenter
 from tsog_stream.segment import meter as meter_module
 from tsog_stream.segment.layout import chunk_counts
-from tsog_stream.segment.meter import Meter, encode_work
+from tsog_stream.segment.meter import Meter, encode_work, palette_progress
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
 from tsog_stream.segment.segmenter import (
     ChunkJob,
@@ -706,13 +706,13 @@ def test_running_jobs_report_their_palette_s_progress(workers: int) -> None:
     list(_encoded(parts, plan, SegmentOptions(workers=workers), meter))
     tokens = sorted({token for token, _ in meter.heard})
     assert len(tokens) == 2
-    share = 15 / 16  # SH3: the palette is that much of a job's work (segment/meter.py)
+    start, end = palette_progress(coeffs, 0.0), palette_progress(coeffs, 1.0)
     for token in tokens:
         fractions = [done for t, done in meter.heard if t == token]
         assert fractions[0] == 0.0  # the job's start
-        assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
-        # the palette's own steps, between its start (1 - share) and its end
-        assert any(1.0 - share < done < 1.0 for done in fractions), fractions
+        # the palette's own steps, from its start to its end (the images come after it)
+        assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(end)
+        assert any(start < done < end for done in fractions), fractions
     assert meter.eta_s() == pytest.approx(0.0)
 
 
@@ -722,7 +722,7 @@ def test_the_eta_is_drawn_while_no_chunk_is_written(
     """Every tick of the meter while jobs run redraws the progress with the chunks written so
     far (0 before the first), never past the chunks finished."""
     monkeypatch.setattr(meter_module, "TICK_S", 0.001)
-    monkeypatch.setattr(segmenter, "TICK_S", 0.001)
+    monkeypatch.setattr(segmenter, "POLL_S", 0.001)
     src = make_scene(TimelineType.START_DURATION, background=400, objects=2, per_object=60)
     calls: list[int] = []
     report = segment_scene(

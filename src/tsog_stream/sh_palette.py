@@ -131,6 +131,7 @@ def _fit(
     axes = _principal_axes(unique, weights)
     passes = min(iterations, max(2, round(PASSES_PER_RATIO * len(unique) / target)))
     meter = _Work(len(unique), target, passes, report)
+    meter.set_up()
     centroids, labels = _agglomerate(unique, weights, target, axes=axes, rng=rng, meter=meter)
     return _refine(
         unique, weights, centroids, labels, axes=axes, iterations=iterations, rng=rng, meter=meter
@@ -320,9 +321,14 @@ class _Work:
     0.30 of a 200k fit); the rounds still to come are estimated from ROUND_LEFT."""
 
     def __init__(self, points: int, k: int, passes: int, report: Progress) -> None:
-        self._k, self._passes, self._report = k, passes, report
+        self._points, self._k, self._passes, self._report = points, k, passes, report
         self._pass = PASS_WEIGHT * points + PASS_ENTRY_WEIGHT * k
         self._done, self._refined, self._said = SETUP_WEIGHT * points, 0, 0.0
+
+    def set_up(self) -> None:
+        """The distinct rows and the axes are found: the fit's first report, before the first
+        merging round (the first ETA of a 5M scene waited ~3 s more for that round)."""
+        self._say(self._rounds_to_come(self._points - self._k) + self._passes * self._pass)
 
     def merged(self, clusters: int, left: int) -> None:
         """A round over ``clusters`` ended with ``left`` clusters above k still to merge."""

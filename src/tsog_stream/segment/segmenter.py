@@ -60,7 +60,7 @@ from .layout import (
     time_slices,
     why_not_merged,
 )
-from .meter import TICK_S, Meter, encode_work, palette_share, report_progress, share_of
+from .meter import POLL_S, Meter, encode_work, palette_progress, report_progress, share_of
 from .plan import DEFAULT_MAX_COPIES, NodeKey, Plan, make_plan, window_count
 
 DEFAULT_POLICY: Policy = "hybrid"
@@ -70,9 +70,9 @@ BOX_SAMPLES = 9
 """Times at which moving centres are sampled for chunk bounding boxes."""
 Ints = npt.NDArray[np.int64]
 ChunkProgress = Callable[[int, int, float | None], None]
-"""Told of each chunk written, and every ``meter.TICK_S`` while none is: chunks written,
-chunks in all, and the seconds encoding has left by the work done so far (None until a job
-has finished or reported progress; segment/meter.py)."""
+"""Told of each chunk written, every ``meter.TICK_S`` while none is and once the first ETA is
+known: chunks written, chunks in all, and the seconds encoding has left by the work done so
+far (None until a job has finished or reported progress; segment/meter.py)."""
 _Tag = TypeVar("_Tag")
 _Result = TypeVar("_Result")
 StageProgress = Callable[[str], None]
@@ -342,10 +342,10 @@ def encode_job_payload(
     in worker processes); the SH palette's progress reported as the job's (segment/meter.py).
     ``scene`` is the job's own part: it is left in texel order (its count, lifespans and box,
     all the index records of it, do not depend on the order)."""
-    share = 1.0 if sh_bands else palette_share(scene.gaussians.shN.shape[1])
+    coeffs = scene.gaussians.shN.shape[1]
 
     def fitted(fraction: float) -> None:
-        report_progress(1.0 - share + share * fraction)
+        report_progress(fraction if sh_bands else palette_progress(coeffs, fraction))
 
     if sh_bands:
         return bundle_bytes(encode_sh_bands(scene, seed=seed, on_palette=fitted))
@@ -509,7 +509,7 @@ def _in_order(
 
 def _awaited(future: Future[_Result], meter: Meter) -> _Result:
     """The future's result, the meter ticking while it is awaited."""
-    while not wait([future], timeout=TICK_S).done:
+    while not wait([future], timeout=POLL_S).done:
         meter.tick()
     return future.result()
 
@@ -558,7 +558,7 @@ def _largest_first(
         start_next()
     for turn in range(len(jobs)):
         while turn not in finished:
-            done, _ = wait(in_flight, timeout=TICK_S, return_when=FIRST_COMPLETED)
+            done, _ = wait(in_flight, timeout=POLL_S, return_when=FIRST_COMPLETED)
             meter.tick()
             for fut in done:
                 i, info = in_flight.pop(fut)
