@@ -80,4 +80,5 @@ def test_a_missing_scene_over_http_is_not_found(
     assert main(["info", f"{served}{path}", "-q"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("tsog: error: ") and "not found (HTTP 404)" in err
-    assert "206" not in err and err.count("\n") == 1
+    message = err.replace(served, "")  # the address's port may hold any digits, 206 too
+    assert "206" not in message and err.count("\n") == 1
