@@ -77,11 +77,7 @@ def scene_nbytes(scene: Decoded) -> int:
     """Memory held by a decoded chunk's arrays (the cache's measure of size)."""
     if isinstance(scene, ShBands):
         return scene.nbytes
-    g = scene.gaussians
-    n = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
-    if scene.timeline is not None:
-        n += scene.timeline.t0.nbytes + scene.timeline.t1.nbytes
-    return n + sum(a.nbytes for a in scene.temporal.values())
+    return sum(a.nbytes for a in scene.arrays())
 
 
 @dataclass
