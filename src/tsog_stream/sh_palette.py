@@ -186,12 +186,17 @@ def _unique_rows(data: F32) -> tuple[F32, Ints, F64]:
 def _each_matches(data: F32, first: Ints, inverse: Ints) -> bool:
     """Whether every row equals the row its hash matched it to, compared a block at a time
     (the matched rows of 833k SH3 vectors gathered at once were 143 MiB more)."""
-    step = max(1, BLOCK_BYTES // max(1, data[:1].nbytes))
+    step = _rows_per_block(4 * data.shape[1])
     for start in range(0, len(data), step):
         rows = np.take(first, inverse[start : start + step])
         if not np.array_equal(np.take(data, rows, axis=0), data[start : start + step]):
             return False  # np.take: 10x fancy indexing on rows this wide
     return True
+
+
+def _rows_per_block(row_bytes: int) -> int:
+    """Rows of ``row_bytes`` each that a block of BLOCK_BYTES holds (at least one)."""
+    return max(1, BLOCK_BYTES // max(1, row_bytes))
 
 
 HASH_MULTIPLIER: Final = np.uint64(0x9E3779B97F4A7C15)
@@ -221,7 +226,7 @@ def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
     mean = np.einsum("n,nd->d", weights, points) / weights.sum()  # float64 sums, no copy
     centre = mean.astype(np.float32)
     cov = np.zeros((points.shape[1], points.shape[1]), np.float64)
-    step = max(1, BLOCK_BYTES // max(1, points[:1].nbytes))
+    step = _rows_per_block(4 * points.shape[1])
     for start in range(0, len(points), step):
         centred = points[start : start + step] - centre
         weighted = centred * weights[start : start + step, None].astype(np.float32)
@@ -278,7 +283,7 @@ def _leaf_neighbours(points: F32, ids: Ints, real: npt.NDArray[np.bool_], count:
     """
     cells, length = ids.shape
     best = np.empty((cells, length, count), np.intp)
-    step = max(1, BLOCK_BYTES // (4 * length * max(length, points.shape[1])))
+    step = _rows_per_block(4 * length * max(length, points.shape[1]))
     block = np.empty((min(step, cells), length, length), np.float32)
     diag = np.arange(length)
     for start in range(0, cells, step):  # leaves gathered a block at a time, not all at once
@@ -430,7 +435,7 @@ def _merge(means: F32, mass: F64, movers: Ints, partner: Ints) -> tuple[F32, F64
     hosts = np.unique(target[movers])  # only the clusters that grow get new means
     weighted = np.take(means, hosts, axis=0).astype(np.float64) * mass[hosts, None]
     slot = np.searchsorted(hosts, target[movers])
-    step = max(1, BLOCK_BYTES // max(1, 8 * means.shape[1]))
+    step = _rows_per_block(8 * means.shape[1])
     for start in range(0, len(movers), step):
         block = movers[start : start + step]
         moved = np.take(means, block, axis=0).astype(np.float64) * mass[block, None]
@@ -487,7 +492,7 @@ def _refine(
 
 def _assign(points: F32, centroids: F32, options: Ints, labels: Ints) -> Ints:
     """Nearest centroid among the options of each point's current centroid, in blocks."""
-    step = max(1, BLOCK_BYTES // (4 * options.shape[1] * points.shape[1]))
+    step = _rows_per_block(4 * options.shape[1] * points.shape[1])
     norms = np.einsum("kd,kd->k", centroids, centroids)
     out = np.empty_like(labels)
     for start in range(0, len(points), step):
@@ -532,7 +537,7 @@ def _distances(rows: F32, others: F32, picks: Ints) -> F64:
     """Squared distance of every row to ``others[picks]``, in blocks: small temporaries
     reuse memory instead of faulting in fresh pages on every call."""
     out: F64 = np.empty(len(rows), np.float64)
-    step = max(1, BLOCK_BYTES // (4 * rows.shape[1]))
+    step = _rows_per_block(4 * rows.shape[1])
     for start in range(0, len(rows), step):
         diff = rows[start : start + step] - np.take(others, picks[start : start + step], axis=0)
         out[start : start + step] = np.einsum("nd,nd->n", diff, diff)
