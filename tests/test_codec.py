@@ -20,7 +20,7 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
 from tsog_stream.codec.rotations import decode_quats
 from tsog_stream.codec.sog_decode import decode_sh
-from tsog_stream.codec.webp import ImageDecoder, decode_webp
+from tsog_stream.codec.webp import ImageDecoder, ImageEncoder, decode_webp, encode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
 from tsog_stream.model import Gaussians
@@ -290,3 +290,55 @@ def test_a_failed_decode_leaves_none_of_its_work_running() -> None:
             futures.append(dec.then([name], lambda got: sum(int(a.sum()) for a in got.values())))
         futures[0].result()
     assert all(future.done() for future in futures)
+
+
+def _noise_images(count: int, seed: int) -> dict[str, np.ndarray]:
+    """``count`` random 64x48 RGBA images (noise: each takes libwebp a while)."""
+    rng = np.random.default_rng(seed)
+    return {f"img_{k}.webp": rng.integers(0, 256, (48, 64, 4), np.uint8) for k in range(count)}
+
+
+def test_images_encoded_as_they_come_are_the_files_in_the_order_added() -> None:
+    """An encoder given images in batches (as a chunk's attributes are made) returns every
+    image's own WebP bytes in the order added, however the threads finished them."""
+    first, second = _noise_images(3, seed=1), _noise_images(9, seed=2)
+    second = {f"later_{name}": image for name, image in second.items()}
+    with ImageEncoder() as encoder:
+        encoder.add(first)
+        encoder.add(second)
+        files = encoder.files()
+    assert list(files) == [*first, *second]
+    for name, image in {**first, **second}.items():
+        assert files[name] == encode_webp(image)
+        assert np.array_equal(decode_webp(files[name], where=name), image)
+    with ImageEncoder() as encoder, pytest.raises(ValueError, match="added twice"):
+        encoder.add(first)
+        encoder.add({"img_0.webp": first["img_0.webp"]})
+
+
+def test_leaving_an_encoder_by_an_error_leaves_none_of_its_work_running() -> None:
+    """An error while a chunk is being made (after some images were handed over) cancels the
+    encodes not started and waits for the rest: nothing of it runs on in the shared pool."""
+    encoder = ImageEncoder()
+    with pytest.raises(RuntimeError, match="palette"), encoder:
+        encoder.add(_noise_images(12, seed=3))
+        raise RuntimeError("the palette failed")
+    futures = list(vars(encoder)["_files"].values())
+    assert futures and all(future.done() for future in futures)
+
+
+def test_a_chunks_files_keep_their_writing_order_while_encoded_as_they_come() -> None:
+    """Images are compressed while the rest of the chunk is computed, yet the files come in
+    the order they are made (the bundle's order, so its bytes), meta.json last, each the
+    WebP of its image alone."""
+    scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=1, motion_order=2, seed=8)
+    files = encode_chunk(scene, quality=60)
+    assert list(files) == [
+        "means_l.webp", "means_u.webp", "quats.webp", "scales.webp", "sh0.webp",
+        "shN_centroids.webp", "shN_labels.webp", "timeline_l.webp", "timeline_u.webp",
+        "temporal_means_1_l.webp", "temporal_means_1_u.webp",
+        "temporal_means_2_l.webp", "temporal_means_2_u.webp", "meta.json",
+    ]  # fmt: skip
+    for name, data in files.items():
+        if name != "meta.json":
+            assert encode_webp(decode_webp(data, where=name)) == data

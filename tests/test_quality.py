@@ -27,6 +27,7 @@ from tsog_stream.codec.precision import (
     coarsen,
     most_frequent,
     rms_room,
+    to_codes,
 )
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
@@ -228,6 +229,21 @@ def test_coarsen_equals_its_formula(seed: int) -> None:
                 out = coarsen(codes, tol, shared=shared)
                 assert out.dtype == codes.dtype
                 np.testing.assert_array_equal(out, _coarsen_by_the_formula(codes, tol, shared))
+        for value in (np.inf, np.nan, 0.0, 0.4, 3.0, 700.0, -3.0):  # one tolerance for all
+            for shared in (False, True):
+                out = coarsen(codes, np.asarray(value), shared=shared)
+                expected = _coarsen_by_the_formula(codes, np.asarray(value), shared)
+                np.testing.assert_array_equal(out, expected)
+
+
+def test_tolerances_in_codes_follow_each_channels_range() -> None:
+    """A tolerance in value units becomes tolerance x 65535 / (max - min) codes per channel
+    (the last axis), unlimited on a channel whose range is empty (its codes are all 0)."""
+    tol = np.array([[0.5, 0.5, 0.5], [2.0, 0.0, np.inf]])
+    mins, maxs = np.array([0.0, -1.0, 3.0]), np.array([65535.0, 1.0, 3.0])
+    out = to_codes(tol, mins, maxs)
+    assert out.tolist() == [[0.5, 0.5 * 65535 / 2, np.inf], [2.0, 0.0, np.inf]]
+    assert to_codes(np.array([[1.0]]), mins, maxs).tolist() == [[1.0, 65535 / 2, np.inf]]
 
 
 def test_a_value_many_gaussians_share_stays_one_value() -> None:

@@ -7,7 +7,6 @@ plus the ``timeline``/``temporal`` meta keys and their images, index-aligned (do
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -31,7 +30,7 @@ from .precision import QUALITY_MAX, Budgets
 from .sog_decode import decode_sog
 from .sog_encode import FractionDone, encode_sog
 from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
-from .webp import ImageDecoder, encode_many, webp_size
+from .webp import ImageDecoder, ImageEncoder, webp_size
 
 Progress = Callable[[str], None]
 U8 = npt.NDArray[np.uint8]
@@ -75,32 +74,32 @@ def encode_chunk(
     ordered = scene.reordered(order) if given_up else scene.subset(order)
     width, height = image_size(len(ordered))
     budgets = Budgets.of(ordered, quality)
-    sog = encode_sog(
-        ordered.gaussians,
-        width,
-        height,
-        seed=seed,
-        progress=note,
-        budgets=budgets,
-        on_palette=on_palette,
-        given_up=given_up,
-    )
-    images = dict(sog.images)
-    meta: dict[str, Any] = dict(sog.meta)
-    meta["asset"] = {"generator": f"{C.GENERATOR} {__version__}"}
-    if ordered.timeline is not None:
-        timeline_images, meta["timeline"] = encode_timeline(
-            ordered.timeline, width, height, budgets.time if budgets is not None else None
+    with ImageEncoder() as images:  # each image compressed from the moment it is made
+        meta = encode_sog(
+            ordered.gaussians,
+            width,
+            height,
+            images,
+            seed=seed,
+            progress=note,
+            budgets=budgets,
+            on_palette=on_palette,
+            given_up=given_up,
         )
-        images.update(timeline_images)
-    if ordered.temporal:
-        temporal_images, meta["temporal"] = encode_temporal(
-            ordered.temporal, ordered.gaussians.quats, width, height, budgets
-        )
-        images.update(temporal_images)
-    parsed = parse_meta(meta, where="encoder output")
-    note("WebP")
-    files = encode_many(images)
+        meta["asset"] = {"generator": f"{C.GENERATOR} {__version__}"}
+        if ordered.timeline is not None:
+            timeline_images, meta["timeline"] = encode_timeline(
+                ordered.timeline, width, height, budgets.time if budgets is not None else None
+            )
+            images.add(timeline_images)
+        if ordered.temporal:
+            temporal_images, meta["temporal"] = encode_temporal(
+                ordered.temporal, ordered.gaussians.quats, width, height, budgets
+            )
+            images.add(temporal_images)
+        parsed = parse_meta(meta, where="encoder output")
+        note("WebP")
+        files = images.files()
     files[C.META_JSON] = dump_meta(parsed)
     return files
 

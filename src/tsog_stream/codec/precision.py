@@ -107,26 +107,31 @@ def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
     rounding error is within its ``tolerance`` (in codes; broadcast against ``codes``); a code
     that would round out of the code range keeps its value. With ``shared`` the grids are laid
     through each channel's most frequent code, so a value many Gaussians share (a zero rate of
-    turn) stays one value whatever their steps; else through code 0."""
+    turn) stays one value whatever their steps; else through code 0.
+
+    Whole-array integer arithmetic: a code on a grid of one code rounds to itself, so every
+    code goes through the same few passes (gathering the moving ones and scattering them back
+    took 4x as long at low quality, where nearly all move)."""
     top = int(np.iinfo(codes.dtype).max)
     tol = np.minimum(np.fmax(tolerance, 0.5), float(top))  # NaN, -inf and < 0.5: 0.5; inf: top
-    bits = np.frexp(tol)[1]  # floor(log2(2 tol)): 0 for a tolerance under one code
-    shift = np.broadcast_to(np.minimum(bits, top.bit_length() - 1).astype(np.int32), codes.shape)
-    out = codes.copy()
-    # Only codes on a grid of over one code can move: at high quality few do, so the rest
-    # are left as they are rather than rounded to themselves.
-    moved = np.flatnonzero(shift)
-    if moved.size == 0:
-        return out
-    q = np.take(codes, moved).astype(np.int32)  # codes, grids and sums all fit in int32
-    grid = np.left_shift(np.int32(1), np.take(shift, moved))
-    anchor: npt.NDArray[np.int32] | int = 0
+    # floor(log2(2 tol)): 0 for a tolerance under one code
+    bits = np.minimum(np.frexp(tol)[1], top.bit_length() - 1)
+    if not bits.any():
+        return codes.copy()
+    grid = np.broadcast_to(np.left_shift(np.int32(1), bits, dtype=np.int32), codes.shape)
+    q = codes.astype(np.int32)  # codes, grids and sums all fit in int32
+    rounded = q + (grid >> 1)
     if shared:
-        modes = np.broadcast_to(most_frequent(codes).astype(np.int32), codes.shape)
-        anchor = np.take(modes, moved)
-    rounded = ((q - anchor + (grid >> 1)) & -grid) + anchor  # & -grid: floor to the grid
-    out.reshape(-1)[moved] = np.where((rounded > top) | (rounded < 0), q, rounded)
-    return out
+        anchor = most_frequent(codes).astype(np.int32)
+        rounded -= anchor
+        rounded &= -grid  # floor to the grid
+        rounded += anchor
+    else:
+        rounded &= -grid
+    outside = rounded > top
+    if shared:  # a grid through the anchor may round below 0 too
+        outside |= rounded < 0
+    return np.where(outside, q, rounded).astype(codes.dtype)
 
 
 def most_frequent(codes: CodesT) -> npt.NDArray[np.int64]:
@@ -141,11 +146,14 @@ def most_frequent(codes: CodesT) -> npt.NDArray[np.int64]:
 
 
 def to_codes(tolerance: F64, mins: F64, maxs: F64) -> F64:
-    """A tolerance in value units as one in 16-bit codes over ``[mins, maxs]`` (per channel;
-    unlimited where the range is empty: every code is 0 there)."""
+    """A tolerance in value units as one in 16-bit codes over ``[mins, maxs]`` (per channel, the
+    last axis; unlimited where the range is empty: every code is 0 there)."""
     span = np.asarray(maxs, np.float64) - np.asarray(mins, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(span > 0, tolerance * U16_MAX / np.where(span > 0, span, 1.0), np.inf)
+    empty = ~(span > 0)
+    out: F64 = np.multiply(tolerance, float(U16_MAX)) / np.where(empty, 1.0, span)
+    if empty.any():
+        out[..., empty] = np.inf
+    return out
 
 
 @dataclass(frozen=True)
@@ -209,7 +217,7 @@ class Budgets:
         if set(scene.temporal) - {"means"}:
             time[:, 0] = 0.0  # t_ref of rotations, colours or opacities that move: kept exact
         if motion is not None and timeline is not None:
-            speed = _top_speed(np.asarray(motion, np.float64), reach)
+            speed = _top_speed(motion, reach)
             shift = np.where(speed > 0, position / 3 / speed, np.inf)
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
         return cls(
@@ -270,13 +278,16 @@ def _finite_or_zero(values: F64) -> F64:
     return np.where(np.isfinite(values), values, 0.0)
 
 
-def _top_speed(coeffs: F64, reach: F64) -> F64:
+def _top_speed(coeffs: npt.NDArray[np.floating], reach: F64) -> F64:
     """A bound on |d position / dt| over |t - t_ref| <= reach: sum over orders k of
-    k |c_k| reach^(k-1), the largest axis."""
+    k |c_k| reach^(k-1), the largest axis (in float64, one order at a time)."""
     speed = np.zeros((coeffs.shape[0], coeffs.shape[2]))
     power = np.ones_like(reach)  # reach^(k-1) by products: 3x faster than float powers
     for k in range(1, coeffs.shape[1] + 1):
-        speed += (k * np.abs(coeffs[:, k - 1, :])) * power[:, None]
+        term = np.abs(coeffs[:, k - 1, :]).astype(np.float64)
+        term *= k
+        term *= power[:, None]
+        speed += term
         power = power * reach
     return across(np.maximum, speed)
 
@@ -384,12 +395,15 @@ def coarsen_motion(
     spent 3-8 % more bytes at quality 0-50 on the .splatv captures for no PSNR
     (docs/design/chunk-codec.md)."""
     room = np.where(budgets.around_reference, rms_room(order), 1.0)[:, None]
-    share = budgets.change_over_lifespan(attr, codes.shape[1]) / orders * room
+    share = budgets.change_over_lifespan(attr, codes.shape[1])
+    share /= orders
+    share *= room
     shared = attr != "means"  # rates of turn, scale, colour, opacity: mostly one value (zero)
-    reach = budgets.reach[:, None] ** order
-    with np.errstate(divide="ignore"):
-        value = np.where(reach > 0, share / np.where(reach > 0, reach, 1.0), np.inf)
-    return coarsen(codes, to_codes(value, mins, maxs), shared=shared)
+    reach = budgets.reach**order
+    still = ~(reach > 0)  # no time to move in: any coefficient will do
+    share /= np.where(still, 1.0, reach)[:, None]
+    share[still] = np.inf
+    return coarsen(codes, to_codes(share, mins, maxs), shared=shared)
 
 
 __all__ = [

@@ -7,7 +7,6 @@ WebP in parallel. Where splat-transform truncates a float to a byte we round (ha
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,18 +21,11 @@ from .layout import texels, to_image
 from .positions import encode_means, split_u16
 from .precision import Budgets, coarsen_alpha, coarsen_positions, coarsen_rotations, thin_labels
 from .rotations import encode_quats
+from .webp import ImageEncoder
 
 U8 = npt.NDArray[np.uint8]
 Progress = Callable[[str], None]
 FractionDone = Callable[[float], None]
-
-
-@dataclass(frozen=True)
-class SogParts:
-    """Byte images (file name -> (H, W, 4)) and the SOG keys of meta.json, in texel order."""
-
-    images: dict[str, U8]
-    meta: dict[str, Any]
 
 
 def _floats(values: npt.ArrayLike) -> list[float]:
@@ -132,16 +124,18 @@ def encode_sog(
     gaussians: Gaussians,
     width: int,
     height: int,
+    images: ImageEncoder,
     *,
     seed: int = 0,
     progress: Progress | None = None,
     budgets: Budgets | None = None,
     on_palette: FractionDone | None = None,
     given_up: bool = False,
-) -> SogParts:
-    """Encode Gaussians already in texel order into SOG v2 images and meta keys; with
-    ``budgets`` (codec/precision.py) positions and rotations keep only the bits they need.
-    The SH palette, if any, is fitted last (``on_palette`` hears its fraction done; with
+) -> dict[str, Any]:
+    """Encode Gaussians already in texel order into SOG v2 images, each handed to ``images``
+    as soon as it is made, and return the SOG keys of meta.json; with ``budgets``
+    (codec/precision.py) positions and rotations keep only the bits they need. The SH
+    palette, if any, is fitted last (``on_palette`` hears its fraction done; with
     ``given_up`` the Gaussians' SH bands are dropped as it starts)."""
     note = progress or (lambda _msg: None)
     note("positions")
@@ -152,23 +146,25 @@ def encode_sog(
         codes = coarsen_positions(codes, mins, maxs, means, budgets.base_position())
         quats = coarsen_rotations(quats, budgets.rotation)
     low, high = split_u16(codes)
-    images = {
-        C.MEANS_L: to_image(texels(low[:, 0], low[:, 1], low[:, 2]), width, height),
-        C.MEANS_U: to_image(texels(high[:, 0], high[:, 1], high[:, 2]), width, height),
-        C.QUATS: to_image(quats, width, height),
-    }
+    images.add(
+        {
+            C.MEANS_L: to_image(texels(low[:, 0], low[:, 1], low[:, 2]), width, height),
+            C.MEANS_U: to_image(texels(high[:, 0], high[:, 1], high[:, 2]), width, height),
+            C.QUATS: to_image(quats, width, height),
+        }
+    )
     note("scale codebook")
     scale_texels, scale_codebook = _codebook_texels(
         gaussians.scales, slack=budgets.scale_slack if budgets is not None else 0.0
     )
-    images[C.SCALES] = to_image(scale_texels, width, height)
+    images.add({C.SCALES: to_image(scale_texels, width, height)})
     note("colour codebook")
     alpha = opacity_bytes(gaussians.opacities)
     if budgets is not None:
         alpha = coarsen_alpha(alpha, budgets.alpha_slack)
     colour_slack = budgets.colour_slack if budgets is not None else 0.0
     sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, alpha, colour_slack)
-    images[C.SH0] = to_image(sh0_texels, width, height)
+    images.add({C.SH0: to_image(sh0_texels, width, height)})
     meta: dict[str, Any] = {
         "version": C.SOG_VERSION,
         "asset": {"generator": C.GENERATOR},
@@ -183,5 +179,5 @@ def encode_sog(
         sh_images, meta["shN"] = encode_sh_palette(
             gaussians, width, height, seed, note, on_palette=on_palette, given_up=given_up
         )
-        images.update(sh_images)
-    return SogParts(images, meta)
+        images.add(sh_images)
+    return meta
