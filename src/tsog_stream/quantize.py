@@ -160,15 +160,23 @@ def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:
     return pw, pwx, pwxx, centers
 
 
-def _cost_matrix(pw: F64, pwx: F64, pwxx: F64) -> F64:
-    """cost[end, start] = weighted SSE of bins start..end (inf where start > end)."""
-    end = np.arange(pw.size - 1)[:, None]
-    start = np.arange(pw.size - 1)[None, :]
-    w = pw[end + 1] - pw[start]
-    wx = pwx[end + 1] - pwx[start]
+def _cost_matrix(pw: F64, pwx: F64, pwxx: F64, out: F64 | None = None) -> F64:
+    """cost[end, start] = weighted SSE of bins start..end (inf where start > end), written
+    into ``out`` when given (an (H, H) view). Computed in place: three (H, H) arrays at once
+    instead of seven (1024 bins: 24 MiB, not 56, and half the time)."""
+    h = pw.size - 1
+    cost = np.empty((h, h)) if out is None else out
+    np.subtract(pwxx[1:, None], pwxx[None, :-1], out=cost)
+    w = pw[1:, None] - pw[None, :-1]
+    wx = pwx[1:, None] - pwx[None, :-1]
     with np.errstate(invalid="ignore", divide="ignore"):
-        cost = np.where(w > 0, (pwxx[end + 1] - pwxx[start]) - (wx * wx) / w, 0.0)
-    cost[start > end] = np.inf
+        wx *= wx
+        wx /= w
+    cost -= wx
+    cost[~(w > 0)] = 0.0
+    del w, wx
+    bins = np.arange(h)
+    cost[bins[None, :] > bins[:, None]] = np.inf
     return cost
 
 
@@ -188,8 +196,9 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     pw, pwx, pwxx, _ = _group_costs(centers, weights)
     band = h - groups + 1
     stride = h + band  # columns past h: inf, so a row's candidates never wrap into the next
-    cost = np.full((h, stride), np.inf)
-    cost[:, :h] = _cost_matrix(pw, pwx, pwxx)
+    cost = np.empty((h, stride))
+    cost[:, h:] = np.inf
+    _cost_matrix(pw, pwx, pwxx, out=cost[:, :h])
     flat = cost.ravel()
     ends = np.arange(band)
     row = np.full(2 * band, np.inf)  # past the band: inf, as splits beyond an end
