@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -14,6 +15,7 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk
 from tsog_stream.errors import InputError
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
+from tsog_stream.merge import sequence as sequence_module
 from tsog_stream.merge.check import frame_errors
 from tsog_stream.merge.features import (
     Steps,
@@ -25,7 +27,7 @@ from tsog_stream.merge.features import (
 )
 from tsog_stream.merge.fit import fit_tracks
 from tsog_stream.merge.runs import FrameMerger
-from tsog_stream.merge.sequence import merge_frames, merge_sequence, probe_merge
+from tsog_stream.merge.sequence import TemporalMode, merge_frames, merge_sequence, probe_merge
 from tsog_stream.model import Gaussians, Scene, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import static_gaussians
@@ -184,6 +186,40 @@ def test_frames_without_correspondence_are_probed_not_merged(tmp_path: Path) -> 
     off_size = (tmp_path / "off.tsogs").stat().st_size
     merge_size = (tmp_path / "merge.tsogs").stat().st_size
     assert merge_size <= off_size * 1.02, (merge_size, off_size, flip, merged)
+
+
+def test_a_probe_that_fitting_finds_nothing_in_is_not_merged_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Fitting looks for everything merging looks for, from the same start: a probe run in
+    which fitting paired no Gaussian with the frame before is not merged a second time, and
+    the decision is the one both would give."""
+    frames = [static_gaussians(1500, seed=200 + k) for k in range(8)]
+    for mode in ("merge", "fit"):
+        _, stats = merge_frames(frames, fps=FPS, sh_coeffs=0, mode=mode)
+        assert stats.pairs == 0 and stats.gaussians_out == stats.gaussians_in
+    seq = write_frames(tmp_path / "seq", frames)
+    calls: list[str] = []
+    real = sequence_module.merge_frames
+
+    def counted(frames: Any, *, mode: TemporalMode, **options: Any) -> Any:
+        calls.append(mode)
+        return real(frames, mode=mode, **options)
+
+    monkeypatch.setattr(sequence_module, "merge_frames", counted)
+    worth, why = probe_merge(seq, "fit")
+    assert worth is None and "fit 100%, merge 100%" in why
+    assert calls == ["fit"]  # one probe run of 8 frames, fitted once, not merged again
+
+
+def test_pairs_count_the_gaussians_that_continue_a_run(parts: dict[str, Gaussians]) -> None:
+    """Each frame's Gaussians that continue a run from the frame before are counted: a scene
+    unchanged over four frames pairs every Gaussian three times."""
+    frames = [parts["static"]] * 4
+    for mode in ("merge", "fit"):
+        _, stats = merge_frames(frames, fps=FPS, sh_coeffs=3, mode=mode)
+        assert stats.pairs == 3 * len(parts["static"])
+        assert stats.gaussians_out == len(parts["static"])
 
 
 def test_fit_orders_are_the_lowest_that_fit() -> None:

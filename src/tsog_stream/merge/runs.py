@@ -110,6 +110,8 @@ class MergeStats:
     gaussians_in: int = 0
     gaussians_out: int = 0
     moving_out: int = 0
+    pairs: int = 0
+    """Gaussians that continued a run from the frame before (static or moving)."""
     worst: dict[str, float] = field(default_factory=dict)
     note: str = ""
     """Set when the result is not what was asked for, and why."""
@@ -164,6 +166,7 @@ class FrameMerger:
             free_b = np.setdiff1d(np.arange(len(b), dtype=np.int64), rb, assume_unique=True)
             ma, mb = self._moving_pairs(runs, free_runs, b, free_b)
             ra, rb = np.concatenate([ra, ma]), np.concatenate([rb, mb])
+        self.stats.pairs += len(ra)
         extended = self._extend(runs.take(ra), b, rb)
         ended = np.setdiff1d(np.arange(len(runs), dtype=np.int64), ra, assume_unique=True)
         self._close(runs.take(ended), frame)

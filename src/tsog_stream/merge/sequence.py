@@ -96,7 +96,10 @@ def probe_merge(
     merging up to PROBE_SAMPLES runs of PROBE_FRAMES frames (runs never overlap: a short
     sequence gets fewer) cropped to a central box of about PROBE_GAUSSIANS (the same box in
     every frame of a run), each run read once for every mode tried: a second or so whatever
-    the sequence, where merging a whole flipbook that carries nothing over took minutes."""
+    the sequence, where merging a whole flipbook that carries nothing over took minutes. A
+    run in which fitting found no Gaussian continuing from one frame to the next is not merged
+    again (merging looks for a part of what fitting looks for, from the same start: it would
+    find nothing either), which halves the probe of frames without correspondence."""
     if seq.count < 2:
         return None, "one frame: nothing to merge"
     tol = default_tolerance(seq, tolerance)
@@ -109,6 +112,8 @@ def probe_merge(
         for m in modes:
             _, stats = merge_frames(frames, mode=m, **options)  # type: ignore[arg-type]
             kept[m] = min(kept[m], stats.gaussians_out / max(stats.gaussians_in, 1))
+            if stats.pairs == 0:  # fitting paired nothing: merging, a part of it, pairs nothing
+                break
     if kept.get("fit", 1.0) <= FIT_PAYS_BELOW:
         return "fit", ""
     if kept["merge"] <= MERGE_PAYS_BELOW:
