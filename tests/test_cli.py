@@ -325,3 +325,59 @@ def test_every_command_refuses_missing_arguments_with_usage(
     assert exited.value.code == 2
     err = capsys.readouterr().err
     assert "usage: tsog" in err and "Traceback" not in err
+
+
+LOADED_BY = """
+import sys
+from tsog_stream.cli.main import main
+from tsog_stream.client import open_stream
+try:
+    code = main(sys.argv[1:])
+except SystemExit as exc:  # --help
+    code = exc.code
+heavy = ["aiohttp", "numba", "tsog_stream.server.app", "tsog_stream.demo"]
+heavy.append("tsog_stream.throttled_play")
+print("loaded:", *[name for name in heavy if name in sys.modules])
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("command", ["info", "frame", "decode", "help"])
+def test_local_commands_load_no_http_stack_and_no_renderer(command: str, tmp_path: Path) -> None:
+    """A command on local files loads neither aiohttp (the HTTP client and server are loaded
+    by the commands that use them) nor numba, the demo or the shaped-link player: each cost
+    every command ~0.25-0.4 s of start-up."""
+    chunk = tmp_path / "c.tsogs"
+    src = tmp_path / "s.sog"
+    src.write_bytes(bundle_bytes(encode_chunk(small_scene(TimelineType.CENTER_SCALE, seed=3))))
+    segment = ["segment", str(src), "-o", str(chunk), "--workers", "1", "--layers", "1", "-q"]
+    assert main(segment) == 0
+    argv = {
+        "info": ["info", str(chunk)],
+        "frame": ["frame", str(chunk), "--t", "0.5", "-o", str(tmp_path / "f.ply"), "-q"],
+        "decode": ["decode", str(src), str(tmp_path / "d.ply"), "-q"],
+        "help": ["serve", "--help"],
+    }[command]
+    done = subprocess.run(
+        [sys.executable, "-c", LOADED_BY, *argv],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines()[-1] == "loaded:", done.stdout
+
+
+def test_what_loads_late_is_still_there_when_asked_for() -> None:
+    """The lazily loaded exports resolve: the HTTP source through the client package, the
+    server's through the server package (each with aiohttp)."""
+    import tsog_stream.client as client_package  # noqa: PLC0415
+    import tsog_stream.server as server_package  # noqa: PLC0415
+
+    assert client_package.HttpSource.__name__ == "HttpSource"
+    assert client_package.HttpFiles.__name__ == "HttpFiles"
+    for name in server_package.__all__:
+        assert getattr(server_package, name).__name__ == name
+    with pytest.raises(AttributeError):
+        _ = server_package.nothing_of_that_name

@@ -26,7 +26,7 @@ from helpers import ThreadedServer
 from tsog_stream import TimelineType
 from tsog_stream.cli.main import main
 from tsog_stream.client import StreamClient, open_stream
-from tsog_stream.client.http_source import HttpOptions
+from tsog_stream.client.http_options import HttpOptions
 from tsog_stream.client.verify import RESERVED_START
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE
 from tsog_stream.container.sources import MemorySource, read_index

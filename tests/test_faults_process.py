@@ -26,7 +26,8 @@ import pytest
 from helpers import free_port, live_processes, wait_until
 from tsog_stream.cli.main import main
 from tsog_stream.client import StreamClient, open_stream
-from tsog_stream.client.http_source import HttpOptions, HttpSource
+from tsog_stream.client.http_options import HttpOptions
+from tsog_stream.client.http_source import HttpSource
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.container import writer
 from tsog_stream.container.header import PREFIX_SIZE

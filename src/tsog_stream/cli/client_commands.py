@@ -11,15 +11,18 @@ import asyncio
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..client import PlayStats, open_stream
 from ..errors import InputError
 from ..io.files import refuse_existing
 from ..server.link import LinkShape, parse_bandwidth, parse_latency
-from ..throttled_play import LinkPlayReport, play_through_link
 from .common import Subparsers, add_common
 from .progress import Progress
 from .stream_commands import STREAM_HELP, stream_frame
+
+if TYPE_CHECKING:
+    from ..throttled_play import LinkPlayReport
 
 
 def add_client_commands(sub: Subparsers) -> None:
@@ -109,6 +112,8 @@ def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
 
 def _play_shaped(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """tsog play --bandwidth: the playback through a shaped loopback link, with quality."""
+    from ..throttled_play import play_through_link  # noqa: PLC0415 - a server and the renderer
+
     shape = LinkShape(
         parse_bandwidth(args.bandwidth),
         parse_latency(args.latency) if args.latency is not None else 0.0,

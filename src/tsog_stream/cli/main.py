@@ -17,7 +17,6 @@ from typing import Any
 from .._version import __version__
 from ..codec.chunk import decode_chunk, encode_chunk
 from ..codec.precision import DEFAULT_QUALITY
-from ..demo import run_demo
 from ..errors import TsogError
 from ..inputs import STREAM_KINDS, input_kind
 from ..io.chunks import read_chunk_files, write_chunk_files
@@ -229,6 +228,8 @@ def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_demo(args: argparse.Namespace, progress: Progress) -> int:
     """tsog demo."""
+    from ..demo import run_demo  # noqa: PLC0415 - segmenter, server and client: the demo's own
+
     report = run_demo(args.out, seed=args.seed, progress=progress)
     progress.done()
     if args.json:

@@ -9,7 +9,6 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..io.objects import as_location
-from ..server import Limits, Privacy, Site, default_workers, run_server, run_workers
 from ..signing import load_secret, parse_ttl, sign_url
 from .common import Integer, Subparsers
 from .progress import Progress
@@ -69,13 +68,11 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
         default=10.0,
         help="drop a client that takes no bytes for this long, s (default 10)",
     )
-    cores = default_workers()
     p.add_argument(
         "--workers",
         type=Integer(1, 256),
-        default=cores,
-        help=f"processes sharing the port, each with its own limits and caches (default: "
-        f"the core count, {cores} here; 1 = one process)",
+        help="processes sharing the port, each with its own limits and caches (default: one "
+        "per core this process may use; 1 = one process)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no access log on stderr")
     p.set_defaults(func=cmd_serve)
@@ -107,6 +104,9 @@ def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
 
 def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
     """Serve until interrupted; returns the exit code."""
+    # the server (aiohttp.web) is loaded by the command that runs it, not by every command
+    from ..server import Limits, Privacy, Site, default_workers, run_server, run_workers  # noqa: PLC0415
+
     found = as_location(args.root)
     if not (found.is_dir() or found.is_file()):
         raise InputError("no such folder or file", where=args.root)
@@ -140,8 +140,9 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
         stall_timeout_s=args.stall_timeout,
         keepalive_s=args.keepalive,
     )
-    if args.workers > 1:
-        run_workers(Site(root, args.host, args.port, limits, privacy), args.workers)
+    workers = args.workers or default_workers()
+    if workers > 1:
+        run_workers(Site(root, args.host, args.port, limits, privacy), workers)
     else:
         run_server(root, host=args.host, port=args.port, limits=limits, privacy=privacy)
     return 0

@@ -26,7 +26,6 @@ from ..errors import InputError
 from ..inputs import STREAM_KINDS, input_kind, is_url
 from ..io.objects import is_object_url
 from ..io.sequence import list_frames
-from ..server import make_app, start_server
 from .common import Integer, Subparsers, add_cameras, add_common, add_input
 from .progress import Progress
 from .view_cache import (
@@ -207,6 +206,8 @@ def cmd_view(args: argparse.Namespace, progress: Progress) -> int:
 
 async def _serve(root: Path, name: str, port: int, open_browser: bool) -> None:
     """Serve ``root`` on 127.0.0.1 until cancelled; print (and open) the player URL."""
+    from ..server import make_app, start_server  # noqa: PLC0415 - aiohttp.web for this command only
+
     runner, bound = await start_server(make_app(root), "127.0.0.1", port)
     url = f"http://127.0.0.1:{bound}/play/{quote(name)}"
     print(f"playing at {url}  (Ctrl-C to stop)", flush=True)

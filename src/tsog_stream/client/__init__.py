@@ -9,12 +9,17 @@ See docs/client.md.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from .costs import SeekCost
 from .fetchers import ChunkFetcher, FolderFetcher, RangeFetcher, make_fetcher
-from .http_source import HttpFiles, HttpOptions, HttpSource
+from .http_options import HttpOptions
 from .stream import CacheStats, Playback, PlayedFrame, PlayStats, SceneCache, StreamClient
 from .sync import Stream, open_stream
 from .verify import Check, VerifyReport
+
+if TYPE_CHECKING:
+    from .http_source import HttpFiles, HttpSource
 
 __all__ = [
     "CacheStats",
@@ -36,3 +41,13 @@ __all__ = [
     "make_fetcher",
     "open_stream",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """HttpSource and HttpFiles, loaded (with aiohttp) when first asked for: reading local
+    files and storage does without them."""
+    if name in ("HttpFiles", "HttpSource"):
+        from . import http_source  # noqa: PLC0415 - aiohttp only for HTTP
+
+        return getattr(http_source, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

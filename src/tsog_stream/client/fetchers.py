@@ -13,6 +13,7 @@ import os
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import unquote, urljoin, urlparse, urlsplit, urlunsplit
 
 from ..container.index import MAX_INDEX_BYTES
@@ -25,7 +26,10 @@ from ..io.files import read_head
 from ..io.objects import is_object_url, object_at
 from ..schemas.manifest import ChunkEntry
 from ..signing import redact_url
-from .http_source import HttpFiles, HttpOptions, HttpSource
+from .http_options import HttpOptions
+
+if TYPE_CHECKING:
+    from .http_source import HttpFiles
 
 
 class ChunkFetcher(ABC):
@@ -69,9 +73,10 @@ class RangeFetcher(ChunkFetcher):
         return [body[c.offset - start : c.offset + c.length - start] for c in group]
 
     async def aclose(self) -> None:
-        """Close the HTTP session of an ``HttpSource``."""
-        if isinstance(self.source, HttpSource):
-            await self.source.aclose()
+        """Close the source's HTTP session, if it has one (an ``HttpSource``)."""
+        aclose = getattr(self.source, "aclose", None)
+        if aclose is not None:
+            await aclose()
 
 
 class FolderFetcher(ChunkFetcher):
@@ -86,7 +91,7 @@ class FolderFetcher(ChunkFetcher):
         self._query = parts.query if _is_http(base) else ""
         self.base = urlunsplit(parts._replace(query="", fragment="")) if self._query else base
         self.name = redact_url(base)
-        self._http = HttpFiles(options) if _is_http(base) else None
+        self._http = _http_files(options) if _is_http(base) else None
         self.stats = self._http.stats if self._http is not None else ReadStats()
 
     async def _get(self, name: str, limit: int) -> bytes:
@@ -146,6 +151,13 @@ class FolderFetcher(ChunkFetcher):
             await self._http.aclose()
 
 
+def _http_files(options: HttpOptions | None) -> HttpFiles:
+    """Whole files over HTTP (aiohttp is loaded only for a folder that is a URL)."""
+    from .http_source import HttpFiles  # noqa: PLC0415 - aiohttp only for HTTP
+
+    return HttpFiles(options)
+
+
 def _is_http(text: str) -> bool:
     return urlparse(text).scheme.lower() in ("http", "https")
 
@@ -167,6 +179,8 @@ def make_fetcher(
         if parts.path.endswith("/" + MANIFEST):
             folder = parts._replace(path=parts.path[: -len(MANIFEST)])
             return FolderFetcher(urlunsplit(folder), options)
+        from .http_source import HttpSource  # noqa: PLC0415 - aiohttp only for HTTP
+
         return RangeFetcher(HttpSource(text, options))
     if is_object_url(text):
         if text.endswith("/" + MANIFEST):

@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import json
 import re
-from dataclasses import dataclass
 
 import aiohttp
 
@@ -25,6 +24,7 @@ from ..container.ranges import ByteRange
 from ..container.sources import ReadStats
 from ..errors import AccessError, SourceError
 from ..signing import redact_url
+from .http_options import HttpOptions
 
 _CONTENT_RANGE = re.compile(r"^bytes (\d+)-(\d+)/(\d+)$")
 _UNSATISFIED = re.compile(r"^bytes \*/(\d+)$")
@@ -43,24 +43,6 @@ bodies cut short, timeouts and 5xx answers."""
 def backoff(options: HttpOptions, attempt: int) -> float:
     """Seconds to wait before retry number ``attempt`` (1-based): doubling, capped."""
     return float(min(options.backoff_s * 2 ** (attempt - 1), options.max_backoff_s))
-
-
-@dataclass(frozen=True)
-class HttpOptions:
-    """Tuning of an :class:`HttpSource`: retries, timeouts and the unranged-origin limit."""
-
-    retries: int = 4
-    backoff_s: float = 0.1
-    max_backoff_s: float = 2.0
-    """Cap of one wait between attempts (the waits double from ``backoff_s``)."""
-    connect_timeout_s: float = 10.0
-    read_timeout_s: float = 30.0
-    """Longest wait for any bytes of a response."""
-    request_timeout_s: float = 120.0
-    """Deadline of one request, body included: a server that trickles a byte now and then
-    (never silent for ``read_timeout_s``) is cut off here, and the request retried."""
-    max_unranged_bytes: int = 1 << 20
-    """Largest whole-file (200) answer kept in memory when the origin ignores ``Range``."""
 
 
 def new_session(options: HttpOptions) -> aiohttp.ClientSession:

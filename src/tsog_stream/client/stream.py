@@ -41,7 +41,7 @@ from .adaptive import (
 )
 from .costs import SeekCost, seek_cost
 from .fetchers import ChunkFetcher, RangeFetcher, make_fetcher
-from .http_source import HttpOptions
+from .http_options import HttpOptions
 from .unpacked import pack, unpack
 from .verify import VerifyReport, verify_stream
 

@@ -20,7 +20,7 @@ from ..container.sources import ReadStats
 from ..container.stream_index import StreamIndex
 from ..model import Gaussians, Scene
 from .costs import SeekCost
-from .http_source import HttpOptions
+from .http_options import HttpOptions
 from .stream import MiB, Playback, PlayedFrame, PlayStats, StreamClient
 from .verify import VerifyReport
 
