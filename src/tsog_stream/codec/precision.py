@@ -111,7 +111,7 @@ def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
 
     Whole-array integer arithmetic: a code on a grid of one code rounds to itself, so every
     code goes through the same few passes (gathering the moving ones and scattering them back
-    took 4x as long at low quality, where nearly all move)."""
+    took twice as long at low quality, where nearly all move)."""
     top = int(np.iinfo(codes.dtype).max)
     tol = np.minimum(np.fmax(tolerance, 0.5), float(top))  # NaN, -inf and < 0.5: 0.5; inf: top
     # floor(log2(2 tol)): 0 for a tolerance under one code
