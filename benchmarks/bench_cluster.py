@@ -234,7 +234,16 @@ def table(runs: list[Run], gaussians: int) -> list[str]:
 
 
 def _peak_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """This process's peak RSS since it started: the kernel's high-water mark of its memory
+    (VmHWM, which starts afresh at exec), not getrusage's, which a process started by exec
+    inherits from its parent at the fork (the bench's own 3 GB after the 5M checkpoint made a
+    1M scene's run report 2.9 GB)."""
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    kib = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:"))
+    return kib / 1024
 
 
 def checkpoint_npz(path: Path, n: int) -> int:
