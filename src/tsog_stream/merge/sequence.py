@@ -99,7 +99,8 @@ def probe_merge(
     the sequence, where merging a whole flipbook that carries nothing over took minutes. A
     run in which fitting found no Gaussian continuing from one frame to the next is not merged
     again (merging looks for a part of what fitting looks for, from the same start: it would
-    find nothing either), which halves the probe of frames without correspondence."""
+    find nothing either; 24 frames of 40k: 2.13 -> 1.97 s, fitting's own search is the most
+    of a probe)."""
     if seq.count < 2:
         return None, "one frame: nothing to merge"
     tol = default_tolerance(seq, tolerance)
