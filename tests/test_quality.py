@@ -18,8 +18,8 @@ from tsog_stream.codec.precision import (
     ALPHA_AT_ZERO,
     COLOUR_AT_ZERO,
     CORE_AT_ZERO,
+    FAINT_MAX,
     MAX_TURN,
-    POSITION_AT_ZERO,
     SCALE_AT_ZERO,
     TIME_AT_ZERO,
     Budgets,
@@ -33,7 +33,7 @@ from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
 from tsog_stream.framing import dense_core
 from tsog_stream.model import Scene, Timeline, TimelineType
-from tsog_stream.opacity import logit_to_alpha
+from tsog_stream.opacity import alpha_to_logit, logit_to_alpha
 from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
 from tsog_stream.temporal import lifespans, reference_times, time_range
 
@@ -69,11 +69,10 @@ def test_quality_100_is_todays_precision(scene: Scene) -> None:
 def _position_budget(scene: Scene, quality: int) -> np.ndarray:
     """P of docs/spec.md §5.1 for each Gaussian of ``scene``, in its chunk's texel order."""
     f = budget_fraction(quality)
-    scales = scene.gaussians.scales[texel_order(scene)]  # the source's, as the encoder sees
-    sigmas = np.exp(scales.astype(np.float64))
+    logits = scene.gaussians.opacities[texel_order(scene)]  # the source's, as the encoder sees
+    alpha = logit_to_alpha(logits).reshape(len(scene))
     _, radius = dense_core(scene.gaussians)  # the chunk's core: the same Gaussians, any order
-    by_core = np.minimum(CORE_AT_ZERO * radius, POSITION_AT_ZERO * sigmas.max(axis=1))
-    return np.asarray(f * np.maximum(POSITION_AT_ZERO * sigmas.min(axis=1), by_core))
+    return np.asarray(f * CORE_AT_ZERO * radius / np.maximum(alpha, 1 / FAINT_MAX))
 
 
 def _moved(full: Scene, cut: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -154,21 +153,26 @@ def test_motion_seen_away_from_its_reference_time_keeps_the_worst_case_bound() -
     assert np.any(change[~away] > share[~away])  # and the root mean square's room
 
 
-def test_flat_gaussians_move_by_their_share_of_the_core() -> None:
-    """Flat Gaussians (smallest sigma 1e-6) kept 16-bit positions when the budget followed the
-    smallest sigma alone; at quality 0 they now move by up to CORE_AT_ZERO of the chunk's core
-    radius, never beyond half their largest sigma, and the means images shrink."""
+def test_positions_move_by_the_core_share_over_alpha_whatever_their_size() -> None:
+    """At quality 0 a position may move by CORE_AT_ZERO of the chunk's core radius over its
+    alpha (at most FAINT_MAX times): flat Gaussians (smallest sigma 1e-6) move as far as round
+    ones, faint ones further, never beyond; the means images shrink."""
     g = static_gaussians(4000, seed=8)
-    g.scales[:, 0] = np.log(1e-6)
-    g.scales[:1000, 1:] = np.log(1e-4)  # a quarter too small to use the core's share
-    flat = Scene(g)
-    full, cut = (encode_chunk(flat, quality=q) for q in (100, 0))
+    g.scales[:2000, 0] = np.log(1e-6)  # flat
+    alpha = np.where(np.arange(4000) % 4 == 0, 1 / 64, 0.9)  # a quarter faint (FAINT_MAX x)
+    g.opacities = alpha_to_logit(alpha)
+    scene = Scene(g)
+    full, cut = (encode_chunk(scene, quality=q) for q in (100, 0))
     moved = np.abs(decode_chunk(cut).gaussians.means - decode_chunk(full).gaussians.means)
-    largest = np.exp(flat.gaussians.scales[texel_order(flat)].astype(np.float64)).max(axis=1)
-    bound = _position_budget(flat, 0)  # the core's share: half of 1e-6 adds nothing
-    assert np.all(moved.max(axis=1) <= bound * 1.0001 + 1e-7)
-    big = largest > 1e-3
-    assert moved[big].max() > bound[big].max() / 4  # the core's share is used
+    moved = moved.max(axis=1)
+    bound = _position_budget(scene, 0)
+    assert np.all(moved <= bound * 1.0001 + 1e-7)
+    ordered = scene.subset(texel_order(scene)).gaussians  # the decoded chunks' order
+    flat = ordered.scales[:, 0] < np.log(1e-5)
+    faint = logit_to_alpha(ordered.opacities) < 0.1
+    opaque = bound[~faint].max()
+    assert moved[flat & ~faint].max() > opaque / 4  # thin ones use the share too
+    assert moved[faint].max() > 4 * opaque  # and faint ones their larger one
     sizes = [len(f["means_l.webp"]) for f in (full, cut)]
     assert sizes[1] < 0.8 * sizes[0], sizes
 

@@ -7,10 +7,8 @@ spends almost nothing on them), and every SOG/TSOG reader decodes the chunk unch
 quality level guarantees is stated in docs/spec.md §5.1.
 
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
-- position: ``f * POSITION_AT_ZERO`` times its smallest sigma (so a thin Gaussian never
-  crosses a surface it lies on: the mean sigma cost 10 dB on a .splatv capture), or, when
-  larger, ``f * CORE_AT_ZERO`` of the chunk's dense-core radius up to ``f *
-  POSITION_AT_ZERO`` times its largest sigma (a shift under a pixel), at every
+- position: ``f * CORE_AT_ZERO`` of the chunk's dense-core radius (about a pixel of a 1080p
+  view framing the core) times its :func:`faintness` (1 / alpha, at most FAINT_MAX), at every
   time it is visible inside the scene's time range; when it moves, a third each for the
   base position, the orders of its motion (as a root mean square over that part of its
   lifespan, see :func:`coarsen_motion`) and the shift of its reference time (times its top
@@ -42,6 +40,7 @@ from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
 from ..framing import dense_core, framing_sample
 from ..model import Gaussians, Scene, Timeline, TimelineType
+from ..opacity import logit_to_alpha
 from ..temporal import lifespans, reference_times, scale_cap, time_range
 
 F64 = npt.NDArray[np.float64]
@@ -70,21 +69,23 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27): on every scene measured its rendered PSNR is within 0.1 dB of
-quality 100's, worst view unchanged, for 4.4-11 % fewer bytes; 75 already costs up to 2.4 dB
-(mean, the long donut) and 2.5 dB (worst view, coffee10.splatv)."""
-POSITION_AT_ZERO = 0.5
-"""At quality 0 a Gaussian's position may move by this fraction of its smallest sigma."""
+bench_rate.py, 2026-11-27 18:49): on the FreeTimeGS donuts and the .splatv captures its
+rendered PSNR is within 0.1 dB of quality 100's, worst view unchanged, for 4.9-13 % fewer
+bytes; on the fireworks PLY frames 0.5 dB below (worst view 0.7) for 4.1 %; 75 costs up to
+2.3 dB (mean, the long donut) and 12.5 dB (worst view, the fireworks)."""
 CORE_AT_ZERO = 2.0**-9
-"""At quality 0 a Gaussian's position may also move by this fraction of its chunk's
-dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core), up
-to POSITION_AT_ZERO of its largest sigma. Flat Gaussians' smallest sigma alone kept captures
-at 16 bits (spinach .splatv: the median Gaussian could lose none): with it qualities 0-50
-write 6-25 % fewer bytes on bench_rate's 4D scenes for at most 0.2 dB (larger shares, tried
-before the rotation followed: 2.5x cost the long donut 0.3 dB at quality 50, 5x spinach's
-worst view 8 dB)."""
+"""At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
+dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
+whatever its size: a shift of d pixels adds the same squared error to a picture whether the
+Gaussian is wide or thin (a² c² pi/2 d², integrated over its footprint). Bounds from its
+sigmas (half the smallest, or this share up to half the largest) spent 4-16 % more bytes at
+`.4dgs`'s PSNR on every bench_rate scene with worst views no better (docs/design/
+chunk-codec.md)."""
 CORE_SAMPLE = 8192
 """At most this many Gaussians of a chunk (evenly strided) measure its dense core."""
+FAINT_MAX = 32.0
+"""A Gaussian's position budget grows as 1 / alpha up to this many times an opaque one's
+(alpha 1/32 and fainter; 128 measured the same)."""
 TIME_AT_ZERO = 0.25
 """At quality 0 a lifespan's centre, start, scale or duration may move by this fraction of the
 Gaussian's temporal scale."""
@@ -203,10 +204,8 @@ class Budgets:
         """The budgets at a budget fraction f > 0, numpy's warnings silenced (see :meth:`of`)."""
         sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
         smallest, largest = across(np.minimum, sigmas), across(np.maximum, sigmas)
-        by_core = np.minimum(
-            CORE_AT_ZERO * _core_radius(scene.gaussians), largest * POSITION_AT_ZERO
-        )
-        position = _finite_or_zero(f * np.maximum(POSITION_AT_ZERO * smallest, by_core))
+        pixel = CORE_AT_ZERO * _core_radius(scene.gaussians)
+        position = _finite_or_zero(f * pixel * faintness(scene.gaussians.opacities))
         spread = _finite_or_zero(largest - smallest)  # no budget for non-finite scales
         rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
@@ -262,6 +261,14 @@ def across(pick: np.ufunc, values: F64) -> F64:
     the same values as ``.min(axis=1)``, NaN included, 3.6x faster on three columns (numpy
     reduces along a short axis row by row)."""
     return np.asarray(functools.reduce(pick, values.T))
+
+
+def faintness(logits: npt.NDArray[np.floating]) -> F64:
+    """1 / alpha of each Gaussian, from 1 (opaque) up to FAINT_MAX: an error in a Gaussian drawn
+    at alpha a changes the picture a times as much as the same error in an opaque one (a² of
+    the squared error), so budgets growing as 1 / a spend the bits where they show."""
+    alpha = logit_to_alpha(np.asarray(logits, np.float64).reshape(len(logits)))
+    return 1.0 / np.maximum(alpha, 1.0 / FAINT_MAX)
 
 
 def _core_radius(gaussians: Gaussians) -> float:
