@@ -69,10 +69,10 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 18:49): on the FreeTimeGS donuts and the .splatv captures its
-rendered PSNR is within 0.1 dB of quality 100's, worst view unchanged, for 4.9-13 % fewer
+bench_rate.py, 2026-11-27 19:18): on the FreeTimeGS donuts and the .splatv captures its
+rendered PSNR is within 0.1 dB of quality 100's, worst view unchanged, for 4.0-12 % fewer
 bytes; on the fireworks PLY frames 0.5 dB below (worst view 0.7) for 4.1 %; 75 costs up to
-2.3 dB (mean, the long donut) and 12.5 dB (worst view, the fireworks)."""
+1.7 dB on those (the long donut) and 9 dB on the fireworks (worst view 12.5)."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
@@ -86,9 +86,13 @@ CORE_SAMPLE = 8192
 FAINT_MAX = 32.0
 """A Gaussian's position budget grows as 1 / alpha up to this many times an opaque one's
 (alpha 1/32 and fainter; 128 measured the same)."""
-TIME_AT_ZERO = 0.25
+TIME_AT_ZERO = 0.1
 """At quality 0 a lifespan's centre, start, scale or duration may move by this fraction of the
-Gaussian's temporal scale."""
+Gaussian's temporal scale. 0.25 spent the bits where they did not show: on the short donut
+zeroing this budget at quality 50 gave 3.4 dB for 1.7 B/Gaussian where zeroing the positions'
+gave 0.1 dB for 5.4; 0.1 writes fewer bytes at quality 0 (a lifespan coarsened less leaves
+its motion more room) and 2-3 dB more at 0-50 on the FreeTimeGS donuts (0.05 measured the
+same)."""
 
 
 def check_quality(quality: int) -> int:
