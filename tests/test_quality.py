@@ -20,6 +20,7 @@ from tsog_stream.codec.precision import (
     CORE_AT_ZERO,
     FAINT_MAX,
     MAX_TURN,
+    POSITION_AT_ZERO,
     SCALE_AT_ZERO,
     TIME_AT_ZERO,
     Budgets,
@@ -72,7 +73,8 @@ def _position_budget(scene: Scene, quality: int) -> np.ndarray:
     logits = scene.gaussians.opacities[texel_order(scene)]  # the source's, as the encoder sees
     alpha = logit_to_alpha(logits).reshape(len(scene))
     _, radius = dense_core(scene.gaussians)  # the chunk's core: the same Gaussians, any order
-    return np.asarray(f * CORE_AT_ZERO * radius / np.maximum(alpha, 1 / FAINT_MAX))
+    stretch = 1 + (POSITION_AT_ZERO - 1) * f**4  # within 6 % of 1 down to quality 50
+    return np.asarray(f * stretch * CORE_AT_ZERO * radius / np.maximum(alpha, 1 / FAINT_MAX))
 
 
 def _moved(full: Scene, cut: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -154,9 +156,9 @@ def test_motion_seen_away_from_its_reference_time_keeps_the_worst_case_bound() -
 
 
 def test_positions_move_by_the_core_share_over_alpha_whatever_their_size() -> None:
-    """At quality 0 a position may move by CORE_AT_ZERO of the chunk's core radius over its
-    alpha (at most FAINT_MAX times): flat Gaussians (smallest sigma 1e-6) move as far as round
-    ones, faint ones further, never beyond; the means images shrink."""
+    """At quality 0 a position may move by POSITION_AT_ZERO x CORE_AT_ZERO of the chunk's core
+    radius over its alpha (at most FAINT_MAX times): flat Gaussians (smallest sigma 1e-6) move
+    as far as round ones, faint ones further, never beyond; the means images shrink."""
     g = static_gaussians(4000, seed=8)
     g.scales[:2000, 0] = np.log(1e-6)  # flat
     alpha = np.where(np.arange(4000) % 4 == 0, 1 / 64, 0.9)  # a quarter faint (FAINT_MAX x)

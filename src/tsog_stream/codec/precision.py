@@ -7,8 +7,9 @@ spends almost nothing on them), and every SOG/TSOG reader decodes the chunk unch
 quality level guarantees is stated in docs/spec.md §5.1.
 
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
-- position: ``f * CORE_AT_ZERO`` of the chunk's dense-core radius (about a pixel of a 1080p
-  view framing the core) times its :func:`faintness` (1 / alpha, at most FAINT_MAX), at every
+- position: :func:`position_fraction` (about f down to quality 50, POSITION_AT_ZERO at 0)
+  times CORE_AT_ZERO of the chunk's dense-core radius (about a pixel of a 1080p view framing
+  the core) times its :func:`faintness` (1 / alpha, at most FAINT_MAX), at every
   time it is visible inside the scene's time range; when it moves, a third each for the
   base position, the orders of its motion (as a root mean square over that part of its
   lifespan, see :func:`coarsen_motion`) and the shift of its reference time (times its top
@@ -83,6 +84,12 @@ sigmas (half the smallest, or this share up to half the largest) spent 4-16 % mo
 chunk-codec.md)."""
 CORE_SAMPLE = 8192
 """At most this many Gaussians of a chunk (evenly strided) measure its dense core."""
+POSITION_AT_ZERO = 16.0
+"""At quality 0 the position budget is this many times CORE_AT_ZERO (16 pixels of a 1080p view
+framing the core, an opaque Gaussian): positions were the cheapest decibels on every
+bench_rate scene but the fireworks (where they cost as much as the rest), so the bottom of the
+scale reaches lower rates through them. At `.4dgs`'s PSNR: spinach < 0.94x -> 0.73x its bytes,
+coffee10 < 1.11x -> < 0.83x, the donuts 0.66-0.73x (docs/design/chunk-codec.md)."""
 FAINT_MAX = 32.0
 """A Gaussian's position budget grows as 1 / alpha up to this many times an opaque one's
 (alpha 1/32 and fainter; 128 measured the same)."""
@@ -209,7 +216,9 @@ class Budgets:
         sigmas = np.exp(scene.gaussians.scales.astype(np.float64))
         smallest, largest = across(np.minimum, sigmas), across(np.maximum, sigmas)
         pixel = CORE_AT_ZERO * _core_radius(scene.gaussians)
-        position = _finite_or_zero(f * pixel * faintness(scene.gaussians.opacities))
+        position = _finite_or_zero(
+            position_fraction(f) * pixel * faintness(scene.gaussians.opacities)
+        )
         spread = _finite_or_zero(largest - smallest)  # no budget for non-finite scales
         rotation = np.minimum(np.where(spread > 0, position / spread, np.inf), MAX_TURN)
         motion = scene.temporal.get("means")
@@ -265,6 +274,12 @@ def across(pick: np.ufunc, values: F64) -> F64:
     the same values as ``.min(axis=1)``, NaN included, 3.6x faster on three columns (numpy
     reduces along a short axis row by row)."""
     return np.asarray(functools.reduce(pick, values.T))
+
+
+def position_fraction(f: float) -> float:
+    """The position budget's fraction at budget fraction f: f (1 + (POSITION_AT_ZERO - 1) f⁴),
+    within 6 % of f down to quality 50, POSITION_AT_ZERO at quality 0."""
+    return f * (1.0 + (POSITION_AT_ZERO - 1.0) * f**4)
 
 
 def faintness(logits: npt.NDArray[np.floating]) -> F64:
@@ -430,6 +445,8 @@ __all__ = [
     "coarsen_positions",
     "coarsen_rotations",
     "coarsen_timeline",
+    "faintness",
+    "position_fraction",
     "rms_room",
     "thin_labels",
 ]
