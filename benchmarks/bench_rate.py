@@ -109,19 +109,14 @@ def rows_for(name: str, scene: Scene, views: int, times: int) -> list[dict[str, 
     rows: list[dict[str, Any]] = []
     seconds = encode_times(scene)
     for quality in QUALITIES:
-        files = encode_chunk(scene, quality=quality)
-        size = len(bundle_bytes(files))
-        got = score(dynamic(scene), dynamic(decode_chunk(files)), ts, cameras)
         rows.append(
             {
                 "scene": name,
                 "variant": f"TSOG q{quality}",
                 "quality": quality,
-                "bytes": size,
-                "per_gaussian": size / n,
+                **measured_at(scene, quality, views=(ts, cameras)),
                 "encode_s": seconds[quality],
                 "encode_x_q100": seconds[quality] / seconds[QUALITY_MAX],
-                **got,
             }
         )
         print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
@@ -172,14 +167,10 @@ def lowest_quality_at(
     over the integer qualities (the measured ones reused): a file measured at that PSNR rather
     than a line between two qualities. Quality 0 when even it is above the target."""
     measured = {r["quality"]: r for r in rows if "quality" in r}
-    ts, cameras = views
 
     def at(quality: int) -> dict[str, Any]:
         if quality not in measured:
-            files = encode_chunk(scene, quality=quality)
-            size = len(bundle_bytes(files))
-            got = score(dynamic(scene), dynamic(decode_chunk(files)), ts, cameras)
-            measured[quality] = {"bytes": size, "per_gaussian": size / len(scene), **got}
+            measured[quality] = measured_at(scene, quality, views=views)
         return measured[quality]
 
     low, high = 0, QUALITY_MAX
@@ -193,6 +184,18 @@ def lowest_quality_at(
             low = mid
     row = {k: v for k, v in at(high).items() if k in ("bytes", "per_gaussian") or "psnr" in k}
     return {"scene": name, "variant": MATCHED, "matched_quality": high, **row}
+
+
+def measured_at(
+    scene: Scene, quality: int, *, views: tuple[list[float], list[Any]]
+) -> dict[str, Any]:
+    """Bytes and rendered PSNR/SSIM of the scene as one TSOG chunk at ``quality``, at the
+    given (times, cameras) against the exact source."""
+    files = encode_chunk(scene, quality=quality)
+    size = len(bundle_bytes(files))
+    ts, cameras = views
+    got = score(dynamic(scene), dynamic(decode_chunk(files)), ts, cameras)
+    return {"bytes": size, "per_gaussian": size / len(scene), **got}
 
 
 MATCHED = "TSOG, the lowest quality at `.4dgs`'s PSNR"

@@ -91,7 +91,11 @@ class FolderFetcher(ChunkFetcher):
         self._query = parts.query if _is_http(base) else ""
         self.base = urlunsplit(parts._replace(query="", fragment="")) if self._query else base
         self.name = redact_url(base)
-        self._http = _http_files(options) if _is_http(base) else None
+        self._http: HttpFiles | None = None
+        if _is_http(base):
+            from .http_source import HttpFiles  # noqa: PLC0415 - aiohttp only for HTTP
+
+            self._http = HttpFiles(options)
         self.stats = self._http.stats if self._http is not None else ReadStats()
 
     async def _get(self, name: str, limit: int) -> bytes:
@@ -149,13 +153,6 @@ class FolderFetcher(ChunkFetcher):
         """Close the HTTP session."""
         if self._http is not None:
             await self._http.aclose()
-
-
-def _http_files(options: HttpOptions | None) -> HttpFiles:
-    """Whole files over HTTP (aiohttp is loaded only for a folder that is a URL)."""
-    from .http_source import HttpFiles  # noqa: PLC0415 - aiohttp only for HTTP
-
-    return HttpFiles(options)
 
 
 def _is_http(text: str) -> bool:
