@@ -41,7 +41,7 @@ from tsog_stream.client.verify import Check
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.container import writer
-from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header
+from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE, Header, container_length
 from tsog_stream.container.index import MAX_INDEX_BYTES, encode_index
 from tsog_stream.container.sources import FileSource, MemorySource, read_index
 from tsog_stream.container.stream_index import MANIFEST, StreamIndex
@@ -72,13 +72,26 @@ def tiny_scene(background: int = 120, seed: int = 3) -> Scene:
     return generate_scene(spec)
 
 
+SMALL_OPTIONS = SegmentOptions(window_s=0.5, policy="duplicate", max_pixels=12 * 12)
+
+
 @pytest.fixture(scope="module")
 def small(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A valid container with a handful of chunks and its index inside the 16 KiB prefix."""
+    """A valid container with a handful of chunks and its index inside the 16 KiB prefix, the
+    payloads after it (the layout of a container over ``COMPACT_MAX``)."""
     path = tmp_path_factory.mktemp("container") / "small.tsogs"
-    segment_scene(
-        tiny_scene(), path, SegmentOptions(window_s=0.5, policy="duplicate", max_pixels=12 * 12)
-    )
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(writer, "COMPACT_MAX", 0)
+        segment_scene(tiny_scene(), path, SMALL_OPTIONS)
+    return path
+
+
+@pytest.fixture(scope="module")
+def compact(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The same scene as ``small`` written as it is by default: compact, payloads right after
+    the index."""
+    path = tmp_path_factory.mktemp("container") / "compact.tsogs"
+    segment_scene(tiny_scene(), path, SMALL_OPTIONS)
     return path
 
 
@@ -156,13 +169,14 @@ def edit_chunks(data: bytes, changes: Mapping[int, Mapping[str, object]]) -> byt
     return with_manifest(data, manifest.model_copy(update={"chunks": chunks}))
 
 
-def short_file_with_chunk_in_prefix(data: bytes) -> bytes:
-    """A file shorter than 16 KiB whose one chunk sits after the index, inside the prefix."""
+def short_file_with_chunk_in_prefix(data: bytes, *, claimed: int = 1024) -> bytes:
+    """A file shorter than 16 KiB whose one chunk sits at byte 1024, after the index, and
+    which its index says is at ``claimed``."""
     manifest = open_bytes(data).manifest
     chunk = min(manifest.chunks, key=lambda c: c.length)
     payload = data[chunk.offset : chunk.offset + chunk.length]
     at = 1024
-    entry = dataclasses.replace(chunk, id=0, file="chunks/000000.sog", offset=at)
+    entry = dataclasses.replace(chunk, id=0, file="chunks/000000.sog", offset=claimed)
     home = (chunk.level, chunk.node)
     nodes = [
         dataclasses.replace(n, chunks=[0] if (n.level, n.index) == home else [])
@@ -195,6 +209,43 @@ def flip(data: bytes, at: int, mask: int = 0x55) -> bytes:
 
 
 # --- damage ------------------------------------------------------------------------------
+
+
+def test_a_small_scene_is_written_compact(small: Path, small_bytes: bytes, compact: Path) -> None:
+    """Under ``COMPACT_MAX`` of payloads nothing pads the file: the payloads follow the index
+    at once, the same chunk bytes as in the 16 KiB-prefix layout, and the file opens, reads
+    and verifies as that one does."""
+    data = compact.read_bytes()
+    index, reserved = open_bytes(data), open_bytes(small_bytes)
+    header = index.header
+    start = header.index_offset + header.index_length
+    assert header.index_offset == HEADER_SIZE and header.version_minor >= 1
+    first = min(c.offset for c in index.manifest.chunks)
+    assert first - start in range(16), "at most a few zero bytes between index and payloads"
+    assert len(data) == len(small_bytes) - PREFIX_SIZE + first
+    estimate = container_length(index.manifest.payload_bytes, header.index_length)
+    assert 0 <= len(data) - estimate < 16, "the segmenter's cost model counts the same bytes"
+    for ours, theirs in zip(index.manifest.chunks, reserved.manifest.chunks, strict=True):
+        assert ours.sha256 == theirs.sha256 and ours.offset - theirs.offset == first - PREFIX_SIZE
+    open_and_read_all(data)
+    with open_stream(compact) as reader:
+        assert reader.verify().exit_code == 0
+
+
+def test_payloads_outgrowing_compact_max_go_after_the_prefix(
+    small_bytes: bytes, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Payloads held while the file may be compact are written after the 16 KiB prefix once
+    they pass ``COMPACT_MAX``: the same file as one never held."""
+    first_two = sum(c.length for c in open_bytes(small_bytes).manifest.chunks[:2])
+    monkeypatch.setattr(writer, "COMPACT_MAX", first_two)
+    path = tmp_path / "outgrown.tsogs"
+    segment_scene(tiny_scene(), path, SMALL_OPTIONS)
+    assert path.read_bytes() == small_bytes
+
+
+def test_a_short_file_with_its_chunk_after_the_index_opens(small_bytes: bytes) -> None:
+    open_and_read_all(short_file_with_chunk_in_prefix(small_bytes))
 
 
 def test_the_small_container_is_valid(small: Path, small_bytes: bytes) -> None:
@@ -250,7 +301,10 @@ def _cases(data: bytes) -> dict[str, tuple[bytes, type[TsogError]]]:
         "chunk past the payload": (edit_chunks(data, past_end), IntegrityError),
         "chunk inside the prefix": (edit_chunks(data, into_prefix), IntegrityError),
         "negative chunk offset": (edit_chunks(data, negative), MetaError),
-        "short file, chunk in the prefix": (short_file_with_chunk_in_prefix(data), IntegrityError),
+        "short file, chunk over its index": (
+            short_file_with_chunk_in_prefix(data, claimed=HEADER_SIZE + 16),
+            IntegrityError,
+        ),
     }
 
 
@@ -277,7 +331,7 @@ CASES = [
     "chunk past the payload",
     "chunk inside the prefix",
     "negative chunk offset",
-    "short file, chunk in the prefix",
+    "short file, chunk over its index",
 ]
 
 
@@ -489,7 +543,8 @@ def test_the_writer_moves_the_index_when_the_prefix_is_full(
 # --- pack / unpack -------------------------------------------------------------------------
 
 
-def test_unpack_then_pack_is_byte_identical(small: Path, tmp_path: Path) -> None:
+def test_unpack_then_pack_is_byte_identical(compact: Path, tmp_path: Path) -> None:
+    small = compact
     folder = tmp_path / "unpacked"
     with open_stream(small) as reader:
         assert reader.unpack(folder) == len(reader.index.manifest.chunks)
@@ -508,6 +563,17 @@ def test_unpack_then_pack_is_byte_identical(small: Path, tmp_path: Path) -> None
         pytest.raises(SourceError, match="already exists"),
     ):
         reader.unpack(folder)
+
+
+def test_packing_the_16_kib_prefix_layout_gives_the_compact_file(
+    small: Path, compact: Path, tmp_path: Path
+) -> None:
+    """Files written before compact containers pack (unpacked and packed again) to the file
+    the writer makes today."""
+    with open_stream(small) as reader:
+        reader.unpack(tmp_path / "unpacked")
+    pack(tmp_path / "unpacked", tmp_path / "packed.tsogs")
+    assert (tmp_path / "packed.tsogs").read_bytes() == compact.read_bytes()
 
 
 @pytest.fixture

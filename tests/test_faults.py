@@ -28,6 +28,7 @@ from tsog_stream.cli.main import main
 from tsog_stream.client import StreamClient, open_stream
 from tsog_stream.client.http_options import HttpOptions
 from tsog_stream.client.verify import RESERVED_START
+from tsog_stream.container import writer
 from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE
 from tsog_stream.container.sources import MemorySource, read_index
 from tsog_stream.errors import FormatError, IntegrityError, SourceError, TsogError
@@ -43,17 +44,27 @@ HARMLESS = ("minor_version", "optional_flags", "reserved", "padding")
 TIMES = (0.25, 0.75, 1.25, 1.75)
 
 
-def _segment(path: Path, seed: int) -> Path:
+def _segment(path: Path, seed: int, *, compact: bool = False) -> Path:
     scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0, dynamic=("means",), seed=seed)
-    segment_scene(scene, path, SegmentOptions(window_s=1.0, policy="duplicate"))
+    with pytest.MonkeyPatch.context() as patch:
+        if not compact:
+            patch.setattr(writer, "COMPACT_MAX", 0)
+        segment_scene(scene, path, SegmentOptions(window_s=1.0, policy="duplicate"))
     return path
 
 
 @pytest.fixture(scope="module")
 def versions(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """Two different containers of the same shape (versions A and B of one scene)."""
+    """Two different containers of the same shape (versions A and B of one scene), with
+    their payloads after the 16 KiB prefix: every region of spec §8.6, padding included."""
     folder = tmp_path_factory.mktemp("faults")
     return _segment(folder / "a.tsogs", 0), _segment(folder / "b.tsogs", 1)
+
+
+@pytest.fixture(scope="module")
+def compact(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Version A as the writer makes it by default: compact, payloads right after the index."""
+    return _segment(tmp_path_factory.mktemp("faults") / "compact.tsogs", 0, compact=True)
 
 
 def same(a: Gaussians, b: Gaussians) -> bool:
@@ -99,6 +110,7 @@ def flip_offsets(path: Path) -> dict[str, list[int]]:
         index = reader.index
     h = index.header
     index_end = h.index_offset + h.index_length
+    first = min(c.offset for c in index.manifest.chunks)
     assert h.index_offset == HEADER_SIZE and index_end < PREFIX_SIZE
     regions = {
         "header": [0, 5, 7, 8, 9, 12, 15, 20, 24, 31, 32, 39, 40, 47, 48, 55, 56, 70, 87],
@@ -106,7 +118,10 @@ def flip_offsets(path: Path) -> dict[str, list[int]]:
         "optional_flags": [16, 19],
         "reserved": [RESERVED_START, 100, HEADER_SIZE - 1],
         "index": _spread(h.index_offset, index_end, 30),
-        "padding": [index_end, index_end + 1, (index_end + PREFIX_SIZE) // 2, PREFIX_SIZE - 1],
+        "padding": sorted(
+            {index_end, index_end + 1, (index_end + first) // 2, first - 1}
+            & set(range(index_end, first))
+        ),
     }
     for c in index.manifest.chunks:
         for name, offsets in _chunk_offsets(data[c.offset : c.offset + c.length], c.offset).items():
@@ -143,6 +158,21 @@ def test_flip_offsets_cover_every_region(versions: tuple[Path, Path]) -> None:
     assert {"chunk0_meta", "chunk1_images", "chunk1_zip_headers", "chunk0_directory"} <= set(
         regions
     )
+
+
+def test_a_compact_container_detects_any_flipped_byte(compact: Path) -> None:
+    """The same damage in a compact container (chunks right after the index) is caught the
+    same way; a flip in the few zero bytes between index and payloads is harmless."""
+    data = compact.read_bytes()
+    regions = flip_offsets(compact)
+    assert min(regions["chunk0_zip_headers"]) < PREFIX_SIZE
+    missed = _undetected(data, regions)
+    assert len(missed) <= 3 and {name for name, _ in missed} <= {"index"}
+    expected = local_frames(compact)
+    for off in regions["padding"]:
+        target = compact.with_name("padding.tsogs")
+        target.write_bytes(flipped(data, off))
+        assert all(same(a, b) for a, b in zip(local_frames(target), expected, strict=True))
 
 
 def _undetected(data: bytes, regions: dict[str, list[int]]) -> list[tuple[str, int]]:

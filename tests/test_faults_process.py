@@ -211,8 +211,20 @@ def temp_files(folder: Path) -> list[Path]:
     return sorted(folder.glob(".*.tmp"))
 
 
-def segment_cmd(src: Path, out: Path) -> list[str]:
-    return [*TSOG, "segment", str(src), "-o", str(out), "--window", "0.25s", "--workers", "2"]
+STREAMING_TSOG = [
+    sys.executable,
+    "-c",
+    "import sys; from tsog_stream.container import writer; writer.COMPACT_MAX = 0; "
+    "from tsog_stream.cli.main import main; sys.exit(main(sys.argv[1:]))",
+]
+"""``tsog`` writing every container with the 16 KiB prefix, its payloads streamed to disk as
+they are encoded (a compact one is written whole at the end): the file grows, so a signal can
+land at any point of the write."""
+
+
+def segment_cmd(src: Path, out: Path, *, compact: bool = False) -> list[str]:
+    tsog = TSOG if compact else STREAMING_TSOG
+    return [*tsog, "segment", str(src), "-o", str(out), "--window", "0.25s", "--workers", "2"]
 
 
 def session_members(sid: int) -> set[int]:
@@ -233,6 +245,7 @@ def full_size(source_chunk: Path, tmp_path_factory: pytest.TempPathFactory) -> i
 
 
 POINTS = {
+    "encoding": lambda size, full: True,  # a compact container: the temp file, still empty
     "early": lambda size, full: size >= PREFIX_SIZE,
     "mid": lambda size, full: size > full // 3,
     "late": lambda size, full: size > full * 2 // 3,
@@ -245,7 +258,7 @@ def interrupt_at(
     """Run ``tsog segment``, send ``sig`` to its process group once the temp file reached
     ``point``; returns the finished process and the pids of its session still alive after."""
     proc = subprocess.Popen(
-        segment_cmd(src, out),
+        segment_cmd(src, out, compact=point == "encoding"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         start_new_session=True,
@@ -282,7 +295,7 @@ def _interrupt(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point", ["early", "mid", "late"])
+@pytest.mark.parametrize("point", ["encoding", "early", "mid", "late"])
 def test_sigint_leaves_nothing_and_exits_130(
     source_chunk: Path, full_size: int, tmp_path: Path, point: str
 ) -> None:
@@ -298,7 +311,7 @@ def test_sigint_leaves_nothing_and_exits_130(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point", ["early", "late"])
+@pytest.mark.parametrize("point", ["encoding", "early", "late"])
 def test_sigkill_leaves_a_temp_file_the_next_run_removes(
     source_chunk: Path, full_size: int, tmp_path: Path, point: str
 ) -> None:

@@ -11,8 +11,10 @@ from __future__ import annotations
 import os
 from collections.abc import Awaitable, Callable
 
+from ..container.header import PREFIX_SIZE
 from ..container.objects import container_output, put_objects
 from ..container.stream_index import MANIFEST, StreamIndex
+from ..container.writer import payloads_at
 from ..errors import IntegrityError
 from ..io.files import atomic_write_folder
 from ..io.objects import is_object_url
@@ -43,7 +45,7 @@ async def pack(index: StreamIndex, chunk_bytes: ChunkBytes, path: str | os.PathL
     Every chunk must land where the index says: an unpacked folder whose manifest was edited
     by hand is refused rather than written with an index that lies.
     """
-    manifest = index.manifest
+    manifest = payloads_at(index.manifest, PREFIX_SIZE)  # where a writer's offsets count from
     with container_output(path) as out:
         for chunk in sorted(manifest.chunks, key=lambda c: c.offset):
             offset, length, _ = out.add(await chunk_bytes(chunk.id))

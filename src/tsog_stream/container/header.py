@@ -14,10 +14,15 @@ from ..constants import CONTAINER_MAGIC as MAGIC
 from ..errors import FormatError, UnsupportedError
 
 VERSION_MAJOR: Final = 1
-VERSION_MINOR: Final = 0
+VERSION_MINOR: Final = 1
+"""1: payloads may start right after an index at offset 128 (a compact container)."""
 HEADER_SIZE: Final = 128
 PREFIX_SIZE: Final = 16 * 1024
-"""Payloads start here; the index sits inside this prefix whenever it fits (one request)."""
+"""What a reader fetches first; the index sits inside it whenever it fits (one request), and
+payloads start here unless the container is compact (they follow the index)."""
+COMPACT_MAX: Final = 4 * 1024 * 1024
+"""Payload bytes up to which writers make a container compact (payloads right after the
+index); beyond them the 16 KiB prefix costs under 0.4 % of the file."""
 KNOWN_REQUIRED_FLAGS: Final = 0
 INDEX_ZSTD: Final = 1
 """Index compression codes (only zstd is defined)."""
@@ -93,3 +98,20 @@ class Header:
                 f"{self.file_length}-byte file",
                 where=where,
             )
+
+    def payload_area(self) -> tuple[int, int]:
+        """[start, end) where chunk payloads may lie: after an index that starts inside the
+        first 16 KiB (a compact container's payloads follow it at once, others start at 16 KiB),
+        else from 16 KiB up to the index appended after them."""
+        if self.index_offset < PREFIX_SIZE:
+            return self.index_offset + self.index_length, self.file_length
+        return PREFIX_SIZE, min(self.index_offset, self.file_length)
+
+
+def container_length(payload_bytes: int | float, index_bytes: int | float) -> float:
+    """Bytes of the container a writer makes of these payloads and compressed index."""
+    if HEADER_SIZE + index_bytes > PREFIX_SIZE:
+        return PREFIX_SIZE + payload_bytes + index_bytes
+    if payload_bytes <= COMPACT_MAX:
+        return HEADER_SIZE + index_bytes + payload_bytes
+    return PREFIX_SIZE + payload_bytes

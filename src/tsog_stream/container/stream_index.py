@@ -134,8 +134,7 @@ def index_span(header: Header) -> ByteRange:
 def container_index(header: Header, index_bytes: bytes, *, where: str) -> StreamIndex:
     """Decode and check the index of a container whose header was read and length checked."""
     manifest = decode_index(index_bytes, header.index_raw_length, header.index_sha256, where=where)
-    payload_end = header.index_offset if header.index_offset >= PREFIX_SIZE else header.file_length
-    check_layout(manifest, PREFIX_SIZE, payload_end, where=where)
+    check_layout(manifest, *header.payload_area(), where=where)
     return StreamIndex(header, manifest, where)
 
 

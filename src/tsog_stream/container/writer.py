@@ -1,14 +1,18 @@
-"""Writing a container: chunk payloads streamed after a reserved 16 KiB prefix, index last.
+"""Writing a container: chunk payloads in order, then the header and the index.
 
-At :meth:`ContainerWriter.finish` the index goes into the prefix right after the header when
-it fits (so a reader needs one request), else it is appended after the payloads. The file is
-built under a temporary name and renamed into place, so an interrupted write leaves nothing
-(a killed one leaves a temp file that the next run removes: see ``io.files``).
+A container whose payloads total at most ``COMPACT_MAX`` is *compact*: the payloads are held
+until :meth:`PayloadWriter.finish` and written right after the index, with no padding (16 KiB
+of it is 9 % of a 180 kB container). A larger one streams its payloads after a reserved 16 KiB
+prefix and at finish the index goes into that prefix when it fits (so a reader needs one
+request), else after the payloads. The file is built under a temporary name and renamed into
+place, so an interrupted write leaves nothing (a killed one leaves a temp file that the next
+run removes: see ``io.files``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import os
 from pathlib import Path
@@ -18,7 +22,15 @@ from typing import BinaryIO, Protocol
 from ..errors import SourceError
 from ..io.files import temp_path
 from ..schemas.manifest import Manifest
-from .header import HEADER_SIZE, INDEX_ZSTD, PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
+from .header import (
+    COMPACT_MAX,
+    HEADER_SIZE,
+    INDEX_ZSTD,
+    PREFIX_SIZE,
+    VERSION_MAJOR,
+    VERSION_MINOR,
+    Header,
+)
 from .index import encode_index
 
 
@@ -41,23 +53,47 @@ class Sink(Protocol):
 
 
 class PayloadWriter:
-    """Appends chunk payloads to a seekable binary stream and finishes it with header + index."""
+    """Appends chunk payloads to a seekable binary stream and finishes it with header + index.
 
-    def __init__(self, out: Sink) -> None:
+    Offsets returned by :meth:`add` count from the reserved 16 KiB prefix; a compact container
+    moves every chunk back by the same amount at finish, in the index it writes.
+    """
+
+    def __init__(self, out: Sink, *, compact_max: int | None = None) -> None:
         self.out = out
         self.out.seek(0)
-        self.out.write(b"\x00" * PREFIX_SIZE)
         self.position = PREFIX_SIZE
+        self.compact_max = COMPACT_MAX if compact_max is None else compact_max
+        self._held: list[bytes] | None = []
+        """Payloads not yet written, while the container may still be compact."""
 
     def add(self, payload: bytes) -> tuple[int, int, str]:
         """Append one chunk; returns (offset, length, SHA-256 hex)."""
         offset = self.position
-        self.out.write(payload)
+        if self._held is not None and offset - PREFIX_SIZE + len(payload) <= self.compact_max:
+            self._held.append(payload)
+        else:
+            self._reserve_prefix()
+            self.out.write(payload)
         self.position += len(payload)
         return offset, len(payload), hashlib.sha256(payload).hexdigest()
 
+    def _reserve_prefix(self) -> None:
+        """Give up on a compact container: the 16 KiB prefix, then the payloads held."""
+        if self._held is None:
+            return
+        self.out.write(b"\x00" * PREFIX_SIZE)
+        for payload in self._held:
+            self.out.write(payload)
+        self._held = None
+
     def finish(self, manifest: Manifest) -> int:
         """Write the index and the header; returns the file length."""
+        if self._held is not None:
+            compact = _compact_index(manifest)
+            if compact is not None:
+                return self._finish_compact(*compact)
+            self._reserve_prefix()
         index, digest, raw_length = encode_index(manifest)
         if HEADER_SIZE + len(index) <= PREFIX_SIZE:
             index_offset = HEADER_SIZE
@@ -65,25 +101,73 @@ class PayloadWriter:
         else:
             index_offset = self.position
             file_length = self.position + len(index)
-        header = Header(
-            VERSION_MAJOR,
-            VERSION_MINOR,
-            0,
-            0,
-            INDEX_ZSTD,
-            index_offset,
-            len(index),
-            raw_length,
-            file_length,
-            digest,
-        )
         self.out.seek(index_offset)
         self.out.write(index)
         self.out.seek(0)
-        self.out.write(header.pack())
+        self.out.write(_header(index, digest, raw_length, index_offset, file_length).pack())
         self.out.seek(file_length)
         self.out.truncate()
         return file_length
+
+    def _finish_compact(self, index: bytes, digest: bytes, raw_length: int, start: int) -> int:
+        """Header, index, zeros up to ``start``, then the payloads held."""
+        file_length = start + self.position - PREFIX_SIZE
+        header = _header(index, digest, raw_length, HEADER_SIZE, file_length)
+        self.out.write(header.pack() + index + bytes(start - HEADER_SIZE - len(index)))
+        for payload in self._held or ():
+            self.out.write(payload)
+        self._held = None
+        self.out.truncate()
+        return file_length
+
+
+def _header(index: bytes, digest: bytes, raw_length: int, offset: int, length: int) -> Header:
+    return Header(
+        VERSION_MAJOR,
+        VERSION_MINOR,
+        0,
+        0,
+        INDEX_ZSTD,
+        offset,
+        len(index),
+        raw_length,
+        length,
+        digest,
+    )
+
+
+def _compact_index(manifest: Manifest) -> tuple[bytes, bytes, int, int] | None:
+    """(index, digest, raw length, payload start) of ``manifest`` with its payloads moved to
+    right after the index, or None when the index does not fit the first 16 KiB. Moving the
+    chunks changes the index's length, so starts are tried until the index ends at one (the
+    lowest start it fits before is kept: any gap is a few zero bytes)."""
+    best = None
+    start = HEADER_SIZE + len(encode_index(manifest)[0])
+    for _ in range(8):
+        if start > PREFIX_SIZE:
+            break
+        index, digest, raw_length = encode_index(_moved(manifest, start - PREFIX_SIZE))
+        end = HEADER_SIZE + len(index)
+        if end <= start and (best is None or start < best[3]):
+            best = (index, digest, raw_length, start)
+        if end == start:
+            break
+        start = end
+    return best
+
+
+def payloads_at(manifest: Manifest, start: int) -> Manifest:
+    """``manifest`` with every chunk moved by the same amount so the first starts at
+    ``start`` (their order and the gaps between them kept)."""
+    if not manifest.chunks:
+        return manifest
+    return _moved(manifest, start - min(c.offset for c in manifest.chunks))
+
+
+def _moved(manifest: Manifest, shift: int) -> Manifest:
+    """``manifest`` with every chunk's offset moved by ``shift`` bytes."""
+    chunks = [dataclasses.replace(c, offset=c.offset + shift) for c in manifest.chunks]
+    return manifest.model_copy(update={"chunks": chunks})
 
 
 class ContainerFile:

@@ -21,7 +21,7 @@ import numpy.typing as npt
 
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
-from ..container.header import HEADER_SIZE, PREFIX_SIZE
+from ..container.header import HEADER_SIZE, PREFIX_SIZE, container_length
 from ..errors import InputError
 from ..model import Scene
 from ..morton import morton_run
@@ -312,7 +312,7 @@ def estimate(life: Lifespans, layout: Layout, costs: Costs) -> Estimate | None:
     shown = life.visible(times) * costs.per_gaussian + costs.per_chunk
     return Estimate(
         layout=layout,
-        file_bytes=PREFIX_SIZE + float(node_bytes.sum()) + index_bytes,
+        file_bytes=container_length(float(node_bytes.sum()), index_bytes),
         chunks=int(chunks.sum()),
         seek_mean=opening + float(fetched.mean()),
         seek_worst=opening + float(fetched.max()),

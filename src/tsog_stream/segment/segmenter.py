@@ -53,6 +53,7 @@ from .layers import (
 )
 from .layout import (
     Choice,
+    Costs,
     Lifespans,
     choose_layout,
     chunk_counts,
@@ -1034,16 +1035,38 @@ def _framing_samples(frames: Collection[Scene]) -> Gaussians:
     return Gaussians.concat([framing_sample(frame.gaussians, share) for frame in frames])
 
 
+COST_FRAMES = 3
+"""Frames of a sequence whose costs the layout model averages: the first, the middle and the
+last. Frames of one sequence differ: the fireworks' first three cost 3.3 bytes a Gaussian at
+quality 90, the last three 8.2-8.9, and measured on the first alone the model took one chunk
+per frame for 17 % more file than one chunk in all (it is 3 % more)."""
+
+
+def sequence_costs(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Costs:
+    """The cost model's bytes per Gaussian and per chunk, the mean over COST_FRAMES frames
+    spread over the sequence."""
+    picks = np.unique(np.linspace(0, seq.count - 1, min(seq.count, COST_FRAMES)).round())
+    measured = [
+        measure_costs(seq.read(k, k + 1).scene, max_count, options.seed, options.quality)
+        for k in picks.astype(int).tolist()
+    ]
+    return Costs(
+        per_gaussian=float(np.mean([c.per_gaussian for c in measured])),
+        per_chunk=float(np.mean([c.per_chunk for c in measured])),
+        max_count=max_count,
+    )
+
+
 def sequence_layout(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Choice:
     """Frames per chunk for a frame sequence: the options' window rounded to frames, else the
-    cost model's choice (costs measured on the first frame)."""
+    cost model's choice (:func:`sequence_costs`)."""
     window_s = options.window_s
     if window_s is not None:
         window_count(0.0, 1.0, window_s)
         window_s = max(1, round(window_s * seq.fps)) / seq.fps
     if seq.count == 0:
         raise InputError("the sequence has no frames")
-    costs = measure_costs(seq.read(0, 1).scene, max_count, options.seed, options.quality)
+    costs = sequence_costs(seq, options, max_count)
     life = Lifespans.of_frames([c for c, _ in seq.shapes], seq.fps)
     return choose_layout(life, costs, window_s=window_s, policy=options.policy or DEFAULT_POLICY)
 
