@@ -160,10 +160,11 @@ def local_frames(path: Path, times: tuple[float, ...]) -> list[Gaussians]:
 
 
 def wire_bytes(client: StreamClient, times: list[float], gap: int) -> int:
-    """Bytes of the coalesced runs of the chunks the given times need."""
+    """Bytes of the coalesced runs of the chunks the given times need, less what the opening
+    request already brought (a compact container's first chunks start inside it)."""
     chunks = {c.id: c for t in times for c in client.index.chunks_for(t)}.values()
     runs = coalesce((client.index.chunk_range(c) for c in chunks), gap)
-    return sum(r.length for r in runs)
+    return sum(max(r.end - max(r.start, PREFIX_SIZE), 0) for r in runs)
 
 
 def test_frames_match_the_local_reader_and_open_is_one_request(
@@ -198,6 +199,23 @@ def test_bytes_on_the_wire_are_the_chunks_needed(origin: Origin) -> None:
     assert nbytes == PREFIX_SIZE + needed
     assert origin.sent == nbytes
     assert requests == len(origin.log)
+
+
+def test_the_opening_request_serves_the_start_of_the_first_chunk(origin: Origin) -> None:
+    """In a compact container the first chunk starts inside the first 16 KiB: only its bytes
+    past them are asked for, and it decodes the same."""
+
+    async def run() -> tuple[int, list[str]]:
+        async with await StreamClient.open(origin.url(), http=FAST) as client:
+            first = min(client.index.manifest.chunks, key=lambda c: c.offset)
+            assert first.offset < PREFIX_SIZE < first.offset + first.length
+            await client.chunk_bytes(first.id)  # checked against its SHA-256
+            return first.offset + first.length, [str(r) for r, _ in origin.log]
+
+    end, log = asyncio.run(run())
+    assert log[0] == f"bytes=0-{PREFIX_SIZE - 1}"
+    assert all(int(r.split("=")[1].split("-")[0]) >= PREFIX_SIZE for r in log[1:]), log
+    assert origin.sent == end, "no byte asked for twice"
 
 
 def test_coalescing_reduces_requests(origin: Origin, container: Path) -> None:

@@ -97,8 +97,8 @@ def test_a_flipbook_is_stored_one_frame_per_chunk_and_no_larger_than_its_frames(
     samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """The in-repo PLY frames (independent fireworks frames): the default layout stores each
-    frame in its own chunk, a seek reads one frame, and the container is no larger than one
-    SOG per frame plus the 16 KiB prefix."""
+    frame in its own chunk, a seek reads one frame, and the container (compact: no 16 KiB
+    prefix) is no larger than one SOG per frame."""
     frames = samples / FIREWORKS
     out = tmp_path / "fw.tsogs"
     assert main(["segment", str(frames), "-o", str(out), "-q"]) == 0
@@ -106,7 +106,7 @@ def test_a_flipbook_is_stored_one_frame_per_chunk_and_no_larger_than_its_frames(
     assert "a window per frame" in printed.out and "warning" not in printed.err
     seq = open_sequence(frames)
     own = [len(bundle_bytes(encode_chunk(seq.read(k, k + 1).scene))) for k in range(seq.count)]
-    assert out.stat().st_size <= sum(own) + PREFIX_SIZE
+    assert out.stat().st_size <= sum(own)
     with open_stream(out) as stream:
         assert len(stream.index.manifest.chunks) == seq.count
         for k in range(seq.count):

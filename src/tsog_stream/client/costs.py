@@ -40,9 +40,9 @@ class SeekCost:
 def seek_cost(
     index: StreamIndex, t: float, chunks: Sequence[ChunkEntry], scenes: Sequence[Scene]
 ) -> SeekCost:
-    """The cost of showing ``t`` from the chunks it needs, ``scenes`` those of Gaussians
-    decoded (requests = coalesced adjacent ranges; an SH-band chunk's bytes count with its
-    host's)."""
+    """The cost of showing ``t`` from the chunks it needs after opening, ``scenes`` those of
+    Gaussians decoded (requests = coalesced adjacent ranges; bytes the opening request already
+    brought are not fetched again; an SH-band chunk's bytes count with its host's)."""
     visible = 0
     visible_bytes = 0.0
     bands = {c.sh_of: c.length for c in chunks if c.sh_of is not None}
@@ -52,8 +52,10 @@ def seek_cost(
         n = int(np.count_nonzero(mask))
         visible += n
         visible_bytes += (chunk.length + bands.get(chunk.id, 0)) * n / max(1, chunk.count)
-    fetched = sum(c.length for c in chunks)
-    requests = len(coalesce(index.chunk_range(c) for c in chunks))
+    held = index.opening_bytes  # served again by the reader without a request
+    fetched = sum(max(c.offset + c.length - max(c.offset, held), 0) for c in chunks)
+    runs = coalesce(index.chunk_range(c) for c in chunks)
+    requests = sum(1 for run in runs if run.end > held)
     return SeekCost(
         t,
         len(chunks),

@@ -131,7 +131,7 @@ class FolderFetcher(ChunkFetcher):
         """Read ``manifest.json`` (one request) and present it as an opened container."""
         raw = await self._get(MANIFEST, MAX_INDEX_BYTES)
         index = unpacked_index(raw, where=self._where(MANIFEST))
-        return StreamIndex(index.header, index.manifest, self.name)
+        return StreamIndex(index.header, index.manifest, self.name, packed=False)
 
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
         """Each chunk's file, one request each (a longer file is refused unread)."""

@@ -99,7 +99,8 @@ class HttpSource:
             return self._size
 
     async def read(self, span: ByteRange) -> bytes:
-        """Exactly the bytes of ``span``: from memory when already received, else one GET."""
+        """Exactly the bytes of ``span``: from memory as far as already received, the rest with
+        one GET."""
         size = await self.size()
         if not span.within(size):
             raise SourceError(
@@ -109,8 +110,12 @@ class HttpSource:
             return b""
         if self._copy is not None:
             return self._copy[span.start : span.end]
-        if span.end <= len(self._head):
+        held = len(self._head)
+        if span.end <= held:
             return self._head[span.start : span.end]
+        if span.start < held:  # a compact container's first chunk begins in the first request
+            rest = await self._fetch(ByteRange(held, span.end), probe=False)
+            return self._head[span.start :] + rest
         return await self._fetch(span, probe=False)
 
     async def _fetch(self, span: ByteRange, *, probe: bool) -> bytes:

@@ -35,6 +35,14 @@ class StreamIndex:
     header: Header
     manifest: Manifest
     name: str
+    packed: bool = True
+    """One ``.tsogs`` file (False: ``manifest.json`` + ``chunks/``, each chunk a file)."""
+
+    @property
+    def opening_bytes(self) -> int:
+        """Bytes of the file a reader holds after opening it: the first 16 KiB of a packed
+        container (a compact one's first chunks begin there), nothing of an unpacked one."""
+        return min(PREFIX_SIZE, self.size) if self.packed else 0
 
     @property
     def identity(self) -> str:
@@ -155,7 +163,7 @@ def unpacked_index(manifest_json: bytes, *, where: str) -> StreamIndex:
         file_length=end + len(manifest_json),
         index_sha256=hashlib.sha256(manifest_json).digest(),
     )
-    return StreamIndex(header, manifest, where)
+    return StreamIndex(header, manifest, where, packed=False)
 
 
 def verify_chunk(chunk: ChunkEntry, data: bytes, *, where: str) -> bytes:
