@@ -77,10 +77,18 @@ def _position_budget(scene: Scene, quality: int) -> np.ndarray:
     return np.asarray(f * stretch * CORE_AT_ZERO * radius / np.maximum(alpha, 1 / FAINT_MAX))
 
 
+def _fade(timeline: Timeline, t: np.ndarray) -> np.ndarray:
+    """g(t) of docs/spec.md §5.1: the type-2 temporal opacity factor (1 for other types)."""
+    if timeline.type is not TimelineType.CENTER_SCALE:
+        return np.ones_like(t)
+    return np.asarray(np.exp(-0.5 * ((t - timeline.t0) / timeline.t1) ** 2))
+
+
 def _moved(full: Scene, cut: Scene) -> tuple[np.ndarray, np.ndarray]:
     """How far each Gaussian of ``cut`` is from ``full`` over the part of its lifespan inside
-    the scene (nothing is drawn outside it): the worst axis at the worst time, and the
-    largest of its axes' root mean squares."""
+    the scene (nothing is drawn outside it), times g(t) (an error shows as much as the
+    Gaussian is drawn): the worst axis at the worst time, and the largest of its axes' root
+    mean squares."""
     assert full.timeline is not None
     start, end = lifespans(full.timeline)
     first, last = time_range(full.timeline)
@@ -89,6 +97,7 @@ def _moved(full: Scene, cut: Scene) -> tuple[np.ndarray, np.ndarray]:
     for share in (np.arange(SAMPLES) + 0.5) / SAMPLES:  # midpoints: never above the true mean
         t = start + share * (end - start)
         moved = np.abs(_positions(cut, t) - _positions(full, t))
+        moved *= _fade(full.timeline, t)[:, None]
         worst, squares = np.maximum(worst, moved.max(axis=1)), squares + moved**2
     return worst, np.sqrt(squares / SAMPLES).max(axis=1)
 
@@ -151,8 +160,39 @@ def test_motion_seen_away_from_its_reference_time_keeps_the_worst_case_bound() -
     share = budgets.position / 3
     assert np.all(change[away] <= share[away] * 1.0001 + 1e-9)
     assert np.any(change[away] > share[away] / 2)  # the share is used, not avoided
-    assert np.all(change <= share * rms_room(1) * 1.0001 + 1e-9)
+    assert np.all(velocity.max(axis=1) * budgets.motion_span(1) <= share * 1.0001 + 1e-9)
     assert np.any(change[~away] > share[~away])  # and the root mean square's room
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_the_motion_span_bounds_the_faded_root_mean_square(order: int) -> None:
+    """motion_span(k) bounds the root mean square of g(t) (t - t_ref)^k over the part of each
+    lifespan inside the scene (by quadrature, dense), for lifespans inside the clip, cut by
+    its ends and longer than it; and a fading Gaussian gets more room than sqrt(2k + 1)."""
+    rng = np.random.default_rng(order)
+    n = 600
+    centre = rng.uniform(-1.0, 11.0, n)
+    scale = np.exp(rng.uniform(np.log(0.02), np.log(40.0), n))
+    timeline = Timeline(TimelineType.CENTER_SCALE, centre, scale, scene_length=10.0)
+    scene = Scene(static_gaussians(n, seed=order), timeline)
+    budgets = Budgets.of(scene, 50)
+    assert budgets is not None
+    span = budgets.motion_span(order)
+    start, end = lifespans(timeline)
+    start, end = np.maximum(start, 0.0), np.minimum(end, 10.0)
+    held = budgets.around_reference
+    t = start[:, None] + (np.arange(4096) + 0.5) / 4096 * (end - start)[:, None]
+    weighed = np.exp(-0.5 * ((t - centre[:, None]) / scale[:, None]) ** 2)
+    weighed *= np.abs(t - centre[:, None]) ** order
+    rms = np.sqrt(np.mean(weighed**2, axis=1))
+    assert np.all(rms[held] <= span[held] * 1.0001)
+    worst = np.abs(t - centre[:, None]).max(axis=1) ** order
+    away = ~held & (end > start)  # seen, but not at its centre
+    assert away.sum() > 20 and np.all(worst[away] <= span[away] * 1.0001)
+    uniform = budgets.reach**order / rms_room(order)
+    whole_start, whole_end = lifespans(timeline)
+    inside = (whole_start > 0.0) & (whole_end < 10.0)  # whole lifespans inside the clip
+    assert inside.sum() > 20 and np.all(span[inside] < uniform[inside] / 4)
 
 
 def test_positions_move_by_the_core_share_over_alpha_whatever_their_size() -> None:
@@ -284,8 +324,8 @@ def test_the_cli_takes_quality(
 @pytest.mark.parametrize("quality", [75, 0])
 def test_motion_of_every_attribute_stays_within_its_budget(quality: int) -> None:
     """Each order k of a rotation's, scale's, colour's or opacity's motion moves it by its
-    share over the lifespan as a root mean square: |Δc_k| reach^k <= (what the base may move)
-    / orders x sqrt(2k + 1) where the lifespan holds t_ref, x 1 (at every t) where not."""
+    share over the lifespan as a root mean square weighted by g(t)²: |Δc_k| times
+    :meth:`Budgets.motion_span` <= (what the base may move) / orders."""
     dynamic = ("means", "quats", "scales", "sh0", "opacity")
     scene = small_scene(TimelineType.CENTER_SCALE, dynamic=dynamic, seed=4)
     ordered = scene.subset(texel_order(scene))
@@ -304,9 +344,9 @@ def test_motion_of_every_attribute_stays_within_its_budget(quality: int) -> None
     for attr, share in shares.items():
         orders = full[attr].shape[1]
         for k in range(orders):
-            change = np.abs(cut[attr][:, k] - full[attr][:, k]) * budgets.reach[:, None] ** (k + 1)
-            room = np.where(budgets.around_reference, rms_room(k + 1), 1.0)[:, None]
-            assert np.all(change <= share / orders * room * 1.0001 + 1e-6), (attr, k)
+            span = budgets.motion_span(k + 1)[:, None]
+            change = np.abs(cut[attr][:, k] - full[attr][:, k]) * span
+            assert np.all(change <= share / orders * 1.0001 + 1e-6), (attr, k)
             moved_any |= bool(np.any(change > 0))
     assert moved_any  # the budgets are used
 

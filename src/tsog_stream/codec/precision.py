@@ -31,6 +31,7 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -184,6 +185,10 @@ class Budgets:
     around_reference: npt.NDArray[np.bool_]
     """(N,) whether that part of its lifespan holds its reference time: its motion's error
     may then be budgeted as a root mean square (:func:`coarsen_motion`)."""
+    fading: F64
+    """(N, 2) seconds of a type-2 Gaussian's temporal scale and of the part of its lifespan
+    inside the scene (the motion's error weighed by its temporal opacity,
+    :meth:`motion_span`); infinite scales for the other timeline types."""
     moving: bool
     """Whether the chunk stores motion of the means: the position budget is then split in
     three (base, motion, reference time)."""
@@ -225,6 +230,7 @@ class Budgets:
         timeline = scene.timeline
         reach, around_reference = _reach(timeline)
         reach = reach * (1.0 + f * TIME_AT_ZERO)
+        fading = _fading(timeline, f)
         time = _time_budget(timeline, f)
         if set(scene.temporal) - {"means"}:
             time[:, 0] = 0.0  # t_ref of rotations, colours or opacities that move: kept exact
@@ -237,6 +243,7 @@ class Budgets:
             time,
             reach,
             around_reference,
+            fading,
             motion is not None,
             rotation,
             scale_slack=f * SCALE_AT_ZERO,
@@ -247,6 +254,23 @@ class Budgets:
     def base_position(self) -> F64:
         """What the base position may move: a third of the budget when the chunk has motion."""
         return self.position / 3 if self.moving else self.position
+
+    def motion_span(self, order: int) -> F64:
+        """(N,) what an error d in a coefficient of order k may be multiplied by, at most, in
+        the motion's share of the error: d x this bounds the change it makes over the
+        lifespan (the largest, or the root mean square where the lifespan holds t_ref).
+
+        The root mean square over |t - t_ref| <= reach is at most reach^k / sqrt(2k + 1).
+        A type-2 Gaussian is drawn at exp(-(t - c)² / 2s²) of its opacity, and an error
+        drawn at alpha a changes the picture a² times as much (as :func:`faintness`); with
+        t_ref = c, the mean over a part of length L of that weight times (t - c)^2k is at
+        most Gamma(k + 1/2) s^(2k+1) / L (the integral over all t), so a long-lived
+        Gaussian's motion may be coarser where it fades."""
+        uniform = self.reach**order / rms_room(order)
+        scale, length = self.fading[:, 0], self.fading[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            weighted = np.sqrt(math.gamma(order + 0.5) * scale ** (2 * order + 1) / length)
+        return np.where(self.around_reference, np.fmin(uniform, weighted), self.reach**order)
 
     def change_over_lifespan(self, attr: str, channels: int) -> F64:
         """(N, channels) how far the motion of ``attr`` may move it over the lifespan, in the
@@ -348,6 +372,23 @@ def _reach(timeline: Timeline | None) -> tuple[F64, npt.NDArray[np.bool_]]:
     return np.where(seen, reach, 0.0), seen & (start <= ref) & (ref <= end)
 
 
+def _fading(timeline: Timeline | None, f: float) -> F64:
+    """(N, 2): each type-2 Gaussian's temporal scale and the length of the part of its
+    lifespan inside the scene, in seconds, with the room a coarsened lifespan may take (the
+    scale larger, the part shorter); an infinite scale for the other types."""
+    if timeline is None:
+        return np.zeros((0, 2))
+    n = len(timeline)
+    if timeline.type is not TimelineType.CENTER_SCALE:
+        return np.stack([np.full(n, np.inf), np.ones(n)], axis=1)
+    first, last = time_range(timeline)
+    start, end = lifespans(timeline)
+    length = np.minimum(end, last) - np.maximum(start, first)
+    scale = timeline.t1.astype(np.float64) * (1.0 + f * TIME_AT_ZERO)  # type 2: in seconds
+    length = np.maximum(length, 0.0) / (1.0 + f * TIME_AT_ZERO)
+    return np.stack([scale, length], axis=1)
+
+
 def coarsen_positions(codes: U16, mins: F64, maxs: F64, means: F64, budget: F64) -> U16:
     """Position codes (SOG's symmetric-log domain) coarsened within ``budget`` scene units per
     Gaussian: d(log)/dx = 1 / (1 + |x|) turns the budget into a log-domain one per axis."""
@@ -408,26 +449,23 @@ def coarsen_motion(
     budgets: Budgets,
 ) -> U16:
     """Codes of order ``order`` of the motion of ``attr`` coarsened so that, over the
-    Gaussian's own lifespan (``|t - t_ref| <= reach``), the change it makes to the attribute
-    has a root mean square within its share of :meth:`Budgets.change_over_lifespan`, split
-    evenly over the ``orders`` (their sum's too, by Minkowski's inequality).
+    Gaussian's own lifespan (``|t - t_ref| <= reach``), the change it makes to the attribute,
+    times the temporal opacity factor g(t) of a type-2 Gaussian, has a root mean square within
+    its share of :meth:`Budgets.change_over_lifespan`, split evenly over the ``orders`` (their
+    sum's too, by Minkowski's inequality).
 
-    An error d in the coefficient moves the attribute by d |t - t_ref|^k, whose mean square
-    over an interval holding t_ref inside ``|t - t_ref| <= reach`` is at most
-    (d reach^k)² / (2k + 1): the share may be :func:`rms_room` = sqrt(2k + 1) times the
-    worst case's there (its largest change, at the far end, is that much above the share).
-    Where the lifespan inside the scene does not hold t_ref (a type-2 centre outside the
-    clip) the largest change is kept within the share itself. Bounding the largest change
-    spent 3-8 % more bytes at quality 0-50 on the .splatv captures for no PSNR
-    (docs/design/chunk-codec.md)."""
-    room = np.where(budgets.around_reference, rms_room(order), 1.0)[:, None]
+    An error d in the coefficient moves the attribute by d |t - t_ref|^k; :meth:`Budgets.
+    motion_span` bounds that over d (a root mean square where the lifespan inside the scene
+    holds t_ref, else the largest). Bounding the largest change everywhere spent 3-8 % more
+    bytes at quality 0-50 on the .splatv captures for no PSNR; leaving out g spent 4-6 % more
+    on the .splatv captures and the FreeTimeGS donuts at equal PSNR (docs/design/
+    chunk-codec.md)."""
     share = budgets.change_over_lifespan(attr, codes.shape[1])
     share /= orders
-    share *= room
     shared = attr != "means"  # rates of turn, scale, colour, opacity: mostly one value (zero)
-    reach = budgets.reach**order
-    still = ~(reach > 0)  # no time to move in: any coefficient will do
-    share /= np.where(still, 1.0, reach)[:, None]
+    span = budgets.motion_span(order)
+    still = ~(span > 0)  # no time to move in: any coefficient will do
+    share /= np.where(still, 1.0, span)[:, None]
     share[still] = np.inf
     return coarsen(codes, to_codes(share, mins, maxs), shared=shared)
 
