@@ -71,10 +71,10 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 19:18): on the FreeTimeGS donuts and the .splatv captures its
-rendered PSNR is within 0.1 dB of quality 100's, worst view unchanged, for 4.0-12 % fewer
-bytes; on the fireworks PLY frames 0.5 dB below (worst view 0.7) for 4.1 %; 75 costs up to
-1.7 dB on those (the long donut) and 9 dB on the fireworks (worst view 12.5)."""
+bench_rate.py, 2026-11-27 22:14): on the FreeTimeGS donuts and the .splatv captures its
+rendered PSNR is within 0.1 dB of quality 100's, worst view unchanged or better, for 6.6-16 %
+fewer bytes; on the fireworks PLY frames 0.5 dB below (worst view 0.7) for 4.1 %; 75 costs up
+to 2.3 dB on those (the long donut) and 9 dB on the fireworks (worst view 12.5)."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
@@ -91,6 +91,12 @@ framing the core, an opaque Gaussian): positions were the cheapest decibels on e
 bench_rate scene but the fireworks (where they cost as much as the rest), so the bottom of the
 scale reaches lower rates through them. At `.4dgs`'s PSNR: spinach < 0.94x -> 0.73x its bytes,
 coffee10 < 1.11x -> < 0.83x, the donuts 0.66-0.73x (docs/design/chunk-codec.md)."""
+MOTION_AT_ZERO = 8.0
+"""At quality 0 the means' motion may take this many times its third of the position budget
+(:func:`stretch`: 1.03x at quality 50): on the .splatv captures the motion's codes were the
+cheapest decibels left at the bottom of the scale (coffee10 at quality 0: 11.8 -> 10.0 B/Gaussian
+for 24.0 -> 22.4 dB), the FreeTimeGS donuts' linear motion costs 0.01-0.02 of their ratio to
+`.4dgs`'s bytes at its PSNR (docs/design/chunk-codec.md)."""
 FAINT_MAX = 32.0
 """A Gaussian's position budget grows as 1 / alpha up to this many times an opaque one's
 (alpha 1/32 and fainter; 128 measured the same)."""
@@ -201,6 +207,9 @@ class Budgets:
     """f_dc a base colour may move beyond its codebook error (every Gaussian)."""
     alpha_slack: float = 0.0
     """Alpha (0..1) an opacity may move (every Gaussian)."""
+    motion_stretch: float = 1.0
+    """The means' motion's share over its third of the position budget (:func:`stretch`
+    with MOTION_AT_ZERO)."""
 
     @classmethod
     def of(cls, scene: Scene, quality: int) -> Budgets | None:
@@ -249,6 +258,7 @@ class Budgets:
             scale_slack=f * SCALE_AT_ZERO,
             colour_slack=f * COLOUR_AT_ZERO / SH_C0,
             alpha_slack=f * ALPHA_AT_ZERO,
+            motion_stretch=stretch(f, MOTION_AT_ZERO),
         )
 
     def base_position(self) -> F64:
@@ -275,12 +285,12 @@ class Budgets:
     def change_over_lifespan(self, attr: str, channels: int) -> F64:
         """(N, channels) how far the motion of ``attr`` may move it over the lifespan, in the
         units its coefficients are stored in (docs/spec.md §6): means a third of the position
-        budget; quats the rotation budget as quaternion components (as the base's bytes);
+        budget times ``motion_stretch``; quats the rotation budget as quaternion components (as the base's bytes);
         scales and sh0 colours their slacks; opacity (logit; sh0's A channel) four times the
         alpha slack (d alpha / d logit <= 1/4)."""
         n = len(self.position)
         if attr == "means":
-            per_gaussian = self.position / 3
+            per_gaussian = self.position / 3 * self.motion_stretch
         elif attr == "quats":
             per_gaussian = self.rotation / TURN_PER_COMPONENT
         else:
@@ -300,10 +310,16 @@ def across(pick: np.ufunc, values: F64) -> F64:
     return np.asarray(functools.reduce(pick, values.T))
 
 
+def stretch(f: float, at_zero: float) -> float:
+    """1 + (at_zero - 1) f⁴: 1 at quality 100, within 0.4 % x (at_zero - 1) of 1 down to
+    quality 50, ``at_zero`` at quality 0 (how the bottom of the scale reaches lower rates)."""
+    return 1.0 + (at_zero - 1.0) * f**4
+
+
 def position_fraction(f: float) -> float:
     """The position budget's fraction at budget fraction f: f (1 + (POSITION_AT_ZERO - 1) f⁴),
     within 6 % of f down to quality 50, POSITION_AT_ZERO at quality 0."""
-    return f * (1.0 + (POSITION_AT_ZERO - 1.0) * f**4)
+    return f * stretch(f, POSITION_AT_ZERO)
 
 
 def faintness(logits: npt.NDArray[np.floating]) -> F64:
@@ -486,5 +502,6 @@ __all__ = [
     "faintness",
     "position_fraction",
     "rms_room",
+    "stretch",
     "thin_labels",
 ]
