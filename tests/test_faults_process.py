@@ -16,6 +16,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -244,7 +245,7 @@ def full_size(source_chunk: Path, tmp_path_factory: pytest.TempPathFactory) -> i
     return out.stat().st_size
 
 
-POINTS = {
+POINTS: dict[str, Callable[[int, int], bool]] = {
     "encoding": lambda size, full: True,  # a compact container: the temp file, still empty
     "early": lambda size, full: size >= PREFIX_SIZE,
     "mid": lambda size, full: size > full // 3,

@@ -285,9 +285,9 @@ class Budgets:
     def change_over_lifespan(self, attr: str, channels: int) -> F64:
         """(N, channels) how far the motion of ``attr`` may move it over the lifespan, in the
         units its coefficients are stored in (docs/spec.md §6): means a third of the position
-        budget times ``motion_stretch``; quats the rotation budget as quaternion components (as the base's bytes);
-        scales and sh0 colours their slacks; opacity (logit; sh0's A channel) four times the
-        alpha slack (d alpha / d logit <= 1/4)."""
+        budget times ``motion_stretch``; quats the rotation budget as quaternion components
+        (as the base's bytes); scales and sh0 colours their slacks; opacity (logit; sh0's A
+        channel) four times the alpha slack (d alpha / d logit <= 1/4)."""
         n = len(self.position)
         if attr == "means":
             per_gaussian = self.position / 3 * self.motion_stretch
