@@ -276,11 +276,11 @@ class Budgets:
         t_ref = c, the mean over a part of length L of that weight times (t - c)^2k is at
         most Gamma(k + 1/2) s^(2k+1) / L (the integral over all t), so a long-lived
         Gaussian's motion may be coarser where it fades."""
-        uniform = self.reach**order / rms_room(order)
+        far = self.reach**order
         scale, length = self.fading[:, 0], self.fading[:, 1]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             weighted = np.sqrt(math.gamma(order + 0.5) * scale ** (2 * order + 1) / length)
-        return np.where(self.around_reference, np.fmin(uniform, weighted), self.reach**order)
+        return np.where(self.around_reference, np.fmin(far / rms_room(order), weighted), far)
 
     def change_over_lifespan(self, attr: str, channels: int) -> F64:
         """(N, channels) how far the motion of ``attr`` may move it over the lifespan, in the
@@ -373,15 +373,21 @@ def _time_budget(timeline: Timeline | None, f: float) -> F64:
     return np.stack([share, share], axis=1)
 
 
-def _reach(timeline: Timeline | None) -> tuple[F64, npt.NDArray[np.bool_]]:
-    """Seconds from each reference time to the far end of the part of its lifespan inside the
-    scene's time range (nothing is drawn outside it: a .splatv Gaussian may live for hours
-    in a 1 s clip), and whether that part holds the reference time."""
-    if timeline is None:
-        return np.zeros(0), np.zeros(0, bool)
+def _seen_part(timeline: Timeline) -> tuple[F64, F64]:
+    """(start, end) seconds of the part of each lifespan inside the scene's time range
+    (nothing is drawn outside it: a .splatv Gaussian may live for hours in a 1 s clip); end
+    below start for a Gaussian never seen."""
     first, last = time_range(timeline)
     start, end = lifespans(timeline)
-    start, end = np.maximum(start, first), np.minimum(end, last)
+    return np.maximum(start, first), np.minimum(end, last)
+
+
+def _reach(timeline: Timeline | None) -> tuple[F64, npt.NDArray[np.bool_]]:
+    """Seconds from each reference time to the far end of the part of its lifespan inside the
+    scene's time range, and whether that part holds the reference time."""
+    if timeline is None:
+        return np.zeros(0), np.zeros(0, bool)
+    start, end = _seen_part(timeline)
     ref = reference_times(timeline)
     reach = np.maximum(np.abs(start - ref), np.abs(end - ref))
     seen = end >= start
@@ -397,9 +403,8 @@ def _fading(timeline: Timeline | None, f: float) -> F64:
     n = len(timeline)
     if timeline.type is not TimelineType.CENTER_SCALE:
         return np.stack([np.full(n, np.inf), np.ones(n)], axis=1)
-    first, last = time_range(timeline)
-    start, end = lifespans(timeline)
-    length = np.minimum(end, last) - np.maximum(start, first)
+    start, end = _seen_part(timeline)
+    length = end - start
     scale = timeline.t1.astype(np.float64) * (1.0 + f * TIME_AT_ZERO)  # type 2: in seconds
     length = np.maximum(length, 0.0) / (1.0 + f * TIME_AT_ZERO)
     return np.stack([scale, length], axis=1)

@@ -59,18 +59,17 @@ class PayloadWriter:
     moves every chunk back by the same amount at finish, in the index it writes.
     """
 
-    def __init__(self, out: Sink, *, compact_max: int | None = None) -> None:
+    def __init__(self, out: Sink) -> None:
         self.out = out
         self.out.seek(0)
         self.position = PREFIX_SIZE
-        self.compact_max = COMPACT_MAX if compact_max is None else compact_max
         self._held: list[bytes] | None = []
         """Payloads not yet written, while the container may still be compact."""
 
     def add(self, payload: bytes) -> tuple[int, int, str]:
         """Append one chunk; returns (offset, length, SHA-256 hex)."""
         offset = self.position
-        if self._held is not None and offset - PREFIX_SIZE + len(payload) <= self.compact_max:
+        if self._held is not None and offset - PREFIX_SIZE + len(payload) <= COMPACT_MAX:
             self._held.append(payload)
         else:
             self._reserve_prefix()
@@ -89,12 +88,12 @@ class PayloadWriter:
 
     def finish(self, manifest: Manifest) -> int:
         """Write the index and the header; returns the file length."""
+        index, digest, raw_length = encode_index(manifest)
         if self._held is not None:
-            compact = _compact_index(manifest)
+            compact = _compact_index(manifest, HEADER_SIZE + len(index))
             if compact is not None:
                 return self._finish_compact(*compact)
             self._reserve_prefix()
-        index, digest, raw_length = encode_index(manifest)
         if HEADER_SIZE + len(index) <= PREFIX_SIZE:
             index_offset = HEADER_SIZE
             file_length = self.position
@@ -136,13 +135,13 @@ def _header(index: bytes, digest: bytes, raw_length: int, offset: int, length: i
     )
 
 
-def _compact_index(manifest: Manifest) -> tuple[bytes, bytes, int, int] | None:
+def _compact_index(manifest: Manifest, start: int) -> tuple[bytes, bytes, int, int] | None:
     """(index, digest, raw length, payload start) of ``manifest`` with its payloads moved to
-    right after the index, or None when the index does not fit the first 16 KiB. Moving the
-    chunks changes the index's length, so starts are tried until the index ends at one (the
-    lowest start it fits before is kept: any gap is a few zero bytes)."""
+    right after the index, or None when the index does not fit the first 16 KiB; ``start``:
+    where the index at the offsets ``add`` gave ends. Moving the chunks changes the index's
+    length, so starts are tried until the index ends at one (the lowest start it fits before
+    is kept: any gap is a few zero bytes)."""
     best = None
-    start = HEADER_SIZE + len(encode_index(manifest)[0])
     for _ in range(8):
         if start > PREFIX_SIZE:
             break
