@@ -5,11 +5,15 @@ quality drops."""
 
 from __future__ import annotations
 
+import io
+import json
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from tsog_stream.cli.main import main
 from tsog_stream.codec.bundle import bundle_bytes
@@ -227,6 +231,22 @@ def test_positions_move_by_the_core_share_over_alpha_whatever_their_size() -> No
 def test_lower_quality_writes_fewer_bytes(scene: Scene) -> None:
     sizes = [len(bundle_bytes(encode_chunk(scene, quality=q))) for q in (100, 75, 50, 0)]
     assert sizes == sorted(sizes, reverse=True) and sizes[-1] < 0.85 * sizes[0]
+
+
+def test_codebook_entries_no_label_uses_repeat_a_used_one(scene: Scene) -> None:
+    """Below quality 100 the scale and colour labels move to fewer entries; the entries left
+    unused repeat the one their labels went to (ascending still), so meta.json deflates them:
+    it shrinks, and the decoded values are the same as if they had stayed."""
+    files = encode_chunk(scene, quality=0)
+    meta = json.loads(files["meta.json"])
+    for attr, channels in (("scales", 3), ("sh0", 3)):
+        image = np.asarray(Image.open(io.BytesIO(files[f"{attr}.webp"])))
+        used = np.unique(image.reshape(-1, 4)[: len(scene), :channels])
+        table = np.asarray(meta[attr]["codebook"])
+        assert len(used) < 200 and np.all(np.diff(table) >= 0), attr
+        assert len(np.unique(table)) == len(np.unique(table[used])), attr
+    full = zlib.compress(encode_chunk(scene, quality=100)["meta.json"])
+    assert len(zlib.compress(files["meta.json"])) < 0.7 * len(full)
 
 
 def test_frame_ids_stay_exact() -> None:

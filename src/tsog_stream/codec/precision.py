@@ -45,6 +45,7 @@ from ..model import Gaussians, Scene, Timeline, TimelineType
 from ..opacity import logit_to_alpha
 from ..temporal import lifespans, reference_times, scale_cap, time_range
 
+F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 U8 = npt.NDArray[np.uint8]
 U16 = npt.NDArray[np.uint16]
@@ -426,13 +427,15 @@ def coarsen_rotations(texels: U8, budget: F64) -> U8:
     return out
 
 
-def thin_labels(labels: U8, codebook: F64, slack: float) -> U8:
-    """Codebook labels moved to fewer distinct entries: entries are kept ascending while more
-    than ``slack`` above the last kept one, and each label goes to the nearest kept entry, at
-    most ``slack`` from its own, so a value's error grows by at most ``slack``."""
+def thin_labels(labels: U8, codebook: F32, slack: float) -> tuple[U8, F32]:
+    """Codebook labels moved to fewer distinct entries, and the codebook they index: entries
+    are kept ascending while more than ``slack`` above the last kept one, and each label goes
+    to the nearest kept entry, at most ``slack`` from its own, so a value's error grows by at
+    most ``slack``. An entry no label points to any more repeats the kept one it moved to (still
+    ascending): meta.json deflates repeats, so small chunks stop paying for unused entries."""
     table = np.asarray(codebook, np.float64)
     if slack <= 0 or table.size == 0:
-        return labels
+        return labels, codebook
     kept = [0]
     for i in range(1, table.size):
         if table[i] - table[kept[-1]] > slack:
@@ -440,7 +443,7 @@ def thin_labels(labels: U8, codebook: F64, slack: float) -> U8:
     kept_values = table[kept]
     mids = (kept_values[:-1] + kept_values[1:]) / 2
     nearest = np.asarray(kept)[np.searchsorted(mids, table, side="right")]
-    return nearest.astype(np.uint8)[labels]
+    return nearest.astype(np.uint8)[labels], codebook[nearest]
 
 
 def coarsen_alpha(alpha: U8, slack: float) -> U8:

@@ -52,7 +52,7 @@ def _codebook_texels(
     ``slack`` (codec/precision.py)."""
     codebook = short_codebook(build_codebook(columns))
     labels = assign_codebook(columns, codebook).reshape(columns.shape)
-    labels = thin_labels(labels, codebook.astype(np.float64), slack)
+    labels, codebook = thin_labels(labels, codebook, slack)
     return texels(labels[:, 0], labels[:, 1], labels[:, 2], alpha=alpha), _floats(codebook)
 
 
