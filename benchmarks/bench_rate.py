@@ -74,7 +74,7 @@ def scenes() -> list[tuple[str, Scene]]:
         (f"donut FreeTimeGS {label}", freetime_scene(donut, duration_s=10.0, lifespan=life, seed=7))
         for label, life in LIFESPANS.items()
     ]
-    for clip in ("coffee10", "spinach_4"):
+    for clip in ("coffee10", "coffeeshort2", "spinach_4", "yellow_clip2"):  # every real .splatv
         path = sample(f"4d/splatv/macaburguera_{clip}.splatv", in_tree=False)
         out.append((f"{clip}.splatv", load_scene(path).scene))
     frames = load_scene(sample("4d/tztechno_fireworks_frames")).scene  # type 0, 30 fps

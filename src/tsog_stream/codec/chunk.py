@@ -7,6 +7,8 @@ plus the ``timeline``/``temporal`` meta keys and their images, index-aligned (do
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -85,7 +87,10 @@ def encode_chunk(
     ordered = scene.reordered(order) if given_up else scene.subset(order)
     width, height = image_size(len(ordered))
     budgets = Budgets.of(ordered, quality)
-    with ImageEncoder() as images:  # each image compressed from the moment it is made
+    with ImageEncoder() as images, ThreadPoolExecutor(1) as beside:
+        # each image compressed from the moment it is made; the timeline's and the motion's
+        # made beside the SOG attributes (numpy and Pillow release the GIL)
+        timed = beside.submit(_add_time_images, ordered, width, height, budgets, images)
         meta = encode_sog(
             ordered.gaussians,
             width,
@@ -98,21 +103,39 @@ def encode_chunk(
             given_up=given_up,
         )
         meta["asset"] = {"generator": f"{C.GENERATOR} {__version__}"}
-        if ordered.timeline is not None:
-            timeline_images, meta["timeline"] = encode_timeline(
-                ordered.timeline, width, height, budgets.time if budgets is not None else None
-            )
-            images.add(timeline_images)
-        if ordered.temporal:
-            temporal_images, meta["temporal"] = encode_temporal(
-                ordered.temporal, ordered.gaussians.quats, width, height, budgets
-            )
-            images.add(temporal_images)
+        meta.update(timed.result())
         parsed = parse_meta(meta, where="encoder output")
         note("WebP")
-        files = images.files()
+        files = _in_canonical_order(images.files(), parsed)
     files[C.META_JSON] = dump_meta(parsed)
     return files
+
+
+def _add_time_images(
+    ordered: Scene, width: int, height: int, budgets: Budgets | None, images: ImageEncoder
+) -> dict[str, Any]:
+    """The ``timeline`` and ``temporal`` meta keys of a chunk, their images handed to
+    ``images``: made beside the SOG attributes, they are compressed while the codebooks are
+    fitted (the spinach capture's encode: 300 -> 208 ms at quality 100, 336 -> 225 ms at 90,
+    against making them after the SOG attributes)."""
+    meta: dict[str, Any] = {}
+    if ordered.timeline is not None:
+        timeline_images, meta["timeline"] = encode_timeline(
+            ordered.timeline, width, height, budgets.time if budgets is not None else None
+        )
+        images.add(timeline_images)
+    if ordered.temporal:
+        temporal_images, meta["temporal"] = encode_temporal(
+            ordered.temporal, ordered.gaussians.quats, width, height, budgets
+        )
+        images.add(temporal_images)
+    return meta
+
+
+def _in_canonical_order(files: dict[str, bytes], meta: ChunkMeta) -> dict[str, bytes]:
+    """The chunk's images in the order its meta.json lists them (the bundle's order, so its
+    bytes), whatever order they were made in."""
+    return {name: files[name] for _, name in listed_files(meta)}
 
 
 def _refuse_non_finite(scene: Scene) -> None:
