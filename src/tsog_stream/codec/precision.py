@@ -177,6 +177,31 @@ def to_codes(tolerance: F64, mins: F64, maxs: F64) -> F64:
 
 
 @dataclass(frozen=True)
+class Slacks:
+    """What every Gaussian's scale, colour and opacity may move at a quality, beyond their
+    codebook errors: the same for the whole chunk, so known before any Gaussian is looked at
+    (the codebooks are fitted while :class:`Budgets` are worked out beside them)."""
+
+    scale: float
+    """Log-sigma."""
+    colour: float
+    """f_dc."""
+    alpha: float
+    """Alpha (0..1)."""
+
+    @classmethod
+    def of(cls, quality: int) -> Slacks | None:
+        """The slacks at ``quality``; None at 100 (nothing moves)."""
+        f = budget_fraction(quality)
+        return cls.at(f) if f > 0.0 else None
+
+    @classmethod
+    def at(cls, f: float) -> Slacks:
+        """The slacks at a budget fraction f."""
+        return cls(f * SCALE_AT_ZERO, f * COLOUR_AT_ZERO / SH_C0, f * ALPHA_AT_ZERO)
+
+
+@dataclass(frozen=True)
 class Budgets:
     """The error each Gaussian of a chunk may take (in texel order)."""
 
@@ -248,6 +273,7 @@ class Budgets:
             speed = _top_speed(motion, reach)
             shift = np.where(speed > 0, position / 3 / speed, np.inf)
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
+        slacks = Slacks.at(f)
         return cls(
             position,
             time,
@@ -256,9 +282,9 @@ class Budgets:
             fading,
             motion is not None,
             rotation,
-            scale_slack=f * SCALE_AT_ZERO,
-            colour_slack=f * COLOUR_AT_ZERO / SH_C0,
-            alpha_slack=f * ALPHA_AT_ZERO,
+            scale_slack=slacks.scale,
+            colour_slack=slacks.colour,
+            alpha_slack=slacks.alpha,
             motion_stretch=stretch(f, MOTION_AT_ZERO),
         )
 
@@ -499,6 +525,7 @@ __all__ = [
     "MAX_TURN",
     "QUALITY_MAX",
     "Budgets",
+    "Slacks",
     "budget_fraction",
     "check_quality",
     "coarsen",

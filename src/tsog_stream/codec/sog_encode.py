@@ -19,7 +19,14 @@ from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
 from .positions import encode_means, split_u16
-from .precision import Budgets, coarsen_alpha, coarsen_positions, coarsen_rotations, thin_labels
+from .precision import (
+    Budgets,
+    Slacks,
+    coarsen_alpha,
+    coarsen_positions,
+    coarsen_rotations,
+    thin_labels,
+)
 from .rotations import encode_quats
 from .webp import ImageEncoder
 
@@ -120,25 +127,12 @@ def encode_sh_palette(
     return images, meta
 
 
-def encode_sog(
-    gaussians: Gaussians,
-    width: int,
-    height: int,
-    images: ImageEncoder,
-    *,
-    seed: int = 0,
-    progress: Progress | None = None,
-    budgets: Budgets | None = None,
-    on_palette: FractionDone | None = None,
-    given_up: bool = False,
+def encode_geometry(
+    gaussians: Gaussians, width: int, height: int, images: ImageEncoder, budgets: Budgets | None
 ) -> dict[str, Any]:
-    """Encode Gaussians already in texel order into SOG v2 images, each handed to ``images``
-    as soon as it is made, and return the SOG keys of meta.json; with ``budgets``
-    (codec/precision.py) positions and rotations keep only the bits they need. The SH
-    palette, if any, is fitted last (``on_palette`` hears its fraction done; with
-    ``given_up`` the Gaussians' SH bands are dropped as it starts)."""
-    note = progress or (lambda _msg: None)
-    note("positions")
+    """Positions and rotations of Gaussians already in texel order: their images handed to
+    ``images``, their SOG keys of meta.json returned; with ``budgets`` (codec/precision.py)
+    they keep only the bits they need."""
     mins, maxs, codes = encode_means(gaussians.means)
     quats = encode_quats(gaussians.quats)
     if budgets is not None:
@@ -153,25 +147,47 @@ def encode_sog(
             C.QUATS: to_image(quats, width, height),
         }
     )
+    return {
+        "means": {"mins": _floats(mins), "maxs": _floats(maxs), "files": [C.MEANS_L, C.MEANS_U]},
+        "quats": {"files": [C.QUATS]},
+    }
+
+
+def encode_appearance(
+    gaussians: Gaussians,
+    width: int,
+    height: int,
+    images: ImageEncoder,
+    *,
+    seed: int = 0,
+    progress: Progress | None = None,
+    slacks: Slacks | None = None,
+    on_palette: FractionDone | None = None,
+    given_up: bool = False,
+) -> dict[str, Any]:
+    """Scales, colours, opacities and SH bands of Gaussians already in texel order: their
+    images handed to ``images``, their SOG keys of meta.json (and ``count``) returned; with
+    ``slacks`` labels and opacity bytes move within them. The SH palette, if any, is fitted
+    last (``on_palette`` hears its fraction done; with ``given_up`` the Gaussians' SH bands are
+    dropped as it starts)."""
+    note = progress or (lambda _msg: None)
     note("scale codebook")
     scale_texels, scale_codebook = _codebook_texels(
-        gaussians.scales, slack=budgets.scale_slack if budgets is not None else 0.0
+        gaussians.scales, slack=slacks.scale if slacks is not None else 0.0
     )
     images.add({C.SCALES: to_image(scale_texels, width, height)})
     note("colour codebook")
     alpha = opacity_bytes(gaussians.opacities)
-    if budgets is not None:
-        alpha = coarsen_alpha(alpha, budgets.alpha_slack)
-    colour_slack = budgets.colour_slack if budgets is not None else 0.0
+    if slacks is not None:
+        alpha = coarsen_alpha(alpha, slacks.alpha)
+    colour_slack = slacks.colour if slacks is not None else 0.0
     sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, alpha, colour_slack)
     images.add({C.SH0: to_image(sh0_texels, width, height)})
     meta: dict[str, Any] = {
         "version": C.SOG_VERSION,
         "asset": {"generator": C.GENERATOR},
         "count": len(gaussians),
-        "means": {"mins": _floats(mins), "maxs": _floats(maxs), "files": [C.MEANS_L, C.MEANS_U]},
         "scales": {"codebook": scale_codebook, "files": [C.SCALES]},
-        "quats": {"files": [C.QUATS]},
         "sh0": {"codebook": sh0_codebook, "files": [C.SH0]},
     }
     if gaussians.sh_bands > 0 and len(gaussians) > 0:
