@@ -2,8 +2,9 @@
 
     .venv/bin/python benchmarks/bench_rate.py [--views 4] [--times 3]
 
-For FreeTimeGS-style scenes built from the real 45k-Gaussian donut (long, medium and short
-lifespans, linear motion), the real `.splatv` captures and a PLY frame sequence (the fireworks
+For FreeTimeGS-style scenes built from two real static scenes, the 45k-Gaussian donut and
+PlayCanvas's 91k-Gaussian guitar (long, medium and short lifespans, linear motion), every real
+`.splatv` capture and a PLY frame sequence (the fireworks
 frames, type 0): encodes one TSOG chunk at quality
 100, 90, 75, 50, 25 and 0, the paper's 8-bit ablation (timeline and motion codes rounded to
 their high byte), the scene as `.4dgs` (fourdgs defaults) and as a flipbook of one SOG per
@@ -67,13 +68,25 @@ ENCODE_BUDGET_S = 30.0
 """Seconds of encoding a scene's timing may take: more rounds for a small scene."""
 
 
+BASES = {
+    "donut": ("3dgs/v3dg_donut_fused.ply", True),
+    "guitar": ("3dgs/pc_guitar.compressed.ply", False),
+}
+"""Real static scenes the FreeTimeGS-style scenes are built from: (sample, in the repository)."""
+
+
 def scenes() -> list[tuple[str, Scene]]:
     """(name, scene) of every input measured."""
-    donut = load_scene(sample("3dgs/v3dg_donut_fused.ply")).scene.gaussians
-    out = [
-        (f"donut FreeTimeGS {label}", freetime_scene(donut, duration_s=10.0, lifespan=life, seed=7))
-        for label, life in LIFESPANS.items()
-    ]
+    out = []
+    for base, (rel, in_tree) in BASES.items():
+        static = load_scene(sample(rel, in_tree=in_tree)).scene.gaussians
+        out += [
+            (
+                f"{base} FreeTimeGS {label}",
+                freetime_scene(static, duration_s=10.0, lifespan=life, seed=7),
+            )
+            for label, life in LIFESPANS.items()
+        ]
     for clip in ("coffee10", "coffeeshort2", "spinach_4", "yellow_clip2"):  # every real .splatv
         path = sample(f"4d/splatv/macaburguera_{clip}.splatv", in_tree=False)
         out.append((f"{clip}.splatv", load_scene(path).scene))

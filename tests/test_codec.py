@@ -171,6 +171,17 @@ def test_frame_content_is_ordered_frame_after_frame_each_in_morton_order() -> No
     assert grouped < 0.7 * mixed, (grouped, mixed)
 
 
+def test_an_error_in_the_timeline_made_beside_the_codebooks_reaches_the_caller() -> None:
+    """The timeline is made on a thread beside the codebooks: its InputError (frame ids a
+    16-bit range cannot hold) still reaches the caller as itself, naming the timeline."""
+    g = static_gaussians(200, seed=2)
+    ids = np.where(np.arange(200) < 100, 0.0, 70_000.0)
+    scene = Scene(g, Timeline(TimelineType.FRAME, ids, np.zeros(200), 30.0))
+    with pytest.raises(TsogError, match="frame ids span 70000 frames") as caught:
+        encode_chunk(scene, quality=50)
+    assert caught.value.where == "timeline"
+
+
 def test_tsog_chunk_is_a_superset_of_sog() -> None:
     scene = small_scene(TimelineType.CENTER_SCALE, dynamic=("means", "quats"))
     files = encode_chunk(scene)
