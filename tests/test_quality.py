@@ -28,6 +28,7 @@ from tsog_stream.codec.precision import (
     POSITION_AT_ZERO,
     SCALE_AT_ZERO,
     TIME_AT_ZERO,
+    TURN_SURFACE,
     Budgets,
     budget_fraction,
     coarsen,
@@ -136,7 +137,7 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     assert np.all(np.abs(alpha[0] - alpha[1]) <= f * ALPHA_AT_ZERO + 1 / 255 + 1e-6)
     sigmas = np.exp(full.gaussians.scales.astype(np.float64))
     spread = sigmas.max(axis=1) - sigmas.min(axis=1)
-    turn_budget = np.minimum(budget / np.maximum(spread, 1e-30), MAX_TURN)
+    turn_budget = np.minimum(TURN_SURFACE * budget / np.maximum(spread, 1e-30), MAX_TURN)
     assert np.all(_turn(cut.gaussians.quats, full.gaussians.quats) <= turn_budget + 1e-3)
     if quality <= 50:
         assert worst.max() > budget.max() / 100  # the budget is used, not ignored
