@@ -28,7 +28,7 @@ from ..schemas import (
 )
 from .bundle import read_bundle
 from .layout import image_size
-from .precision import QUALITY_MAX, Budgets, Slacks
+from .precision import QUALITY_MAX, Budgets
 from .sog_decode import decode_sog
 from .sog_encode import FractionDone, encode_appearance, encode_geometry
 from .tsog_images import decode_temporal, decode_timeline, encode_temporal, encode_timeline
@@ -91,7 +91,12 @@ def encode_chunk(
     with ImageEncoder() as images, ThreadPoolExecutor(1) as beside:
         # each image compressed from the moment it is made; the timeline and motion made
         # beside the codebooks (numpy and Pillow release the GIL)
-        meta = encode_geometry(ordered.gaussians, width, height, images, budgets)
+        meta: dict[str, Any] = {
+            "version": C.SOG_VERSION,
+            "asset": {"generator": f"{C.GENERATOR} {__version__}"},
+            "count": len(ordered),
+        }
+        meta |= encode_geometry(ordered.gaussians, width, height, images, budgets)
         timed = beside.submit(_add_time_images, ordered, width, height, budgets, images)
         meta |= encode_appearance(
             ordered.gaussians,
@@ -100,12 +105,11 @@ def encode_chunk(
             images,
             seed=seed,
             progress=note,
-            slacks=Slacks.of(quality),
+            slacks=budgets.slacks if budgets is not None else None,
             on_palette=on_palette,
             given_up=given_up,
         )
         meta |= timed.result()
-        meta["asset"] = {"generator": f"{C.GENERATOR} {__version__}"}
         parsed = parse_meta(meta, where="encoder output")
         note("WebP")
         files = _in_canonical_order(images.files(), parsed)

@@ -183,8 +183,7 @@ def to_codes(tolerance: F64, mins: F64, maxs: F64) -> F64:
 @dataclass(frozen=True)
 class Slacks:
     """What every Gaussian's scale, colour and opacity may move at a quality, beyond their
-    codebook errors: the same for the whole chunk, so known before any Gaussian is looked at
-    (the codebooks are fitted while :class:`Budgets` are worked out beside them)."""
+    codebook errors: the same for the whole chunk (the codebooks need nothing else)."""
 
     scale: float
     """Log-sigma."""
@@ -192,12 +191,6 @@ class Slacks:
     """f_dc."""
     alpha: float
     """Alpha (0..1)."""
-
-    @classmethod
-    def of(cls, quality: int) -> Slacks | None:
-        """The slacks at ``quality``; None at 100 (nothing moves)."""
-        f = budget_fraction(quality)
-        return cls.at(f) if f > 0.0 else None
 
     @classmethod
     def at(cls, f: float) -> Slacks:
@@ -231,12 +224,8 @@ class Budgets:
     rotation: F64
     """(N,) radians its rotation may turn: TURN_SURFACE position budgets over how far the
     turn moves its ellipsoid's surface (largest minus smallest sigma), at most MAX_TURN."""
-    scale_slack: float = 0.0
-    """Log-sigma a scale may move beyond its codebook error (every Gaussian)."""
-    colour_slack: float = 0.0
-    """f_dc a base colour may move beyond its codebook error (every Gaussian)."""
-    alpha_slack: float = 0.0
-    """Alpha (0..1) an opacity may move (every Gaussian)."""
+    slacks: Slacks
+    """What every Gaussian's scale, colour and opacity may move."""
     motion_stretch: float = 1.0
     """The means' motion's share over its third of the position budget (:func:`stretch`
     with MOTION_AT_ZERO)."""
@@ -278,7 +267,6 @@ class Budgets:
             speed = _top_speed(motion, reach)
             shift = np.where(speed > 0, position / 3 / speed, np.inf)
             time[:, 0] = np.minimum(time[:, 0], shift / timeline.seconds_per_unit)
-        slacks = Slacks.at(f)
         return cls(
             position,
             time,
@@ -287,9 +275,7 @@ class Budgets:
             fading,
             motion is not None,
             rotation,
-            scale_slack=slacks.scale,
-            colour_slack=slacks.colour,
-            alpha_slack=slacks.alpha,
+            Slacks.at(f),
             motion_stretch=stretch(f, MOTION_AT_ZERO),
         )
 
@@ -326,12 +312,12 @@ class Budgets:
         elif attr == "quats":
             per_gaussian = self.rotation / TURN_PER_COMPONENT
         else:
-            opacity = LOGIT_PER_ALPHA * self.alpha_slack
-            slack = {"scales": self.scale_slack, "sh0": self.colour_slack, "opacity": opacity}
+            opacity = LOGIT_PER_ALPHA * self.slacks.alpha
+            slack = {"scales": self.slacks.scale, "sh0": self.slacks.colour, "opacity": opacity}
             per_gaussian = np.full(n, slack[attr])
         out = np.repeat(per_gaussian[:, None], channels, axis=1)
         if attr == "sh0" and channels == 4:
-            out[:, 3] = LOGIT_PER_ALPHA * self.alpha_slack  # opacity's motion, sh0's A channel
+            out[:, 3] = LOGIT_PER_ALPHA * self.slacks.alpha  # opacity's motion, sh0's A channel
         return out
 
 

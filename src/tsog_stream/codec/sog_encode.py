@@ -166,7 +166,7 @@ def encode_appearance(
     given_up: bool = False,
 ) -> dict[str, Any]:
     """Scales, colours, opacities and SH bands of Gaussians already in texel order: their
-    images handed to ``images``, their SOG keys of meta.json (and ``count``) returned; with
+    images handed to ``images``, their SOG keys of meta.json returned; with
     ``slacks`` labels and opacity bytes move within them. The SH palette, if any, is fitted
     last (``on_palette`` hears its fraction done; with ``given_up`` the Gaussians' SH bands are
     dropped as it starts)."""
@@ -184,9 +184,6 @@ def encode_appearance(
     sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, alpha, colour_slack)
     images.add({C.SH0: to_image(sh0_texels, width, height)})
     meta: dict[str, Any] = {
-        "version": C.SOG_VERSION,
-        "asset": {"generator": C.GENERATOR},
-        "count": len(gaussians),
         "scales": {"codebook": scale_codebook, "files": [C.SCALES]},
         "sh0": {"codebook": sh0_codebook, "files": [C.SH0]},
     }
