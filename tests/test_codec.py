@@ -15,6 +15,7 @@ import pytest
 
 from helpers import check_decoded_at, log_space_error, means_log_step
 from tsog_stream import Scene, SogError, TimelineType, TsogError
+from tsog_stream.codec import webp
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
@@ -354,6 +355,30 @@ def test_images_encoded_as_they_come_are_the_files_in_the_order_added() -> None:
     with ImageEncoder() as encoder, pytest.raises(ValueError, match="added twice"):
         encoder.add(first)
         encoder.add({"img_0.webp": first["img_0.webp"]})
+
+
+@pytest.mark.parametrize("pillow_decoder", [True, False])
+def test_webp_planes_decode_alike_through_libwebp_and_through_pillow(
+    monkeypatch: pytest.MonkeyPatch, pillow_decoder: bool
+) -> None:
+    """Planes are read straight from the libwebp decoder Pillow opens WebP with (no copies);
+    where this Pillow has no such decoder, through Pillow's public path: both give every
+    texel exactly (an opaque image, stored without alpha, reads back with alpha 255; a texel
+    of alpha 0 keeps its RGB), and both refuse corrupt data with SogError."""
+    rng = np.random.default_rng(4)
+    opaque = rng.integers(0, 256, (40, 70, 4), np.uint8)
+    opaque[..., 3] = 255
+    clear = rng.integers(0, 256, (40, 70, 4), np.uint8)
+    clear[::3, :, 3] = 0
+    if not pillow_decoder:
+        monkeypatch.setattr(webp, "_pillow_webp", None)
+    for image in (opaque, clear, *_noise_images(2, seed=5).values()):
+        data = encode_webp(image)
+        decoded = decode_webp(data, where="plane")
+        assert decoded.shape == image.shape and np.array_equal(decoded, image)
+        with pytest.raises(SogError, match="corrupt WebP"):
+            decode_webp(data[:40] + bytes(len(data) - 40), where="plane")
+    assert (webp._libwebp_rgba(encode_webp(opaque), (70, 40)) is None) is not pillow_decoder
 
 
 def test_leaving_an_encoder_by_an_error_leaves_none_of_its_work_running() -> None:

@@ -55,23 +55,28 @@ def decode_quats(texels: U8) -> F32:
     """Unit (w, x, y, z) quaternions from smallest-three texels; a bad tag gives identity.
 
     Built column by column from byte lookup tables: the values of the float64 formula, without
-    a per-Gaussian gather over four components.
+    a per-Gaussian gather over four components; each column picks among three values by the
+    tag's four masks, made once (1M texels: 30 -> 27 ms).
     """
-    tag = texels[:, 3].astype(np.int16) - QUAT_TAG_BASE
-    valid = (tag >= 0) & (tag <= 3)
-    stored = [np.take(_COMPONENT_OF_BYTE, texels[:, k]) for k in range(3)]
+    tag = texels[:, 3] - np.uint8(QUAT_TAG_BASE)  # a bad tag wraps above 3
+    s0, s1, s2 = (np.take(_COMPONENT_OF_BYTE, texels[:, k]) for k in range(3))
     rest = np.take(_SQUARE_OF_BYTE, texels[:, 0])  # in place from here: fewer fresh pages
     rest += np.take(_SQUARE_OF_BYTE, texels[:, 1])
     rest += np.take(_SQUARE_OF_BYTE, texels[:, 2])
     np.subtract(1.0, rest, out=rest)
     np.maximum(rest, 0.0, out=rest)
     dropped = np.sqrt(rest, out=rest).astype(np.float32)
-    q = np.empty((texels.shape[0], 4), np.float32)
-    q[:, 0] = np.where(tag == 0, dropped, stored[0])
-    for j in (1, 2):  # stored[j] while the dropped component is later, stored[j - 1] after it
-        q[:, j] = np.where(tag == j, dropped, np.where(tag > j, stored[j], stored[j - 1]))
-    q[:, 3] = np.where(tag == 3, dropped, stored[2])
-    q[~valid] = (1.0, 0.0, 0.0, 0.0)
+    w, x, y, z = (tag == k for k in range(4))  # which component was dropped
+    q = np.stack(
+        [
+            np.where(w, dropped, s0),
+            np.where(w, s0, np.where(x, dropped, s1)),
+            np.where(z, s2, np.where(y, dropped, s1)),
+            np.where(z, dropped, s2),
+        ],
+        axis=1,
+    )
+    q[tag > 3] = (1.0, 0.0, 0.0, 0.0)
     return q
 
 

@@ -306,10 +306,8 @@ def with_sh_jobs(jobs: Sequence[ChunkJob], first_id: int = 0) -> list[ChunkJob]:
 def job_part(scene: Scene, job: ChunkJob, split: bool) -> Part:
     """The part a job encodes: its Gaussians, without SH bands for a base chunk whose bands
     are split off."""
-    part = scene.subset(job.indices)
-    if _bare(job, split):
-        part = without_sh(part)
-    return Part(job.key, part, job.layer, job.sh_of)
+    source = without_sh(scene) if _bare(job, split) else scene  # bands never copied
+    return Part(job.key, source.subset(job.indices), job.layer, job.sh_of)
 
 
 def job_work(scene: Scene, job: ChunkJob, split: bool) -> float:
