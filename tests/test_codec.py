@@ -381,6 +381,31 @@ def test_webp_planes_decode_alike_through_libwebp_and_through_pillow(
     assert (webp._libwebp_rgba(encode_webp(opaque), (70, 40)) is None) is not pillow_decoder
 
 
+def test_work_split_in_two_does_every_row_once_and_keeps_the_helper_s_error() -> None:
+    """in_two halves big work between the helper thread and the caller (every row once, in
+    two disjoint halves), does small work at once, and raises an error of either half."""
+    seen = np.zeros(webp.SPLIT_LEAST * 2 + 1, np.int64)
+    calls: list[tuple[int, int]] = []
+
+    def mark(start: int, stop: int) -> None:
+        calls.append((start, stop))
+        seen[start:stop] += 1
+
+    webp.in_two(seen.size, mark)
+    assert sorted(calls) == [(0, seen.size // 2), (seen.size // 2, seen.size)]
+    assert (seen == 1).all()
+    calls.clear()
+    webp.in_two(100, mark)
+    assert calls == [(0, 100)]
+
+    def fail_first(start: int, stop: int) -> None:
+        if start == 0:
+            raise SogError("bad half", where="helper")
+
+    with pytest.raises(SogError, match="bad half"):
+        webp.in_two(seen.size, fail_first)
+
+
 def test_leaving_an_encoder_by_an_error_leaves_none_of_its_work_running() -> None:
     """An error while a chunk is being made (after some images were handed over) cancels the
     encodes not started and waits for the rest: nothing of it runs on in the shared pool."""

@@ -150,11 +150,13 @@ its core to another (docs/design/chunk-codec.md)."""
 
 @dataclass(frozen=True)
 class _Pools:
-    """The process's thread pools: WebP decodes, work on decoded images, WebP encodes."""
+    """The process's thread pools: WebP decodes, work on decoded images, WebP encodes, and
+    the helper a piece of work splits onto (:func:`in_two`)."""
 
     decoding: ThreadPoolExecutor
     working: ThreadPoolExecutor
     encoding: ThreadPoolExecutor
+    helping: ThreadPoolExecutor
 
 
 class _SharedPools:
@@ -175,6 +177,7 @@ class _SharedPools:
                     decoding=ThreadPoolExecutor(max(MAX_DECODE_THREADS, 2 * cores), "tsog-webp"),
                     working=ThreadPoolExecutor(cores, "tsog-decode"),
                     encoding=ThreadPoolExecutor(cores, "tsog-encode"),
+                    helping=ThreadPoolExecutor(1, "tsog-help"),
                 )
             return self._pools
 
@@ -186,6 +189,26 @@ class _SharedPools:
 
 _SHARED_POOLS = _SharedPools()
 os.register_at_fork(after_in_child=_SHARED_POOLS.forget)
+
+
+SPLIT_LEAST = 16384
+"""Fewest rows :func:`in_two` splits: below, handing half over costs more than it saves."""
+
+
+def in_two(count: int, part: Callable[[int, int], object], *, least: int = SPLIT_LEAST) -> None:
+    """``part(start, stop)`` over rows [0, ``count``) in two halves, the first on the process's
+    helper thread and the second here (numpy releases the GIL), for work that runs when the
+    other core has nothing left to do: the SH bands' gathers after the last plane of a chunk.
+    Fewer than ``least`` rows are done here at once. The first half's error propagates."""
+    if count < least:
+        part(0, count)
+        return
+    half = count // 2
+    first = _SHARED_POOLS.get().helping.submit(part, 0, half)
+    try:
+        part(half, count)
+    finally:
+        first.result()
 
 
 class ImageEncoder:
