@@ -287,6 +287,28 @@ def test_sh_labels_past_the_palette_decode_to_zero() -> None:
     assert not decode_sh(empty, {"c": entries, "l": labels}, 4).any()
 
 
+def test_a_big_palette_decodes_alike_in_halves() -> None:
+    """Palettes and label sets big enough to be gathered in two halves (webp.in_two) give
+    every row its entry's values, and zeros for labels past the palette, as one gather does."""
+    rng = np.random.default_rng(6)
+    entries, count = 40_000, 50_000
+    coeffs = 3
+    image = rng.integers(0, 256, (entries // 64 + 1, 64 * coeffs, 4), np.uint8)
+    labels = rng.integers(0, entries, count)
+    labels[::7] = entries + rng.integers(0, 100, labels[::7].size)  # some past the palette
+    texels = np.zeros((count, 4), np.uint8)
+    texels[:, 0], texels[:, 1] = labels & 0xFF, labels >> 8
+    codebook = np.sort(rng.normal(0, 1, 256)).astype(np.float32)
+    shn = SimpleNamespace(bands=1, files=["c", "l"], codebook=codebook.tolist(), count=entries)
+    for kept in (np.flatnonzero(labels < entries), np.arange(count)):  # all valid; some not
+        out = decode_sh(shn, {"c": image, "l": texels[kept]}, kept.size)
+        palette = codebook[image.reshape(-1, coeffs, 4)[:entries, :, :3]]
+        expected = np.zeros((kept.size, coeffs, 3), np.float32)
+        inside = labels[kept] < entries
+        expected[inside] = palette[labels[kept][inside]]
+        assert np.array_equal(out, expected)
+
+
 def _same_scene(a: Scene, b: Scene) -> bool:
     """Whether two decoded scenes hold the same Gaussians, to the bit."""
     fields = ("means", "scales", "quats", "opacities", "sh0", "shN")
