@@ -33,7 +33,7 @@ class Clock:
 def test_sh_bands_weigh_by_their_coefficients() -> None:
     assert encode_work(1000, 0) == 1000
     sh3 = encode_work(1000, 15) / encode_work(1000, 0)
-    assert 6.8 <= sh3 <= 8.1  # SH3 against SH0: measured 6.8x (realistic) to 8.1x (random)
+    assert 4.5 <= sh3 <= 6.1  # SH3 against SH0: measured 4.5x (400k) to 6.1x (833k), random
     assert encode_work(1000, 0) < encode_work(1000, 3) < encode_work(1000, 8) < sh3 * 1000
 
 

@@ -51,13 +51,20 @@ REFINE_CANDIDATES: Final = 4
 """Nearest centroids per tree a vector may move to during refinement."""
 REFINE_TOLERANCE: Final = 1e-3
 """Refinement stops when a pass lowers the squared error by less than this fraction."""
-ROUND_LEFT: Final = 0.3
-"""Share of the clusters still to merge that a merging round leaves (0.18-0.59 measured on
-200k random SH3 vectors into 65536): how many more rounds the progress expects."""
-PASSES_PER_RATIO: Final = 1.0
-"""Refinement passes the progress expects before the tolerance stops them, per vector per
-palette entry, at least 2 (into 65536 entries: 4 passes on 200k random SH3 vectors and on
-300k realistic ones, 10 (the cap) on 833k random ones)."""
+ROUND_LEFT_FAR: Final = 0.6
+"""Share of the clusters still to merge that a merging round leaves while at least twice k
+are left (0.59-0.63 measured on 200k and 833k random SH3 vectors into 65536, 2026-11-28)."""
+ROUND_LEFT_NEAR: Final = 0.25
+"""The share a round leaves near k (0.16-0.27 measured); in between, blended by how many are
+left: the progress expects the rounds still to come from these two."""
+PASSES_BASE: Final = 2.0
+PASSES_PER_RATIO: Final = 0.5
+"""Refinement passes the progress expects before the tolerance stops them: PASSES_BASE plus
+this per vector per palette entry, at least 2 (into 65536 entries: 3 passes on 200k random
+SH3 vectors, 8 on 833k, 2026-11-28; 4 on 300k realistic ones, 2026-11-27)."""
+REFINE_SETUP_PASSES: Final = 1.0
+"""The refinement's own set-up (the vectors sorted by label, their errors, their columns)
+in passes: the first pass reports it with its own (833k: 1.09 s against 0.49 s a pass)."""
 SETUP_WEIGHT: Final = 0.65
 """Work before the first merging round (distinct rows, principal axes) per vector, against a
 round's per cluster (0.62-0.66 measured on 200k and 833k random and 300k realistic SH3
@@ -129,7 +136,8 @@ def _fit(
     place (by :func:`_refine`)."""
     rng = np.random.default_rng(seed)
     axes = _principal_axes(unique, weights)
-    passes = min(iterations, max(2, round(PASSES_PER_RATIO * len(unique) / target)))
+    expected = PASSES_BASE + PASSES_PER_RATIO * len(unique) / target
+    passes = min(iterations, max(2, int(expected)))
     meter = _Work(len(unique), target, passes, report)
     meter.set_up()
     centroids, labels = _agglomerate(unique, weights, target, axes=axes, rng=rng, meter=meter)
@@ -323,7 +331,8 @@ class _Work:
     PASS_ENTRY_WEIGHT per palette entry, what comes before the first round SETUP_WEIGHT of
     one per vector. Rounds merge most of what is left early and a few hundred near k, each
     still a full pass, so counting merged clusters ran ahead of the time (0.47 reported at
-    0.30 of a 200k fit); the rounds still to come are estimated from ROUND_LEFT."""
+    0.30 of a 200k fit); the rounds still to come are estimated from ROUND_LEFT_FAR and
+    ROUND_LEFT_NEAR, the passes from PASSES_BASE and PASSES_PER_RATIO."""
 
     def __init__(self, points: int, k: int, passes: int, report: Progress) -> None:
         self._points, self._k, self._passes, self._report = points, k, passes, report
@@ -333,25 +342,32 @@ class _Work:
     def set_up(self) -> None:
         """The distinct rows and the axes are found: the fit's first report, before the first
         merging round (the first ETA of a 5M scene waited ~3 s more for that round)."""
-        self._say(self._rounds_to_come(self._points - self._k) + self._passes * self._pass)
+        self._say(self._rounds_to_come(self._points - self._k) + self._refinement())
 
     def merged(self, clusters: int, left: int) -> None:
         """A round over ``clusters`` ended with ``left`` clusters above k still to merge."""
         self._done += clusters
-        self._say(self._rounds_to_come(left) + self._passes * self._pass)
+        self._say(self._rounds_to_come(left) + self._refinement())
 
     def refined(self) -> None:
-        """A refinement pass over the points ended."""
-        self._done += self._pass
+        """A refinement pass over the points ended (the first with the refinement's set-up)."""
+        first = REFINE_SETUP_PASSES if self._refined == 0 else 0.0
+        self._done += (1.0 + first) * self._pass
         self._refined += 1
         self._say(max(1, self._passes - self._refined) * self._pass)
 
+    def _refinement(self) -> float:
+        """Work of the refinement to come: its set-up and the passes expected."""
+        return (REFINE_SETUP_PASSES + self._passes) * self._pass
+
     def _rounds_to_come(self, left: int) -> float:
-        """Work of the rounds that merge ``left`` more clusters: each leaves ROUND_LEFT."""
+        """Work of the rounds that merge ``left`` more clusters: each leaves a share of them,
+        ROUND_LEFT_FAR while at least twice k are left, falling to ROUND_LEFT_NEAR near k."""
         work, rounds = 0.0, 0
         while left >= 1 and rounds < 64:
             work += self._k + left
-            left = int(left * ROUND_LEFT)
+            far = min(1.0, left / (2 * self._k))
+            left = int(left * (ROUND_LEFT_NEAR + (ROUND_LEFT_FAR - ROUND_LEFT_NEAR) * far))
             rounds += 1
         return work
 

@@ -20,11 +20,12 @@ from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Any
 
-SH_COST_PER_COEFF = 0.45
+SH_COST_PER_COEFF = 0.3
 """A Gaussian's encode cost per SH coefficient beyond DC (an RGB triple), in units of a
 Gaussian without SH: the palette's distance work grows with the vector's length (SH3, 15
-coefficients: 7.75x; a 400k chunk measured 6.8x with realistic SH3, 8.1x with random, after
-the palette's 2x speed-up of 2026-11-27; 14.6x before it)."""
+coefficients: 5.5x; measured 2026-11-28, random SH3: 6.1x on an 833k job at quality 90,
+4.5x on 400k at 100, the rest of the encode heavier since it makes the timeline and motion
+beside the codebooks; 6.8-8.1x on 400k on 2026-11-27, 14.6x before the palette's speed-up)."""
 
 TICK_S = 5.0
 """Seconds between two :meth:`Meter.tick` calls of its ``on_tick`` (an ETA redrawn while no
@@ -71,11 +72,13 @@ def share_of(start: float, size: float) -> Iterator[None]:
         yield
 
 
-BEFORE_PALETTE = 0.5
+BEFORE_PALETTE = 0.7
 """The share of a part's other work done before its SH palette (ordering, positions,
-codebooks); the rest comes after it (the images' WebP and the bundle): 0.064 and 0.076 of an
-833k SH3 job. All of it counted before the palette, a job's first reports ran ahead of its
-time (0.217 said at 0.14-0.17 of it), and the checkpoint's first ETA was 35 % short."""
+codebooks, timeline and motion); the rest comes after it (the last images' WebP and the
+bundle): 0.118 and 0.047 of an 833k SH3 job at quality 90, 0.121 and 0.101 of 400k at 100
+(2026-11-28; 0.064 and 0.076 before the encoder compressed its images as it made them). All
+of it counted before the palette, a job's first reports ran ahead of its time (0.217 said at
+0.14-0.17 of it); 0.5, they lagged behind it and the checkpoint's first ETA was 54 % long."""
 
 
 def palette_share(sh_coeffs: int) -> float:
