@@ -379,28 +379,32 @@ def test_images_encoded_as_they_come_are_the_files_in_the_order_added() -> None:
         encoder.add({"img_0.webp": first["img_0.webp"]})
 
 
-@pytest.mark.parametrize("pillow_decoder", [True, False])
+@pytest.mark.parametrize("pillow_decoder", ["libwebp", "absent", "another"])
 def test_webp_planes_decode_alike_through_libwebp_and_through_pillow(
-    monkeypatch: pytest.MonkeyPatch, pillow_decoder: bool
+    monkeypatch: pytest.MonkeyPatch, pillow_decoder: str
 ) -> None:
     """Planes are read straight from the libwebp decoder Pillow opens WebP with (no copies);
-    where this Pillow has no such decoder, through Pillow's public path: both give every
-    texel exactly (an opaque image, stored without alpha, reads back with alpha 255; a texel
-    of alpha 0 keeps its RGB), and both refuse corrupt data with SogError."""
+    where this Pillow has no such decoder or one of another signature, through Pillow's
+    public path: both give every texel exactly (an opaque image, stored without alpha, reads
+    back with alpha 255; a texel of alpha 0 keeps its RGB), and both refuse corrupt data with
+    SogError."""
     rng = np.random.default_rng(4)
     opaque = rng.integers(0, 256, (40, 70, 4), np.uint8)
     opaque[..., 3] = 255
     clear = rng.integers(0, 256, (40, 70, 4), np.uint8)
     clear[::3, :, 3] = 0
-    if not pillow_decoder:
+    if pillow_decoder == "absent":
         monkeypatch.setattr(webp, "_pillow_webp", None)
+    if pillow_decoder == "another":  # a decoder of another signature
+        monkeypatch.setattr(webp, "_pillow_webp", SimpleNamespace(WebPAnimDecoder=lambda: None))
     for image in (opaque, clear, *_noise_images(2, seed=5).values()):
         data = encode_webp(image)
         decoded = decode_webp(data, where="plane")
         assert decoded.shape == image.shape and np.array_equal(decoded, image)
         with pytest.raises(SogError, match="corrupt WebP"):
             decode_webp(data[:40] + bytes(len(data) - 40), where="plane")
-    assert (webp._libwebp_rgba(encode_webp(opaque), (70, 40)) is None) is not pillow_decoder
+    direct = webp._libwebp_rgba(encode_webp(opaque), (70, 40))
+    assert (direct is not None) is (pillow_decoder == "libwebp")
 
 
 def test_work_split_in_two_does_every_row_once_and_keeps_the_helper_s_error() -> None:

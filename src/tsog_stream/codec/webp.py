@@ -126,9 +126,12 @@ def _libwebp_rgba(data: bytes, size: Size) -> U8 | None:
     decoder_type = getattr(_pillow_webp, "WebPAnimDecoder", None)
     if decoder_type is None:
         return None
-    decoder = decoder_type(data)
+    try:
+        decoder = decoder_type(data)
+    except TypeError:  # another signature: not the decoder expected
+        return None
     info = decoder.get_info()
-    if not (isinstance(info, tuple) and len(info) == 5 and tuple(info[0]) == size):
+    if not (isinstance(info, tuple) and len(info) == 5 and info[0] == size):
         return None
     if info[4] not in ("RGBA", "RGBX"):  # RGBX: no alpha in the file, libwebp writes 255
         return None
