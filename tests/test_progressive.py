@@ -25,6 +25,9 @@ from tsog_stream.client.adaptive import (
     layers_shown,
     startup_allowance,
 )
+from tsog_stream.codec.bundle import bundle_bytes
+from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.codec.precision import DEFAULT_QUALITY
 from tsog_stream.container.stream_index import StreamIndex, unpacked_index
 from tsog_stream.errors import InputError, MetaError
 from tsog_stream.io.sequence import open_sequence
@@ -45,7 +48,7 @@ from tsog_stream.server.link import (
     parse_bandwidth,
     parse_latency,
 )
-from tsog_stream.synthetic import SceneSpec, generate_scene
+from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 from tsog_stream.throttled_play import play_through_link
 
 HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"
@@ -192,6 +195,32 @@ def test_a_frame_sequence_is_layered_frame_by_frame(samples: Path, tmp_path: Pat
             assert recorded is not None and abs(measured - recorded) < 1.5, (measured, recorded)
 
     asyncio.run(run())
+
+
+def test_a_flipbook_keeps_layers_only_within_its_own_bytes(samples: Path, tmp_path: Path) -> None:
+    """Layers cost a frame two more chunks (zip, meta.json) and sparser positions: where they
+    would make the container larger than the flipbook (independent random frames that quality
+    90 hardly shrinks), the default is one layer and says why; ``--layers`` still forces
+    them. The monkey flipbook, which our encoding shrinks, keeps its layers."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        frame = Scene(static_gaussians(30_000, seed=50 + k))
+        (folder / f"frame_{k:03d}.sog").write_bytes(bundle_bytes(encode_chunk(frame)))
+    flipbook = sum(p.stat().st_size for p in folder.iterdir())
+    seq = open_sequence(folder, fps=30.0)
+    auto, forced = tmp_path / "auto.tsogs", tmp_path / "forced.tsogs"
+    options = SegmentOptions(workers=1, quality=DEFAULT_QUALITY)  # the CLI's default
+    report = segment_sequence(seq, auto, options)
+    segment_sequence(seq, forced, replace(options, layers=3))
+    assert report.layers == []
+    assert "its own SOG file" in report.layers_why and "--layers" in report.layers_why
+    chunk_bytes = [sum(c.length for c in _open(p).manifest.chunks) for p in (auto, forced)]
+    assert chunk_bytes[0] <= flipbook < chunk_bytes[1]  # the trade exists
+    monkey = tmp_path / "monkey.tsogs"
+    kept = segment_sequence(open_sequence(samples / MONKEY, fps=30.0), monkey, options)
+    assert len(kept.layers) > 1, kept.layers_why
+    assert monkey.stat().st_size <= sum(p.stat().st_size for p in (samples / MONKEY).iterdir())
 
 
 def test_a_small_scene_stays_one_layer_unless_asked(tmp_path: Path) -> None:

@@ -161,8 +161,9 @@ def add_stream_commands(sub: Subparsers) -> None:
         "once and adds the rest as it arrives (default: chosen by measuring rendered PSNR: "
         f"{AUTO_LAYERS} layers, the base reaching {LAYER_TARGETS_DB[0]:g} dB and the first two "
         f"{LAYER_TARGETS_DB[1]:g} dB against the whole, when a frame shows at least "
-        f"{LAYERED_MIN_GAUSSIANS} Gaussians, else 1; the base is stored with DC colour and its "
-        "SH bands follow in the next layer); 1 keeps one layer",
+        f"{LAYERED_MIN_GAUSSIANS} Gaussians, else 1, and for a SOG flipbook only where its "
+        "layered frames stay within the flipbook's own bytes; the base is stored with DC colour "
+        "and its SH bands follow in the next layer); 1 keeps one layer",
     )
     p.add_argument(
         "--temporal",
