@@ -22,6 +22,7 @@ FLOORS: dict[str, int] = {
             "constants",
             "errors",
             "morton",
+            "columns",
             "model",
             "temporal",
             "opacity",

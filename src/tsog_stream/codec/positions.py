@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import down
 from ..constants import U16_MAX
 
 F32 = npt.NDArray[np.float32]
@@ -53,7 +54,7 @@ def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
     if logs.shape[0] == 0:
         zeros = np.zeros(3)
         return zeros, zeros.copy(), np.zeros((0, 3), np.uint16)
-    mins, maxs = logs.min(axis=0), logs.max(axis=0)
+    mins, maxs = down(np.min, logs), down(np.max, logs)
     return mins, maxs, quantize_u16(logs, mins, maxs)
 
 

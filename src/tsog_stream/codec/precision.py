@@ -30,7 +30,6 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import TypeVar
@@ -38,6 +37,7 @@ from typing import TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import across
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
 from ..framing import dense_core, framing_sample
@@ -319,13 +319,6 @@ class Budgets:
         if attr == "sh0" and channels == 4:
             out[:, 3] = LOGIT_PER_ALPHA * self.slacks.alpha  # opacity's motion, sh0's A channel
         return out
-
-
-def across(pick: np.ufunc, values: F64) -> F64:
-    """``pick`` (np.minimum, np.maximum) over the columns of (N, C) ``values``, row by row:
-    the same values as ``.min(axis=1)``, NaN included, 3.6x faster on three columns (numpy
-    reduces along a short axis row by row)."""
-    return np.asarray(functools.reduce(pick, values.T))
 
 
 def stretch(f: float, at_zero: float) -> float:

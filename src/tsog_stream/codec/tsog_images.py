@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .. import constants as C
+from ..columns import down
 from ..errors import InputError
 from ..model import Timeline, TimelineType
 from ..temporal import scale_cap
@@ -52,7 +53,7 @@ def _ranges(values: F64) -> tuple[F64, F64]:
     """Per-channel min and max of (N, C) values (zeros when N = 0)."""
     if values.shape[0] == 0:
         return np.zeros(values.shape[1]), np.zeros(values.shape[1])
-    return values.min(axis=0), values.max(axis=0)
+    return down(np.min, values), down(np.max, values)
 
 
 def _whole_frames(timeline: Timeline, mins: F64, maxs: F64) -> bool:

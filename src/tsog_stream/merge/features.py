@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from ..codec.positions import log_transform
 from ..codec.rotations import SQRT2, canonical_quats
+from ..columns import down
 from ..constants import CODEBOOK_SIZE, U16_MAX
 from ..errors import InputError
 from ..model import Gaussians
@@ -74,7 +75,7 @@ class Steps:
             return cls(np.zeros(3), 0.0, 0.0, 0.0)
         logs = log_transform(g.means)
         return cls(
-            (logs.max(axis=0) - logs.min(axis=0)) / U16_MAX,
+            (down(np.max, logs) - down(np.min, logs)) / U16_MAX,
             _codebook_step(g.scales),
             _codebook_step(g.sh0),
             _codebook_step(g.shN),
@@ -106,7 +107,7 @@ def robust_extent(means: npt.ArrayLike) -> F64:
     if len(points) == 0:
         return np.zeros(3)
     lo, hi = np.quantile(points, EXTENT_QUANTILES, axis=0)
-    spread = points.max(axis=0) - points.min(axis=0)
+    spread = down(np.max, points) - down(np.min, points)
     return np.asarray(np.minimum(spread, FLOATER_MARGIN * (hi - lo)), np.float64)
 
 

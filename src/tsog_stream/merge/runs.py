@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import down
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from .features import (
     ALPHA,
@@ -187,7 +188,7 @@ class FrameMerger:
         """(run, Gaussian of b) pairs that keep a static run static."""
         sub = runs.take(idx)
         a = self._side((sub.lo + sub.hi) / 2, (sub.qlo + sub.qhi) / 2)
-        reach = a.tol[:, MEANS].max(axis=0, initial=0) + b.tol[:, MEANS].max(axis=0, initial=0)
+        reach = down(np.max, a.tol[:, MEANS], initial=0) + down(np.max, b.tol[:, MEANS], initial=0)
         ia, ib = correspond(a, b, reach)
         ok = self._within(sub, ia, b, ib)
         return idx[ia[ok]], ib[ok]

@@ -24,6 +24,7 @@ from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
 from ..codec.precision import QUALITY_MAX
 from ..codec.sh_bands import encode_sh_bands, without_sh
+from ..columns import down
 from ..constants import (
     DEFAULT_MAX_PIXELS,
     GENERATOR,
@@ -365,7 +366,7 @@ def _bounds(scene: Scene, start: float, end: float) -> Box:
     means = scene.gaussians.means.astype(np.float64)
     coeffs = scene.temporal.get("means")
     if coeffs is None or scene.timeline is None or len(scene) == 0 or end <= start:
-        lo, hi = means.min(axis=0, initial=np.inf), means.max(axis=0, initial=-np.inf)
+        lo, hi = down(np.min, means, initial=np.inf), down(np.max, means, initial=-np.inf)
     else:
         c = coeffs.astype(np.float64)  # (N, order, 3)
         ref = reference_times(scene.timeline)
@@ -380,8 +381,8 @@ def _bounds(scene: Scene, start: float, end: float) -> Box:
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         for t in np.linspace(start, end, samples):
             at = means + np.einsum("nk,nkc->nc", (t - ref)[:, None] ** k, c)
-            lo = np.minimum(lo, (at - margin).min(axis=0))
-            hi = np.maximum(hi, (at + margin).max(axis=0))
+            lo = np.minimum(lo, down(np.min, at - margin))
+            hi = np.maximum(hi, down(np.max, at + margin))
     if not np.all(np.isfinite(lo)):
         lo = hi = np.zeros(3)
     return Box(min=vec3(lo), max=vec3(hi))
