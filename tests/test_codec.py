@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import multiprocessing
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
@@ -19,7 +20,7 @@ from tsog_stream.codec import webp
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
-from tsog_stream.codec.rotations import decode_quats
+from tsog_stream.codec.rotations import SQRT2, decode_quats, encode_quats
 from tsog_stream.codec.sog_decode import decode_sh
 from tsog_stream.codec.webp import ImageDecoder, ImageEncoder, decode_webp, encode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
@@ -239,6 +240,42 @@ def _quats_by_formula(texels: np.ndarray) -> np.ndarray:
         rest = np.sqrt(max(0.0, 1.0 - (kept[0] * kept[0] + kept[1] * kept[1] + kept[2] * kept[2])))
         out[i] = [*kept[:largest], rest, *kept[largest:]]
     return out.astype(np.float32)
+
+
+def _quat_texel_by_formula(quat: np.ndarray) -> list[int]:
+    """Smallest-three encoding written out for one quaternion in float64 (SOG v2): unit, the
+    largest |component| (the first of equals) made positive and dropped, the rest as bytes; a
+    zero or non-finite quaternion is the identity."""
+    q = [float(v) for v in quat]
+    norm = math.sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3])
+    largest = int(np.argmax(np.abs(np.asarray(q))))  # numpy's first-of-equals, NaN first
+    sign = -1.0 if q[largest] < 0 else 1.0
+    unit = [v * (sign / norm if norm > 0 else 1.0) for v in q]
+    if not any(v != 0 for v in q) or not all(math.isfinite(v) for v in unit):
+        unit, largest = [1.0, 0.0, 0.0, 0.0], 0
+    kept = [v for k, v in enumerate(unit) if k != largest]
+    codes = [int(np.clip(np.rint(255.0 * (v * SQRT2 * 0.5 + 0.5)), 0, 255)) for v in kept]
+    return [*codes, 252 + largest]
+
+
+def test_rotations_encode_as_the_per_gaussian_formula_bit_for_bit() -> None:
+    """Rotations are encoded column by column (masks, byte picks); every texel is the formula's,
+    through ties, zeros, negative largest parts, NaN, infinities and huge or tiny values."""
+    rng = np.random.default_rng(8)
+    quats = rng.normal(size=(3000, 4)).astype(np.float32)
+    quats[::7] = np.round(quats[::7])  # ties between components
+    quats[::11] = np.abs(np.round(quats[::11] * 2))
+    quats[::13] = 0.0
+    quats[::17, 1] = np.nan
+    quats[::19, 0] = np.inf
+    quats[::23, 3] = -np.inf
+    with np.errstate(all="ignore"):  # some huge ones overflow to infinity
+        quats[::29] *= np.float32(1e38)
+        quats[::31] *= np.float32(1e-38)
+        encoded = encode_quats(quats)
+        expected = np.array([_quat_texel_by_formula(q) for q in quats], np.uint8)
+    assert np.array_equal(encoded, expected)
+    assert np.array_equal(encode_quats(np.zeros((0, 4), np.float32)), np.zeros((0, 4), np.uint8))
 
 
 def test_table_decoders_equal_the_float64_formulas_bit_for_bit() -> None:

@@ -11,8 +11,6 @@ F32 = npt.NDArray[np.float32]
 U8 = npt.NDArray[np.uint8]
 U32 = npt.NDArray[np.uint32]
 SQRT2 = float(np.sqrt(2.0))
-_KEPT = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
-"""Components stored in R, G, B, indexed by the dropped (largest) component."""
 
 
 def canonical_factor(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.intp]]:
@@ -21,12 +19,29 @@ def canonical_factor(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[n
     Returns (factor, index of the largest component). Temporal quaternion coefficients are
     multiplied by the same factor so base + coefficients keep describing the same rotation.
     A zero quaternion gets factor 1 (it is replaced by the identity).
+
+    Column by column (numpy reduces an (N, 4) array along its short axis a few values at a
+    time): the norm summed in ``np.linalg.norm``'s order, the same bits; 1M: 59 -> 25 ms.
     """
     q = quats.astype(np.float64)
-    norm = np.linalg.norm(q, axis=1)
-    largest = np.argmax(np.abs(q), axis=1)  # first index wins ties, like the reference
-    sign = np.where(q[np.arange(q.shape[0]), largest] < 0, -1.0, 1.0)
+    squares = [q[:, k] * q[:, k] for k in range(4)]
+    norm = np.sqrt(((squares[0] + squares[1]) + squares[2]) + squares[3])
+    largest = largest_component(quats)  # float32 compares as its float64 values do
+    at_largest = np.take(q.reshape(-1), 4 * np.arange(q.shape[0]) + largest)
+    sign = np.where(at_largest < 0, -1.0, 1.0)
     return np.divide(sign, norm, out=np.ones_like(norm), where=norm > 0), largest
+
+
+def largest_component(q: npt.NDArray[np.floating]) -> npt.NDArray[np.intp]:
+    """Index of each row's largest |component| of (N, 4) ``q``, the first of equals, as
+    ``np.argmax(np.abs(q), axis=1)`` (which it falls back to where a value is not finite: a
+    NaN counts as the largest there)."""
+    if not np.isfinite(q).all():
+        return np.asarray(np.argmax(np.abs(q), axis=1), np.intp)
+    a = [np.abs(q[:, k]) for k in range(4)]
+    second, fourth = a[1] > a[0], a[3] > a[2]  # strictly: the first of equals wins
+    later_pair = np.maximum(a[2], a[3]) > np.maximum(a[0], a[1])
+    return np.asarray(np.where(later_pair, 2 + fourth.astype(np.intp), second.astype(np.intp)))
 
 
 def canonical_quats(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.intp]]:
@@ -35,19 +50,25 @@ def canonical_quats(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np
     factor, largest = canonical_factor(quats)
     with np.errstate(invalid="ignore"):  # inf x 0: those rows become the identity below
         q = quats.astype(np.float64) * factor[:, None]
-    zero = ~np.any(quats != 0, axis=1) | ~np.all(np.isfinite(q), axis=1)
-    q[zero] = (1.0, 0.0, 0.0, 0.0)  # no rotation to keep: the identity
-    largest[zero] = 0
+    nonzero = (quats[:, 0] != 0) | (quats[:, 1] != 0) | (quats[:, 2] != 0) | (quats[:, 3] != 0)
+    finite = np.isfinite(q)
+    zero = ~nonzero | ~(finite[:, 0] & finite[:, 1] & finite[:, 2] & finite[:, 3])
+    if zero.any():
+        q[zero] = (1.0, 0.0, 0.0, 0.0)  # no rotation to keep: the identity
+        largest[zero] = 0
     return q, largest
 
 
 def encode_quats(quats: F32) -> U8:
-    """(N, 4) texels: the three smaller components as bytes, alpha = 252 + dropped index."""
+    """(N, 4) texels: the three smaller components as bytes, alpha = 252 + dropped index.
+
+    Every component is made a byte, then each texel keeps the three beside the dropped one
+    (the same bytes as gathering them first: 1M 132 -> ~60 ms with canonical_factor's)."""
     q, largest = canonical_quats(quats)
-    kept = np.take_along_axis(q, _KEPT[largest], axis=1) * SQRT2
-    codes = np.clip(np.rint(255.0 * (kept * 0.5 + 0.5)), 0, 255).astype(np.uint8)
+    codes = np.clip(np.rint(255.0 * (q * SQRT2 * 0.5 + 0.5)), 0, 255).astype(np.uint8)
     out = np.empty((q.shape[0], 4), np.uint8)
-    out[:, :3] = codes
+    for j in range(3):  # component j before the dropped one, else the one after it
+        out[:, j] = np.where(largest > j, codes[:, j], codes[:, j + 1])
     out[:, 3] = QUAT_TAG_BASE + largest
     return out
 
