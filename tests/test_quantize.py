@@ -282,6 +282,48 @@ def test_assignment_is_nearest_entry() -> None:
     assert np.all(err[inside] <= np.diff(table.astype(np.float64)).max() / 2 + 1e-12)
 
 
+def _searched_labels(values: npt.ArrayLike, table: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """The labels by binary search over the float64 midpoints (the definition)."""
+    entries = np.asarray(table, np.float64)
+    mids = (entries[:-1] + entries[1:]) * 0.5
+    return np.searchsorted(mids, np.asarray(values, np.float64), side="right").astype(np.uint8)
+
+
+def _label_cases(rng: np.random.Generator) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Many values (enough to be looked up by bin) against codebooks, hostile ones included."""
+    normal = rng.normal(size=(40_000, 3)).astype(np.float32)
+    table = build_codebook(normal)
+    entries = table.astype(np.float64)
+    mids = np.repeat((entries[:-1] + entries[1:]) * 0.5, 300)
+    near = mids.astype(np.float32)
+    huge, holes = normal.copy(), normal.copy()
+    huge[::100] *= np.float32(1e30)
+    holes[::37, 0], holes[::41, 1], holes[::43, 2] = np.nan, np.inf, -np.inf
+    narrow = np.float32(1000) + rng.normal(size=90_000).astype(np.float32) * np.float32(1e-3)
+    few = rng.integers(0, 5, 90_000).astype(np.float32)
+    return {
+        "normal": (normal, table),
+        "on midpoints (float64)": (mids, table),
+        "beside midpoints": (np.concatenate([near, np.nextafter(near, np.float32(9))]), table),
+        "huge outliers": (huge, build_codebook(huge)),
+        "NaN and infinities": (holes, build_codebook(holes)),
+        "a narrow range": (narrow, build_codebook(narrow)),
+        "few values": (few, build_codebook(few)),
+        "one value": (np.full(90_000, 3.5, np.float32), build_codebook([3.5])),
+        "all NaN": (np.full(90_000, np.nan), table),
+        "one entry": (normal, np.array([0.5], np.float32)),
+    }
+
+
+def test_labels_looked_up_by_bin_equal_the_binary_search() -> None:
+    """Many values are labelled from a table of bins and searched only where a bin holds a
+    midpoint: every label is the search's, through midpoints, outliers, NaN and infinities."""
+    for name, (values, table) in _label_cases(np.random.default_rng(12)).items():
+        assert values.size >= quantize.BINNED_FROM, name
+        labels = assign_codebook(values, table)
+        assert np.array_equal(labels, _searched_labels(values, table)), name
+
+
 def test_midpoint_goes_up_and_shape_is_kept() -> None:
     table = np.arange(256, dtype=np.float32)
     values = np.array([[0.5, 1.49], [254.5, 1e9]], np.float32)

@@ -70,7 +70,49 @@ def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
         raise InputError("codebook must hold finite values in ascending order")
     data = np.asarray(values, dtype=np.float64)
     mids = (table[:-1] + table[1:]) * 0.5
-    return np.searchsorted(mids, data, side="right").astype(np.uint8)
+    if data.size < BINNED_FROM:
+        return np.searchsorted(mids, data, side="right").astype(np.uint8)
+    return _binned_labels(data, mids)
+
+
+BINNED_FROM: Final = 1 << 16
+"""Values from which :func:`assign_codebook` looks labels up by bin (below, the search is
+quicker than building the bins' table)."""
+LABEL_BINS: Final = 1 << 16
+"""Equal bins over the values' finite range whose label table :func:`_binned_labels` reads."""
+BIN_MARGIN: Final = 2
+"""Bins on each side a value's computed bin is trusted within (its rounding moves it far less)."""
+
+
+def _binned_labels(data: F64, mids: F64) -> U8:
+    """``searchsorted(mids, data, side="right")`` as bytes, without searching most values:
+    each bin over the finite range (widened by BIN_MARGIN bins each side) whose label is
+    the same at both ends gives its values that label, exactly, as the label only grows
+    with the value; the values of bins a midpoint falls in, and non-finite ones, are searched
+    (1M Gaussians' three columns: 147 -> ~45 ms)."""
+    finite = np.isfinite(data)
+    everywhere = bool(finite.all())
+    if not everywhere and not finite.any():
+        return np.searchsorted(mids, data, side="right").astype(np.uint8)
+    binned = data if everywhere else np.where(finite, data, data[finite][0])
+    low, high = float(binned.min()), float(binned.max())
+    width = (high - low) / LABEL_BINS
+    if not (width > 1e-9 * max(abs(low), abs(high)) and np.isfinite(width)):
+        return np.searchsorted(mids, data, side="right").astype(np.uint8)
+    edges = low + width * np.arange(-BIN_MARGIN, LABEL_BINS + BIN_MARGIN + 1)
+    at_edge = np.searchsorted(mids, edges, side="right").astype(np.uint8)
+    first, last = at_edge[:LABEL_BINS], at_edge[2 * BIN_MARGIN + 1 :]  # bin b: edges b..b+2M+1
+    position = binned - low
+    position *= 1.0 / width
+    index = position.astype(np.intp)  # truncation is the floor: no position is negative
+    np.minimum(index, LABEL_BINS - 1, out=index)
+    labels = np.take(first, index)
+    unsure = labels != np.take(last, index)
+    if not everywhere:
+        unsure |= ~finite
+    if unsure.any():
+        labels[unsure] = np.searchsorted(mids, data[unsure], side="right")
+    return labels
 
 
 def codebook_mse(samples: npt.ArrayLike, codebook: npt.ArrayLike) -> float:
@@ -228,16 +270,19 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
 
 
 def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:
-    """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE, its SSE."""
+    """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE, its SSE.
+
+    Each codebook's group edges are searched once: a pass moves the entries by the edges its
+    SSE was measured with (they were searched twice, 15 % of a 1M-Gaussian encode)."""
     shift = finite[finite.size // 2]
     centred = finite - shift
     zero = np.zeros(1)
     p1 = np.concatenate([zero, np.cumsum(centred)])
     p2 = np.concatenate([zero, np.cumsum(centred * centred)])
-    best, best_sse = start, _sse_1d(finite, p1, p2, shift, start)
+    edges = _edges(finite, start)
+    best, best_sse = start, _sse_1d(edges, p1, p2, shift, start)
     current = start
     for _ in range(REFINE_PASSES):
-        edges = _edges(finite, current)
         counts = np.diff(edges)
         sums = p1[edges[1:]] - p1[edges[:-1]]
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -246,7 +291,8 @@ def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:
         if np.array_equal(moved, current):
             break
         current = moved
-        sse = _sse_1d(finite, p1, p2, shift, current)
+        edges = _edges(finite, current)
+        sse = _sse_1d(edges, p1, p2, shift, current)
         if sse < best_sse:
             best, best_sse = current, sse
     return best, best_sse
@@ -259,9 +305,9 @@ def _edges(finite: F64, table: F32) -> npt.NDArray[np.intp]:
     return np.concatenate([[0], cuts, [finite.size]]).astype(np.intp)
 
 
-def _sse_1d(finite: F64, p1: F64, p2: F64, shift: float, table: F32) -> float:
-    """Exact sum of squared errors of the sorted samples against ``table``, via prefix sums."""
-    edges = _edges(finite, table)
+def _sse_1d(edges: npt.NDArray[np.intp], p1: F64, p2: F64, shift: float, table: F32) -> float:
+    """Exact sum of squared errors of the sorted samples against ``table`` (its group
+    ``edges`` among them, :func:`_edges`), via prefix sums."""
     c = table.astype(np.float64) - shift
     s1 = p1[edges[1:]] - p1[edges[:-1]]
     s2 = p2[edges[1:]] - p2[edges[:-1]]
