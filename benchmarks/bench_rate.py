@@ -328,7 +328,8 @@ def markdown(all_rows: list[dict[str, Any]], stamp: str, views: int, times: int)
         "whose mean PSNR reaches it (bisection over 0..100; < when even quality 0 is above it). "
         f"*encode s*: the median of {ENCODE_ROUNDS} or more rounds (~{ENCODE_BUDGET_S:g} s of "
         "encoding in all) encoding the scene at every quality in turn; *encode x q100*: "
-        "against quality 100 in the same rounds.",
+        "against quality 100 in the same rounds (against the encoder of the day issue 17 was "
+        "filed: bench_encode_then's section).",
         "Charts: "
         + ", ".join(
             f"[{name}](rate/{chart_name(name)})"

@@ -954,6 +954,8 @@ def _layers_within_flipbook(
     layering: LayerPlan,
     max_count: int,
     options: SegmentOptions,
+    *,
+    stage: StageProgress,
 ) -> LayerPlan:
     """``layering``, or one layer where layers would make a flipbook (SOG frames) larger than
     the flipbook itself: the middle sampled frame's chunks, encoded in those layers, against
@@ -965,6 +967,7 @@ def _layers_within_flipbook(
     frame = measured[number]
     if len(frame) > LAYER_CHECK_MAX_GAUSSIANS:
         return layering
+    stage("weighing the layers against the flipbook's own files")
     parts = window_parts(frame, 0, max_count, layering)
     layered = sum(
         len(encode_job_payload(part.scene, options.seed, options.quality, part.sh_of is not None))
@@ -1027,8 +1030,7 @@ def segment_sequence(
     del sampled  # only the layers' frames are kept past the view, and none while encoding
     layering = _sequence_layers(seq, measured, views.view, options.layers, options.sh_apart)
     if options.layers is None:
-        stage("weighing the layers against the flipbook's own files")
-        layering = _layers_within_flipbook(seq, measured, layering, max_count, options)
+        layering = _layers_within_flipbook(seq, measured, layering, max_count, options, stage=stage)
     del measured
     total = _sequence_chunks(seq, per_window, max_count, layering)
     stage(_encoding(total, seq.gaussians, options.workers))
