@@ -273,7 +273,8 @@ def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:
     """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE, its SSE.
 
     Each codebook's group edges are searched once: a pass moves the entries by the edges its
-    SSE was measured with (they were searched twice, 15 % of a 1M-Gaussian encode)."""
+    SSE was measured with (they were searched again for the next pass; a few per cent of a
+    1M-value codebook's time)."""
     shift = finite[finite.size // 2]
     centred = finite - shift
     zero = np.zeros(1)
