@@ -973,7 +973,10 @@ def _layers_within_flipbook(
         len(encode_job_payload(part.scene, options.seed, options.quality, part.sh_of is not None))
         for part in parts
     )
-    own = size_of(seq.frames.paths[number])
+    try:
+        own = size_of(seq.frames.paths[number])
+    except OSError:  # gone since it was read: the windows' reads will say so
+        return layering
     if layered <= own:
         return layering
     return LayerPlan.single(
