@@ -159,8 +159,10 @@ def _refuse_non_finite(scene: Scene) -> None:
     for attr, coeffs in scene.temporal.items():
         parts[f"{attr} motion coefficients: a chunk cannot store them"] = coeffs
     for what, values in parts.items():
-        rows = values.reshape(len(scene), -1)
-        bad = int(np.count_nonzero(~np.all(np.isfinite(rows), axis=1)))
+        finite = np.isfinite(values)
+        if finite.all():  # the usual case, without a reduction along rows (1M x 3: 15 ms)
+            continue
+        bad = int(np.count_nonzero(~np.all(finite.reshape(len(scene), -1), axis=1)))
         if bad:
             raise InputError(
                 f"{bad} Gaussians have non-finite {what} (remove them from the input first)"
