@@ -70,9 +70,10 @@ def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
         raise InputError("codebook must hold finite values in ascending order")
     data = np.asarray(values, dtype=np.float64)
     mids = (table[:-1] + table[1:]) * 0.5
-    if data.size < BINNED_FROM:
+    labels = _binned_labels(data, mids) if data.size >= BINNED_FROM else None
+    if labels is None:
         return np.searchsorted(mids, data, side="right").astype(np.uint8)
-    return _binned_labels(data, mids)
+    return labels
 
 
 BINNED_FROM: Final = 1 << 16
@@ -84,21 +85,22 @@ BIN_MARGIN: Final = 2
 """Bins on each side a value's computed bin is trusted within (its rounding moves it far less)."""
 
 
-def _binned_labels(data: F64, mids: F64) -> U8:
+def _binned_labels(data: F64, mids: F64) -> U8 | None:
     """``searchsorted(mids, data, side="right")`` as bytes, without searching most values:
     each bin over the finite range (widened by BIN_MARGIN bins each side) whose label is
     the same at both ends gives its values that label, exactly, as the label only grows
     with the value; the values of bins a midpoint falls in, and non-finite ones, are searched
-    (1M Gaussians' three columns: 147 -> ~45 ms)."""
+    (1M Gaussians' three columns: 147 -> ~45 ms). None where no bins can be laid (no finite
+    value, or a range too narrow for its magnitude): every value is to be searched."""
     finite = np.isfinite(data)
     everywhere = bool(finite.all())
     if not everywhere and not finite.any():
-        return np.searchsorted(mids, data, side="right").astype(np.uint8)
+        return None
     binned = data if everywhere else np.where(finite, data, data[finite][0])
     low, high = float(binned.min()), float(binned.max())
     width = (high - low) / LABEL_BINS
     if not (width > 1e-9 * max(abs(low), abs(high)) and np.isfinite(width)):
-        return np.searchsorted(mids, data, side="right").astype(np.uint8)
+        return None
     edges = low + width * np.arange(-BIN_MARGIN, LABEL_BINS + BIN_MARGIN + 1)
     at_edge = np.searchsorted(mids, edges, side="right").astype(np.uint8)
     first, last = at_edge[:LABEL_BINS], at_edge[2 * BIN_MARGIN + 1 :]  # bin b: edges b..b+2M+1
