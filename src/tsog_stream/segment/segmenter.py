@@ -967,16 +967,16 @@ def _layers_within_flipbook(
     frame = measured[number]
     if len(frame) > LAYER_CHECK_MAX_GAUSSIANS:
         return layering
+    try:
+        own = size_of(seq.frames.paths[number])
+    except OSError:  # gone since it was read: the windows' reads will say so
+        return layering
     stage("weighing the layers against the flipbook's own files")
     parts = window_parts(frame, 0, max_count, layering)
     layered = sum(
         len(encode_job_payload(part.scene, options.seed, options.quality, part.sh_of is not None))
         for part in parts
     )
-    try:
-        own = size_of(seq.frames.paths[number])
-    except OSError:  # gone since it was read: the windows' reads will say so
-        return layering
     if layered <= own:
         return layering
     return LayerPlan.single(
