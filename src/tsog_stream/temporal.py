@@ -36,6 +36,53 @@ def reference_times(timeline: Timeline) -> F64:
     return timeline.t0 * timeline.seconds_per_unit
 
 
+def recentred(scene: Scene, t0: F64) -> Scene:
+    """The scene with each Gaussian's reference time at ``t0`` (timeline units) and the same
+    trajectories: every polynomial base + sum_k c_k (t - t_ref)^k re-expanded about the new
+    t_ref (Taylor's shift, exact in float64). The encoder stores positions at the reference
+    time the decoder will read, so a coarsened lifespan centre or start moves no Gaussian."""
+    timeline = scene.timeline
+    if timeline is None:
+        return scene
+    new = Timeline(timeline.type, t0, timeline.t1, timeline.fps, timeline.scene_length)
+    delta = (new.t0 - timeline.t0) * timeline.seconds_per_unit
+    if not scene.temporal or not delta.any():
+        return Scene(scene.gaussians, new, scene.temporal)
+    g = scene.gaussians
+    bases = {"means": g.means, "scales": g.scales, "quats": g.quats, "sh0": g.sh0}
+    bases["opacity"] = g.opacities[:, None]
+    moved = dict(bases)
+    temporal = {}
+    for attr, coeffs in scene.temporal.items():
+        moved[attr], temporal[attr] = _shifted(bases[attr], coeffs, delta)
+    gaussians = Gaussians(
+        moved["means"],
+        moved["scales"],
+        moved["quats"],
+        moved["opacity"][:, 0],
+        moved["sh0"],
+        g.shN,
+    )
+    return Scene(gaussians, new, temporal)
+
+
+def _shifted(
+    base: npt.NDArray[np.float32], coeffs: npt.NDArray[np.float32], delta: F64
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """(base, coefficients) of base + sum_k c_k (s + delta)^k as a polynomial in s:
+    b' = b + sum_k c_k delta^k, c'_j = sum_{k>=j} C(k, j) c_k delta^(k-j)."""
+    orders = coeffs.shape[1]
+    c = coeffs.astype(np.float64)
+    d = delta[:, None]
+    new_base = base.astype(np.float64)
+    new_coeffs = np.zeros_like(c)
+    for k in range(1, orders + 1):
+        new_base += c[:, k - 1] * d**k
+        for j in range(1, k + 1):
+            new_coeffs[:, j - 1] += math.comb(k, j) * c[:, k - 1] * d ** (k - j)
+    return new_base.astype(np.float32), new_coeffs.astype(np.float32)
+
+
 def scale_cap(timeline: Timeline) -> float:
     """Largest type-2 scale worth storing: SCALE_CAP_SPANS times the scene's span.
 

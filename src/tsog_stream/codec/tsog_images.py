@@ -8,6 +8,7 @@ SOG images. Channels map to R, G, B, A in order; unused channels hold 0 and alph
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -67,12 +68,23 @@ def _whole_frames(timeline: Timeline, mins: F64, maxs: F64) -> bool:
     )
 
 
-def encode_timeline(
-    timeline: Timeline, width: int, height: int, budget: F64 | None = None
-) -> tuple[dict[str, U8], dict[str, Any]]:
-    """Timeline images and ``timeline`` meta (R = frame/start/centre, G = duration/scale);
-    with a ``budget`` (codec/precision.py) codes keep only the bits it needs, except frame ids
-    and whole frames, which stay exact."""
+@dataclass(frozen=True)
+class TimelineCodes:
+    """A timeline's 16-bit codes as a chunk stores them (R = frame/start/centre, G =
+    duration/scale) and their per-channel range."""
+
+    codes: npt.NDArray[np.uint16]
+    mins: F64
+    maxs: F64
+
+    def reference_units(self) -> F64:
+        """The reference times a decoder reads (frame, start or centre, timeline units)."""
+        return dequantize_u16(self.codes[:, :1], self.mins[:1], self.maxs[:1])[:, 0]
+
+
+def quantize_timeline(timeline: Timeline, budget: F64 | None = None) -> TimelineCodes:
+    """A timeline's codes; with a ``budget`` (codec/precision.py) they keep only the bits it
+    needs, except frame ids and whole frames, which stay exact."""
     values = np.stack([timeline.t0, timeline.t1], axis=1)
     if timeline.type is TimelineType.FRAME:
         values[:, 1] = 0.0  # G is unused for frame ids: stored as 0 with range [0, 0]
@@ -91,7 +103,14 @@ def encode_timeline(
     codes = quantize_u16(values, mins, maxs)
     if budget is not None and not exact:
         codes = coarsen_timeline(codes, mins, maxs, budget)
-    low, high = _u16_texels(codes)
+    return TimelineCodes(codes, mins, maxs)
+
+
+def timeline_images(
+    timeline: Timeline, codes: TimelineCodes, width: int, height: int
+) -> tuple[dict[str, U8], dict[str, Any]]:
+    """Timeline images and ``timeline`` meta of a timeline's codes."""
+    low, high = _u16_texels(codes.codes)
     images = {
         C.TIMELINE_L: to_image(low, width, height),
         C.TIMELINE_U: to_image(high, width, height),
@@ -101,7 +120,7 @@ def encode_timeline(
         meta["fps"] = float(timeline.fps)
     if timeline.scene_length is not None:
         meta["scene_length"] = float(timeline.scene_length)
-    meta.update(mins=[float(v) for v in mins], maxs=[float(v) for v in maxs])
+    meta.update(mins=[float(v) for v in codes.mins], maxs=[float(v) for v in codes.maxs])
     meta["files"] = [C.TIMELINE_L, C.TIMELINE_U]
     return images, meta
 
