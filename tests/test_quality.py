@@ -409,3 +409,24 @@ def test_non_finite_values_get_no_budget_and_no_warning() -> None:
         scene.temporal[attr][6] = 0.0
     sizes = [len(decode_chunk(encode_chunk(scene, quality=q))) for q in (100, 0)]
     assert sizes == [len(scene)] * 2
+
+
+@pytest.mark.parametrize("quality", [100, 0])
+def test_motion_too_large_to_re_expand_keeps_its_own_values(quality: int) -> None:
+    """Hostile magnitudes: coefficients near float32's limit over a coarse grid of reference
+    times (one lifespan 655 350 s away) would leave float32 when re-expanded about
+    the rounded reference time; those rows keep their own values, without a warning (pytest
+    makes warnings errors), and every decoded value is finite."""
+    dynamic = ("means", "quats", "scales", "sh0", "opacity")
+    scene = small_scene(TimelineType.CENTER_SCALE, dynamic=dynamic, seed=6)
+    assert scene.timeline is not None
+    first = float(scene.timeline.t0.min())
+    scene.timeline.t0[0] = first + 10.0 * 65535  # reference times on a grid of 10 s
+    scene.timeline.t0[1:4] = first + 4.0  # rounded to `first`: 4 s away
+    scene.temporal["means"][1] = 3e38
+    scene.temporal["means"][2] = -3e38
+    scene.temporal["scales"][3] = 3e38
+    decoded = decode_chunk(encode_chunk(scene, quality=quality))
+    assert len(decoded) == len(scene)
+    assert np.isfinite(decoded.gaussians.means).all()
+    assert all(np.isfinite(c).all() for c in decoded.temporal.values())

@@ -70,17 +70,23 @@ def _shifted(
     base: npt.NDArray[np.float32], coeffs: npt.NDArray[np.float32], delta: F64
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """(base, coefficients) of base + sum_k c_k (s + delta)^k as a polynomial in s:
-    b' = b + sum_k c_k delta^k, c'_j = sum_{k>=j} C(k, j) c_k delta^(k-j)."""
-    orders = coeffs.shape[1]
+    b' = b + sum_k c_k delta^k, c'_j = sum_{k>=j} C(k, j) c_k delta^(k-j). A row whose
+    re-expansion leaves float32 (huge coefficients) keeps its own: its attribute then moves
+    by the shift, as it did before the encoder re-expanded anything."""
     c = coeffs.astype(np.float64)
     d = delta[:, None]
     new_base = base.astype(np.float64)
     new_coeffs = np.zeros_like(c)
-    for k in range(1, orders + 1):
-        new_base += c[:, k - 1] * d**k
-        for j in range(1, k + 1):
-            new_coeffs[:, j - 1] += math.comb(k, j) * c[:, k - 1] * d ** (k - j)
-    return new_base.astype(np.float32), new_coeffs.astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(1, coeffs.shape[1] + 1):
+            new_base += c[:, k - 1] * d**k
+            for j in range(1, k + 1):
+                new_coeffs[:, j - 1] += math.comb(k, j) * c[:, k - 1] * d ** (k - j)
+        shifted_base, shifted = new_base.astype(np.float32), new_coeffs.astype(np.float32)
+    kept = ~(np.isfinite(shifted_base).all(axis=1) & np.isfinite(shifted).all(axis=(1, 2)))
+    if kept.any():
+        shifted_base[kept], shifted[kept] = base[kept], coeffs[kept]
+    return shifted_base, shifted
 
 
 def scale_cap(timeline: Timeline) -> float:
