@@ -43,7 +43,7 @@ from tsog_stream.framing import dense_core
 from tsog_stream.model import Scene, Timeline, TimelineType
 from tsog_stream.opacity import alpha_to_logit, logit_to_alpha
 from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
-from tsog_stream.temporal import lifespans, recentred, reference_times, time_range
+from tsog_stream.temporal import lifespans, recentre, reference_times, time_range
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +115,8 @@ def _kept_whole_at_times_of(ordered: Scene, cut: Scene) -> Scene:
     from it only by what the quality rounded (a rounded t_ref moves nothing, docs/spec.md
     §5.1)."""
     assert cut.timeline is not None
-    same_times = recentred(ordered, cut.timeline.t0)
+    same_times = ordered.subset(np.arange(len(ordered)))
+    recentre(same_times, cut.timeline.t0)
     return decode_chunk(encode_chunk(same_times, order=np.arange(len(ordered))))
 
 

@@ -36,34 +36,28 @@ def reference_times(timeline: Timeline) -> F64:
     return timeline.t0 * timeline.seconds_per_unit
 
 
-def recentred(scene: Scene, t0: F64) -> Scene:
-    """The scene with each Gaussian's reference time at ``t0`` (timeline units) and the same
-    trajectories: every polynomial base + sum_k c_k (t - t_ref)^k re-expanded about the new
-    t_ref (Taylor's shift, exact in float64). The encoder stores positions at the reference
-    time the decoder will read, so a coarsened lifespan centre or start moves no Gaussian."""
+def recentre(scene: Scene, t0: F64) -> None:
+    """Move each Gaussian's reference time to ``t0`` (timeline units), keeping every path:
+    each polynomial base + sum_k c_k (t - t_ref)^k re-expanded about the new t_ref (Taylor's
+    shift, exact in float64). In place: the scene's timeline, moving base attributes and
+    coefficients are replaced by new arrays (none is written, and nothing else is copied: an
+    encoder's job drops its SH bands once read). The encoder stores the attributes about the
+    reference time the decoder will read, so a rounded centre or start moves no Gaussian."""
     timeline = scene.timeline
     if timeline is None:
-        return scene
-    new = Timeline(timeline.type, t0, timeline.t1, timeline.fps, timeline.scene_length)
-    delta = (new.t0 - timeline.t0) * timeline.seconds_per_unit
-    if not scene.temporal or not delta.any():
-        return Scene(scene.gaussians, new, scene.temporal)
+        return
+    delta = (np.asarray(t0, np.float64) - timeline.t0) * timeline.seconds_per_unit
+    scene.timeline = Timeline(timeline.type, t0, timeline.t1, timeline.fps, timeline.scene_length)
+    if not delta.any():
+        return
     g = scene.gaussians
-    bases = {"means": g.means, "scales": g.scales, "quats": g.quats, "sh0": g.sh0}
-    bases["opacity"] = g.opacities[:, None]
-    moved = dict(bases)
-    temporal = {}
-    for attr, coeffs in scene.temporal.items():
-        moved[attr], temporal[attr] = _shifted(bases[attr], coeffs, delta)
-    gaussians = Gaussians(
-        moved["means"],
-        moved["scales"],
-        moved["quats"],
-        moved["opacity"][:, 0],
-        moved["sh0"],
-        g.shN,
-    )
-    return Scene(gaussians, new, temporal)
+    for attr, coeffs in list(scene.temporal.items()):
+        base = g.opacities[:, None] if attr == "opacity" else getattr(g, attr)
+        moved, scene.temporal[attr] = _shifted(base, coeffs, delta)
+        if attr == "opacity":
+            g.opacities = moved[:, 0]
+        else:
+            setattr(g, attr, moved)
 
 
 def _shifted(

@@ -26,7 +26,7 @@ from ..schemas import (
     listed_files,
     parse_meta,
 )
-from ..temporal import recentred
+from ..temporal import recentre
 from .bundle import read_bundle
 from .layout import image_size
 from .precision import QUALITY_MAX, Budgets
@@ -80,9 +80,11 @@ def encode_chunk(
     ``on_palette`` hears how far the SH palette's fitting got (0..1; it comes last and takes
     most of the time of a chunk with SH bands).
     ``given_up``: the caller no longer needs ``scene`` as it is, so its rows are put in texel
-    order in its own arrays (:meth:`Scene.reordered`) instead of a copy beside them, and its
-    SH bands are dropped once the palette has read them (an 833k SH3 job: 210 + 143 MiB less
-    at the encoder's peak); only its count, lifespans and positions are left to rely on.
+    order in its own arrays (:meth:`Scene.reordered`) instead of a copy beside them, its
+    moving attributes are re-expanded about the rounded reference times
+    (:func:`~tsog_stream.temporal.recentre`: the same paths) and its SH bands are dropped
+    once the palette has read them (an 833k SH3 job: 210 + 143 MiB less at the encoder's
+    peak); only its count is left to rely on.
     Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
     lossless WebP has at least one pixel, so SOG cannot hold it.
     """
@@ -99,7 +101,7 @@ def encode_chunk(
     times = None
     if ordered.timeline is not None:
         times = quantize_timeline(ordered.timeline, budgets.time if budgets is not None else None)
-        ordered = recentred(ordered, times.reference_units())
+        recentre(ordered, times.reference_units())  # stored about what a decoder reads
     with ImageEncoder() as images, ThreadPoolExecutor(1) as beside:
         # each image compressed from the moment it is made; the timeline and motion made
         # beside the codebooks (numpy and Pillow release the GIL)

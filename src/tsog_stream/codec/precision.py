@@ -14,7 +14,7 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
   base position and the orders of its motion (as a root mean square over that part of its
   lifespan, see :func:`coarsen_motion`). The third its reference time's rounding took until
   the encoder stored every polynomial about the rounded reference time
-  (:func:`~tsog_stream.temporal.recentred`) is left unspent: spent on the other two, 6 of
+  (:func:`~tsog_stream.temporal.recentre`) is left unspent: spent on the other two, 6 of
   the 10 moving scenes of bench_rate took more bytes at `.4dgs`'s PSNR;
 - rotation: the turn that moves its ellipsoid's surface by the position budget;
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *

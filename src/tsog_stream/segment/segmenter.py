@@ -341,8 +341,8 @@ def encode_job_payload(
 ) -> bytes:
     """A chunk's standalone .sog bytes, or with ``sh_bands`` its SH-band chunk's bytes (run
     in worker processes); the SH palette's progress reported as the job's (segment/meter.py).
-    ``scene`` is the job's own part: it is left in texel order (its count, lifespans and box,
-    all the index records of it, do not depend on the order)."""
+    ``scene`` is the job's own part, taken over by the encoder (``encode_chunk``'s
+    ``given_up``): describe it first."""
     coeffs = scene.gaussians.shN.shape[1]
 
     def fitted(fraction: float) -> None:
@@ -469,9 +469,10 @@ def encoded_here(
     """(info, payload) of each part, encoded in this process: the one-process engine, and a
     window job in its worker."""
     for part in parts:
+        info = describe_part(part, plan)  # before the encoder, which takes the part over
         with meter.job(part_work(part)) if meter else contextlib.nullcontext():
             payload = encode_job_payload(part.scene, seed, quality, part.sh_of is not None)
-        yield describe_part(part, plan), payload
+        yield info, payload
 
 
 def part_work(part: Part) -> float:
