@@ -26,7 +26,9 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
   mean square over the lifespan;
 - timeline (type 2 centre and scale, type 1 start and duration): ``f * TIME_AT_ZERO`` times
   its temporal scale (type 2 scale as stored; type 1 duration); the encoder stores the
-  attributes at the rounded reference time, so rounding it moves nothing but the lifespan.
+  attributes at the rounded reference time, so rounding it moves nothing but the lifespan,
+  and where anything moves, the reference time within that share of its reach too (a
+  moved t_ref lengthens the reach of every polynomial).
   Frame ids, and lifespans the encoder stores in whole frames, stay exact.
 """
 
@@ -261,9 +263,13 @@ class Budgets:
         rotation = np.minimum(np.where(spread > 0, surface / spread, np.inf), MAX_TURN)
         timeline = scene.timeline
         reach, around_reference = _reach(timeline)
+        time = _time_budget(timeline, f)
+        if scene.temporal and timeline is not None:
+            # a moved reference time lengthens the reach of every polynomial: within its room
+            room = f * TIME_AT_ZERO * reach / timeline.seconds_per_unit
+            time[:, 0] = np.minimum(time[:, 0], room)
         reach = reach * (1.0 + f * TIME_AT_ZERO)
         fading = _fading(timeline, f)
-        time = _time_budget(timeline, f)
         return cls(
             position,
             time,
