@@ -80,12 +80,12 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 06:45): on the FreeTimeGS donuts and the
+bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 07:44): on the FreeTimeGS donuts and the
 .splatv captures its rendered PSNR is within 0.1 dB of quality 100's, worst view within 0.1
 dB or better, for 8.3-15.5 % fewer bytes (the guitar clips 0.1-0.2 dB below for 9.9-17 %); on
-the fireworks PLY frames 0.5 dB below (worst view 0.7) for 5.3 %; 75 costs up to 2.7 dB on
-those (spinach, worst view 5.2), 3.5-3.8 dB on the guitar clips and 9 dB on the fireworks
-(worst view 12.5)."""
+the fireworks PLY frames 0.5 dB below (worst view 0.7) for 5.3 %; 75 costs up to 2.2 dB on
+those (the long donut), 3.5-3.8 dB on the guitar clips and 9 dB on the fireworks (worst view
+12.5)."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
