@@ -16,7 +16,7 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
   the encoder stored every polynomial about the rounded reference time
   (:func:`~tsog_stream.temporal.recentre`) is left unspent: spent on the other two, 6 of
   the 10 moving scenes of bench_rate took more bytes at `.4dgs`'s PSNR;
-- rotation: the turn that moves its ellipsoid's surface by the position budget;
+- rotation: the turn that moves its ellipsoid's surface by TURN_SURFACE position budgets;
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
   COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
   entries of the same 256-entry codebook; opacity within ``f * ALPHA_AT_ZERO``;
