@@ -37,6 +37,7 @@ from tsog_stream.codec.precision import (
     stretch,
     to_codes,
 )
+from tsog_stream.codec.tsog_images import quantize_timeline
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
 from tsog_stream.framing import dense_core
@@ -457,3 +458,22 @@ def test_a_reference_time_moves_within_the_reach_of_its_polynomials(quality: int
     room = budget_fraction(quality) * TIME_AT_ZERO * reach
     assert np.all(moved <= room * 1.0001 + 1e-9)
     assert np.any(moved[::3] > 0)  # the long-lived ones move too, within their reach
+
+
+@pytest.mark.parametrize("quality", [100, 0])
+@pytest.mark.parametrize("kind", list(TimelineType))
+def test_attributes_are_stored_about_the_reference_times_a_reader_decodes(
+    kind: TimelineType, quality: int
+) -> None:
+    """The encoder re-expands the motion about ``quantize_timeline``'s reference times: they
+    are, to the bit, what a reader decodes (type-0 frame ids rounded to whole frames), so a
+    frame's motion is stored about its own frame, not about a code a fraction of a frame off."""
+    scene = small_scene(kind, dynamic=("means",), seed=8)
+    assert scene.timeline is not None
+    ordered = scene.subset(texel_order(scene))
+    assert ordered.timeline is not None
+    budgets = Budgets.of(ordered, quality)
+    codes = quantize_timeline(ordered.timeline, budgets.time if budgets is not None else None)
+    decoded = decode_chunk(encode_chunk(scene, quality=quality))
+    assert decoded.timeline is not None
+    assert np.array_equal(codes.reference_units(), decoded.timeline.t0)

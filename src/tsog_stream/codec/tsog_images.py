@@ -73,13 +73,26 @@ class TimelineCodes:
     """A timeline's 16-bit codes as a chunk stores them (R = frame/start/centre, G =
     duration/scale) and their per-channel range."""
 
+    type: TimelineType
     codes: npt.NDArray[np.uint16]
     mins: F64
     maxs: F64
 
     def reference_units(self) -> F64:
         """The reference times a decoder reads (frame, start or centre, timeline units)."""
-        return dequantize_u16(self.codes[:, :1], self.mins[:1], self.maxs[:1])[:, 0]
+        return _timeline_values(self.type, self.codes, self.mins, self.maxs)[:, 0]
+
+
+def _timeline_values(
+    kind: TimelineType, codes: npt.NDArray[np.uint16], mins: F64, maxs: F64
+) -> F64:
+    """(N, 2) timeline values of their codes as a reader takes them: type-0 frame ids rounded
+    to integers (G unused: 0)."""
+    values = dequantize_u16(codes, mins, maxs)
+    if kind is TimelineType.FRAME:
+        values[:, 0] = np.rint(values[:, 0])
+        values[:, 1] = 0.0
+    return values
 
 
 def quantize_timeline(timeline: Timeline, budget: F64 | None = None) -> TimelineCodes:
@@ -103,7 +116,7 @@ def quantize_timeline(timeline: Timeline, budget: F64 | None = None) -> Timeline
     codes = quantize_u16(values, mins, maxs)
     if budget is not None and not exact:
         codes = coarsen_timeline(codes, mins, maxs, budget)
-    return TimelineCodes(codes, mins, maxs)
+    return TimelineCodes(timeline.type, codes, mins, maxs)
 
 
 def timeline_images(
@@ -129,11 +142,8 @@ def decode_timeline(meta: Any, images: Mapping[str, U8], count: int) -> Timeline
     """Timeline from its meta object and images; type-0 frame ids are rounded to integers."""
     mins = np.asarray(meta.mins, np.float64)
     maxs = np.asarray(meta.maxs, np.float64)
-    values = dequantize_u16(_codes(images, tuple(meta.files), count, 2), mins, maxs)
     kind = TimelineType(int(meta.type))
-    if kind is TimelineType.FRAME:
-        values[:, 0] = np.rint(values[:, 0])
-        values[:, 1] = 0.0
+    values = _timeline_values(kind, _codes(images, tuple(meta.files), count, 2), mins, maxs)
     return Timeline(kind, values[:, 0], values[:, 1], meta.fps, meta.scene_length)
 
 
