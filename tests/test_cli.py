@@ -20,8 +20,9 @@ from test_cli_hostile import HOSTILE_FILE_RUNS
 from tsog_stream import TimelineType
 from tsog_stream.cli import interrupt
 from tsog_stream.cli import progress as progress_module
-from tsog_stream.cli.main import main
+from tsog_stream.cli.main import build_parser, main
 from tsog_stream.cli.progress import Progress
+from tsog_stream.cli.stream_commands import check_segment_args
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.io.chunks import read_chunk
@@ -381,3 +382,35 @@ def test_what_loads_late_is_still_there_when_asked_for() -> None:
         assert getattr(server_package, name).__name__ == name
     with pytest.raises(AttributeError):
         _ = server_package.nothing_of_that_name
+
+
+SEGMENT_WORKERS = """
+import os, sys
+os.sched_setaffinity(0, {int(c) for c in sys.argv[3].split(",")})
+from tsog_stream.cli.main import build_parser
+from tsog_stream.cli.stream_commands import check_segment_args
+args = build_parser().parse_args(["segment", sys.argv[1], "-o", sys.argv[2]])
+check_segment_args(args)
+print(args.workers)
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this OS")
+@pytest.mark.parametrize("pinned", [True, False])
+def test_segment_starts_a_worker_per_core_it_may_use(tmp_path: Path, pinned: bool) -> None:
+    """Without --workers, ``tsog segment`` encodes on one process per core its process may run
+    on (taskset, a cpuset): one pinned core, one process; and --workers still wins."""
+    cores = sorted(os.sched_getaffinity(0))
+    allowed = cores[:1] if pinned else cores
+    src, out = str(tmp_path / "s.sog"), str(tmp_path / "c.tsogs")
+    done = subprocess.run(
+        [sys.executable, "-c", SEGMENT_WORKERS, src, out, ",".join(map(str, allowed))],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    assert int(done.stdout) == len(allowed)
+    args = build_parser().parse_args(["segment", src, "-o", out, "--workers", "3"])
+    check_segment_args(args)
+    assert args.workers == 3

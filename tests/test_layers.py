@@ -64,9 +64,9 @@ FORMAT_LAYER = (
 )
 """Modules that turn bytes into values and back and must do no I/O themselves."""
 IO_MODULES = {"pathlib", "asyncio", "aiohttp", "socket", "shutil", "tempfile", "subprocess"}
-OS_ALLOWED = {"cpu_count", "register_at_fork"}
-"""The only names of ``os`` the format layer may use (sizing its thread pools, and making new
-ones in a forked child)."""
+OS_ALLOWED = {"register_at_fork"}
+"""The only name of ``os`` the format layer may use (making new thread pools in a forked child;
+it sizes them by constants.usable_cores)."""
 PUBLIC = [
     "AccessError",
     "FormatError",

@@ -37,7 +37,7 @@ from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Layer
-from ..segment.engines import check_cluster
+from ..segment.engines import WORKER_MEMORY, check_cluster, default_workers
 from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
@@ -84,6 +84,8 @@ def check_segment_args(args: argparse.Namespace) -> None:
         raise InputError(
             f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
         )
+    if args.workers is None:
+        args.workers = default_workers()
     if args.workers < 1:
         raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
     if args.cluster is not None:
@@ -142,7 +144,11 @@ def add_stream_commands(sub: Subparsers) -> None:
         help="pixel budget per image (default 4096x4096)",
     )
     p.add_argument(
-        "--workers", type=Integer(1, 256), default=2, help="encoder processes (default 2)"
+        "--workers",
+        type=Integer(1, 256),
+        help="encoder processes, or Dask workers with --cluster local (default: one per core "
+        f"this process may use, fewer when its free memory holds fewer "
+        f"{WORKER_MEMORY / 2**30:g} GiB workers; {default_workers()} here)",
     )
     p.add_argument(
         "--cluster",

@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from ..constants import MAX_IMAGE_PIXELS, WEBP_MAX_SIDE
+from ..constants import MAX_IMAGE_PIXELS, WEBP_MAX_SIDE, usable_cores
 from ..errors import SogError
 
 _pillow_webp: Any
@@ -175,7 +175,7 @@ class _SharedPools:
         """The pools, made on the first call."""
         with self._lock:
             if self._pools is None:
-                cores = os.cpu_count() or 1
+                cores = usable_cores()
                 self._pools = _Pools(
                     decoding=ThreadPoolExecutor(max(MAX_DECODE_THREADS, 2 * cores), "tsog-webp"),
                     working=ThreadPoolExecutor(cores, "tsog-decode"),

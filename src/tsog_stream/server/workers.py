@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Final
 
+from ..constants import usable_cores
 from ..errors import InputError
 from .app import make_app, start_server
 from .private import Privacy
@@ -40,10 +41,8 @@ log = logging.getLogger("tsog.serve")
 
 
 def default_workers() -> int:
-    """The cores this process may run on (one worker per core; the core count where the
-    system cannot say which, as on macOS)."""
-    affinity = getattr(os, "sched_getaffinity", None)
-    return max(1, len(affinity(0)) if affinity is not None else os.cpu_count() or 1)
+    """One worker per core this process may run on (constants.usable_cores)."""
+    return usable_cores()
 
 
 @dataclass(frozen=True)
