@@ -5,17 +5,13 @@ from __future__ import annotations
 import os
 import pickle
 import signal
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 from typing import cast
 
 import pytest
 
 from helpers import reporting_job
-from tsog_stream import constants
 from tsog_stream.segment import engines
 
 
@@ -110,45 +106,3 @@ def test_workers_are_one_per_core_as_far_as_memory_holds_them() -> None:
     assert engines.workers_for(8, 3 * gib + gib // 2) == 3  # three workers fit, not four
     assert engines.workers_for(8, 0) == 1  # one at least, to do the work at all
     assert engines.workers_for(1, 100 * gib) == 1
-
-
-def test_memory_available_reads_the_kernel_and_a_container_limit(tmp_path: Path) -> None:
-    meminfo = tmp_path / "meminfo"
-    meminfo.write_text("MemTotal:  32000000 kB\nMemFree:  100 kB\nMemAvailable:  2048 kB\n")
-    assert engines._meminfo_available(str(meminfo)) == 2048 * 1024
-    assert engines._meminfo_available(str(tmp_path / "none")) is None
-    limit, used = tmp_path / "memory.max", tmp_path / "memory.current"
-    used.write_text("1000\n")
-    for text, room in [
-        ("5000\n", 4000),
-        ("500\n", 0),
-        ("max\n", None),
-        (f"{2**63 - 4096}\n", None),
-    ]:
-        limit.write_text(text)  # v2 "max" and v1's near-2^63 both mean no limit
-        assert engines._room_under(str(limit), str(used)) == room
-    limit.write_text("garbage\n")
-    assert engines._room_under(str(limit), str(used)) is None
-    assert engines._room_under(str(tmp_path / "no"), str(used)) is None
-    found = engines.available_memory()
-    assert found is None or found > 0  # this machine's: read, not assumed
-
-
-PINNED = """
-import os, sys
-os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-from tsog_stream.constants import usable_cores
-from tsog_stream.segment.engines import default_workers
-print(usable_cores(), default_workers())
-"""
-
-
-@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this OS")
-def test_a_process_pinned_to_one_core_counts_one_core_and_starts_one_worker() -> None:
-    """Thread pools and ``tsog segment``'s default workers follow the cores a process may use
-    (taskset, a cpuset), not the machine's: the machine's count oversubscribed a pinned one."""
-    done = subprocess.run(
-        [sys.executable, "-c", PINNED], capture_output=True, text=True, timeout=60, check=True
-    )
-    assert done.stdout.split() == ["1", "1"]
-    assert constants.usable_cores() == len(os.sched_getaffinity(0))

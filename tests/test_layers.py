@@ -21,6 +21,7 @@ FLOORS: dict[str, int] = {
             "_version",
             "constants",
             "errors",
+            "machine",
             "morton",
             "columns",
             "model",
@@ -66,7 +67,7 @@ FORMAT_LAYER = (
 IO_MODULES = {"pathlib", "asyncio", "aiohttp", "socket", "shutil", "tempfile", "subprocess"}
 OS_ALLOWED = {"register_at_fork"}
 """The only name of ``os`` the format layer may use (making new thread pools in a forked child;
-it sizes them by constants.usable_cores)."""
+it sizes them by machine.usable_cores)."""
 PUBLIC = [
     "AccessError",
     "FormatError",

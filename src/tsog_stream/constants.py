@@ -113,15 +113,6 @@ def pixel_budget() -> int:
     return DEFAULT_MAX_PIXELS
 
 
-def usable_cores() -> int:
-    """The cores this process may run on: its CPU affinity (what ``taskset``, a cgroup cpuset
-    or a batch scheduler left it), the machine's core count where the system cannot say (as
-    on macOS). Thread pools and default worker counts are sized by it, not by the machine's
-    cores, which a process pinned to fewer would oversubscribe."""
-    affinity = getattr(os, "sched_getaffinity", None)
-    return max(1, len(affinity(0)) if affinity is not None else os.cpu_count() or 1)
-
-
 MAX_IMAGE_PIXELS: Final = WEBP_MAX_SIDE * WEBP_MAX_SIDE
 """Largest image any reader decodes; Pillow's decompression-bomb limit is set to this."""
 IMAGE_SLACK_TEXELS: Final = 4096

@@ -19,8 +19,9 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from ..constants import MAX_IMAGE_PIXELS, WEBP_MAX_SIDE, usable_cores
+from ..constants import MAX_IMAGE_PIXELS, WEBP_MAX_SIDE
 from ..errors import SogError
+from ..machine import usable_cores
 
 _pillow_webp: Any
 try:  # the libwebp decoder Pillow's WebP plugin reads through (see _libwebp_rgba)

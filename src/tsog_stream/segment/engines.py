@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Final, Generic, TypeVar
 
-from ..constants import usable_cores
 from ..errors import InputError
+from ..machine import available_memory, usable_cores
 from .meter import reporting_to
 
 LOCAL_CLUSTER = "local"
@@ -60,12 +60,6 @@ WORKER_MEMORY: Final = 5 << 28
 """Memory (1.25 GiB) a local encoder process is allowed for when choosing how many to start: it
 holds one job at a time, of at most MAX_CHUNK_GAUSSIANS Gaussians (the 5M SH3 checkpoint's
 largest worker peaked at 0.85-0.89 GiB on jobs of 833k; bench_cluster, docs/benchmarks.md)."""
-MEMORY_LIMITS: Final = (
-    ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-    ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
-)
-"""A container's memory limit and use (cgroup v2, then v1), where the machine's free memory
-would overstate what this process may take."""
 
 
 def default_workers() -> int:
@@ -80,38 +74,6 @@ def workers_for(cores: int, memory: int | None) -> int:
     if memory is None:
         return max(1, cores)
     return max(1, min(cores, memory // WORKER_MEMORY))
-
-
-def available_memory() -> int | None:
-    """Bytes this process may still take: the kernel's estimate of memory available without
-    swapping (Linux's MemAvailable), lowered by a container's limit; None where neither can be
-    read (the worker count is then bounded by cores alone)."""
-    found = [_meminfo_available(), *(_room_under(limit, used) for limit, used in MEMORY_LIMITS)]
-    known = [value for value in found if value is not None]
-    return min(known) if known else None
-
-
-def _meminfo_available(path: str = "/proc/meminfo") -> int | None:
-    """MemAvailable of /proc/meminfo in bytes (None without it)."""
-    with contextlib.suppress(OSError, ValueError), open(path, encoding="ascii") as meminfo:
-        for line in meminfo:
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    return None
-
-
-def _room_under(limit_path: str, used_path: str) -> int | None:
-    """A cgroup's memory limit minus its use (None when unlimited or unreadable)."""
-    with contextlib.suppress(OSError, ValueError):
-        with (
-            open(limit_path, encoding="ascii") as limit_file,
-            open(used_path, encoding="ascii") as used_file,
-        ):
-            limit_text, used_text = limit_file.read().strip(), used_file.read().strip()
-        if limit_text == "max" or int(limit_text) >= 1 << 60:  # v1 writes "unlimited" as ~2^63
-            return None
-        return max(0, int(limit_text) - int(used_text))
-    return None
 
 
 T = TypeVar("T")

@@ -22,8 +22,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Final
 
-from ..constants import usable_cores
 from ..errors import InputError
+from ..machine import usable_cores
 from .app import make_app, start_server
 from .private import Privacy
 from .respond import Limits
@@ -41,7 +41,7 @@ log = logging.getLogger("tsog.serve")
 
 
 def default_workers() -> int:
-    """One worker per core this process may run on (constants.usable_cores)."""
+    """One worker per core this process may run on (machine.usable_cores)."""
     return usable_cores()
 
 
