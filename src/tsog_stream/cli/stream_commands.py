@@ -84,8 +84,6 @@ def check_segment_args(args: argparse.Namespace) -> None:
         raise InputError(
             f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
         )
-    if args.workers is None:
-        args.workers = default_workers()
     if args.workers < 1:
         raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
     if args.cluster is not None:
@@ -146,9 +144,10 @@ def add_stream_commands(sub: Subparsers) -> None:
     p.add_argument(
         "--workers",
         type=Integer(1, 256),
+        default=default_workers(),
         help="encoder processes, or Dask workers with --cluster local (default: one per core "
         f"this process may use, fewer when its free memory holds fewer "
-        f"{WORKER_MEMORY / 2**30:g} GiB workers; {default_workers()} here)",
+        f"{WORKER_MEMORY / 2**30:g} GiB workers; %(default)s here)",
     )
     p.add_argument(
         "--cluster",
