@@ -21,9 +21,11 @@ from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.codec.webp import cores_in_use
 from tsog_stream.errors import InputError
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import open_sequence
+from tsog_stream.machine import usable_cores
 from tsog_stream.model import Scene
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment import engines
@@ -194,6 +196,16 @@ def test_a_lost_worker_s_jobs_run_again_and_the_bytes_do_not_change(
         killer.join(30)
     assert killed, "no job was seen running: nothing was lost"
     assert path.read_bytes() == reference
+
+
+def test_a_dask_worker_s_codec_threads_are_its_own_threads(scheduler: str) -> None:
+    """A job on a worker of one thread encodes on one thread, whatever the machine's cores
+    (the machine's count, where the codec would otherwise size its pools, is more here)."""
+    if usable_cores() < 2:
+        pytest.skip("one usable core: the codec's pools have one thread anyway")
+    with engines.engine(2, scheduler) as running:
+        futures = [running.submit(token, cores_in_use) for token in range(4)]
+        assert [future.result(timeout=60) for future in futures] == [1, 1, 1, 1]
 
 
 def test_dask_jobs_progress_reaches_the_listener(scheduler: str) -> None:

@@ -171,12 +171,13 @@ class _SharedPools:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._pools: _Pools | None = None
+        self._cores: int | None = None
 
     def get(self) -> _Pools:
         """The pools, made on the first call."""
         with self._lock:
             if self._pools is None:
-                cores = usable_cores()
+                cores = self._cores or usable_cores()
                 self._pools = _Pools(
                     decoding=ThreadPoolExecutor(max(MAX_DECODE_THREADS, 2 * cores), "tsog-webp"),
                     working=ThreadPoolExecutor(cores, "tsog-decode"),
@@ -184,6 +185,19 @@ class _SharedPools:
                     helping=ThreadPoolExecutor(1, "tsog-help"),
                 )
             return self._pools
+
+    def cores(self) -> int:
+        """The cores the pools are (or will be) sized for."""
+        with self._lock:
+            return self._cores or usable_cores()
+
+    def size_for(self, cores: int) -> None:
+        """Pools for ``cores`` from now on: pools of another size are dropped (work already
+        handed to them finishes; their idle threads end with them) and made anew on next use."""
+        with self._lock:
+            if cores != self._cores:
+                self._cores = cores
+                self._pools = None
 
     def forget(self) -> None:
         """In a forked child: the parent's pool threads do not exist there, so make new ones."""
@@ -193,6 +207,18 @@ class _SharedPools:
 
 _SHARED_POOLS = _SharedPools()
 os.register_at_fork(after_in_child=_SHARED_POOLS.forget)
+
+
+def use_cores(cores: int) -> None:
+    """Size the codec's thread pools for ``cores`` cores in this process from now on, where
+    a scheduler gave it fewer than :func:`~tsog_stream.machine.usable_cores` says: a Dask
+    worker declared with one thread beside others on the same machine."""
+    _SHARED_POOLS.size_for(max(1, cores))
+
+
+def cores_in_use() -> int:
+    """The cores the codec's thread pools are sized for in this process."""
+    return _SHARED_POOLS.cores()
 
 
 SPLIT_LEAST = 16384

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Final, Generic, TypeVar
 
+from ..codec.webp import use_cores
 from ..errors import InputError
 from ..machine import available_memory, usable_cores
 from .meter import reporting_to
@@ -193,10 +194,14 @@ def run_reported(token: int, job: Callable[..., T], *args: Any) -> T:
 
 def run_on_dask(token: int, job: Callable[..., T], *args: Any) -> T:
     """A job on a Dask worker, its progress sent to the client as events of
-    :data:`PROGRESS_TOPIC` (the worker batches them to the scheduler, which passes them on)."""
+    :data:`PROGRESS_TOPIC` (the worker batches them to the scheduler, which passes them on).
+    The codec's thread pools there take as many cores as the worker has threads, as Dask
+    gives its workers one BLAS thread: workers of one thread each, one per core, would each
+    have started a thread per core of the machine."""
     from distributed import get_worker  # noqa: PLC0415 - an optional extra
 
     worker = get_worker()
+    use_cores(min(worker.state.nthreads, usable_cores()))
     return _reporting(
         job, args, lambda fraction: worker.log_event(PROGRESS_TOPIC, [token, fraction])
     )
