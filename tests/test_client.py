@@ -91,20 +91,22 @@ class Origin:
         await resp.prepare(request)
         if "trickle" in self.faults:  # a byte every 0.2 s: never silent long enough to time out
             for byte in bytes(body):
+                self.sent += 1  # counted before the client can have it: tests read it after
                 await resp.write(bytes([byte]))
-                self.sent += 1
                 await asyncio.sleep(0.2)
             return resp
         if "drop_once" in self.faults and len(body) > 1:
             self.faults.discard("drop_once")
-            await resp.write(bytes(body[: len(body) // 2]))
             self.sent += len(body) // 2
+            await resp.write(bytes(body[: len(body) // 2]))
             assert request.transport is not None
             request.transport.close()
             return resp
+        # counted before it is written: the client may have every byte (and the test read
+        # ``sent``) before this coroutine runs again after the write
+        self.sent += len(body)
         await resp.write(bytes(body))
         await resp.write_eof()
-        self.sent += len(body)
         return resp
 
 
