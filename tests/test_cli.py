@@ -46,10 +46,12 @@ def test_encode_decode_round_trip(
 ) -> None:
     out = tmp_path / "donut.sog"
     assert main(["encode", str(samples / DONUT), str(out), "-q"]) == 0
-    assert "45624 Gaussians" in capsys.readouterr().out
+    # of its 45624, three have an alpha byte 0 at the default quality: drawn by no reader
+    assert "45621 Gaussians" in (said := capsys.readouterr().out)
+    assert "(3 too faint at quality 90 left out)" in said
     assert main(["decode", str(out), str(tmp_path / "back.ply"), "-q"]) == 0
     back = read_ply(tmp_path / "back.ply").gaussians
-    assert len(back) == 45624
+    assert len(back) == 45621
     folder = tmp_path / "donut"
     assert main(["encode", str(out), str(folder), "-q"]) == 0
     assert (folder / "meta.json").is_file()

@@ -16,7 +16,7 @@ from typing import Any
 
 from .._version import __version__
 from ..codec.chunk import decode_chunk, encode_chunk
-from ..codec.precision import DEFAULT_QUALITY
+from ..codec.precision import DEFAULT_QUALITY, without_faint
 from ..errors import TsogError
 from ..inputs import STREAM_KINDS, input_kind
 from ..io.chunks import read_chunk_files, write_chunk_files
@@ -145,10 +145,13 @@ def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
         progress.done()
         print(f"{args.output}: {len(scene)} Gaussians, {args.output.stat().st_size} bytes")
         return 0
-    files = encode_chunk(scene, seed=args.seed, progress=progress, quality=args.quality)
+    stored = without_faint(scene, args.quality)
+    files = encode_chunk(stored, seed=args.seed, progress=progress, quality=args.quality)
     size = write_chunk_files(args.output, files, overwrite=True)
     progress.done()
-    print(f"{args.output}: {len(scene)} Gaussians, {size} bytes")
+    left_out = len(scene) - len(stored)
+    faint = f" ({left_out} too faint at quality {args.quality} left out)" if left_out else ""
+    print(f"{args.output}: {len(stored)} Gaussians, {size} bytes{faint}")
     return 0
 
 

@@ -75,7 +75,9 @@ def encode_chunk(
     """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
 
     ``quality`` 0..100 sets the error budgets of positions, timeline and motion
-    (codec/precision.py; 100 keeps every 16-bit code as computed).
+    (codec/precision.py; 100 keeps every 16-bit code as computed). Every Gaussian given is
+    stored: ``tsog encode`` and the segmenter first leave out those too faint for the quality
+    (:func:`~tsog_stream.codec.precision.without_faint`).
     ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
     ``on_palette`` hears how far the SH palette's fitting got (0..1; it comes last and takes
     most of the time of a chunk with SH bands).

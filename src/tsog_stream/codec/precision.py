@@ -30,6 +30,8 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
   and where anything moves, the reference time within that share of its reach too (a
   moved t_ref lengthens the reach of every polynomial).
   Frame ids, and lifespans the encoder stores in whole frames, stay exact.
+- which Gaussians: below quality 100, none whose alpha the opacity slack lets move to zero
+  (:func:`faint_at`: ``tsog encode`` and ``tsog segment`` leave them out before encoding).
 """
 
 from __future__ import annotations
@@ -80,12 +82,15 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 07:44): on the FreeTimeGS donuts and the
-.splatv captures its rendered PSNR is within 0.1 dB of quality 100's, worst view within 0.1
-dB or better, for 8.3-15.5 % fewer bytes (the guitar clips 0.1-0.2 dB below for 9.9-17 %); on
-the fireworks PLY frames 0.5 dB below (worst view 0.7) for 5.3 %; 75 costs up to 2.2 dB on
-those (the long donut), 3.5-3.8 dB on the guitar clips and 9 dB on the fireworks (worst view
-12.5)."""
+bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 11:01, with the faint Gaussians left
+out): on the FreeTimeGS donuts and coffee10 and yellow_clip2 its rendered PSNR is within 0.1
+dB of quality 100's, worst view unchanged or better, for 8.3-17 % fewer bytes (the guitar
+clips 0.1-0.2 dB below for 9.9-17 %); spinach and coffeeshort2 0.3 and 0.2 dB below (worst
+view -0.3 / +0.4 dB) for 14-17 %: the Gaussians left out there are ones no reader draws, and
+the scale codebook fitted without them costs that (docs/design/chunk-codec.md); on the
+fireworks PLY frames 0.5 dB below (worst view 0.7) for 5.3 %; 75 costs up to 2.2 dB on
+those (the long donut), 3.4-3.7 dB on the guitar clips and 9 dB on the fireworks (worst
+view 12.5)."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
@@ -130,6 +135,34 @@ def check_quality(quality: int) -> int:
 def budget_fraction(quality: int) -> float:
     """``(1 - quality/100)²``: 0 at 100, 1 at 0 (finer steps near the top, where they show)."""
     return (1.0 - check_quality(quality) / QUALITY_MAX) ** 2
+
+
+ALPHA_BYTE_ZERO = 0.5 / 255.0
+"""Alphas up to this are stored as byte 0 (SOG's opacity byte): drawn by no reader."""
+
+
+def faint_at(scene: Scene, quality: int) -> npt.NDArray[np.bool_]:
+    """The Gaussians too faint to store below quality 100: an alpha within the opacity slack
+    (``f * ALPHA_AT_ZERO``, spec §5.1), which lets it move to zero, or one its byte would
+    store as zero anyway (ALPHA_BYTE_ZERO), at every time (a lifespan only scales it down).
+    None at 100, none whose opacity moves (temporal coefficients), and none when every one
+    is (a chunk holds at least one Gaussian)."""
+    none = np.zeros(len(scene), np.bool_)
+    f = budget_fraction(quality)
+    if f <= 0.0 or len(scene) == 0 or "opacities" in scene.temporal:
+        return none
+    logits = np.asarray(scene.gaussians.opacities, np.float64).reshape(len(scene))
+    # NaN compares False: kept, and refused by the encoder
+    faint = logit_to_alpha(logits) <= max(f * ALPHA_AT_ZERO, ALPHA_BYTE_ZERO)
+    return none if faint.all() else faint
+
+
+def without_faint(scene: Scene, quality: int) -> Scene:
+    """``scene`` less the Gaussians :func:`faint_at` ``quality`` (itself when there are none):
+    what ``tsog encode`` and ``tsog segment`` store. A Gaussian drawn that faintly changes the
+    picture less than its position's error would, and costs as many bytes as any other."""
+    faint = faint_at(scene, quality)
+    return scene.subset(np.flatnonzero(~faint)) if faint.any() else scene
 
 
 def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:

@@ -22,7 +22,7 @@ from .._version import __version__
 from ..codec.bundle import bundle_bytes
 from ..codec.chunk import encode_chunk
 from ..codec.layout import image_size
-from ..codec.precision import QUALITY_MAX
+from ..codec.precision import QUALITY_MAX, faint_at, without_faint
 from ..codec.sh_bands import encode_sh_bands, without_sh
 from ..columns import down
 from ..constants import (
@@ -627,6 +627,9 @@ def _write_container(
             if on_chunk:
                 on_chunk(i + 1, max(total, i + 1), meter.eta_s())
                 meter.ticked()
+        if scene_fields["gaussians"] is None:  # a frame sequence: each stored once
+            counted = sum(e.count for e in entries if e.holds_gaussians)
+            scene_fields = {**scene_fields, "gaussians": counted, "stored": counted}
         scene = {
             **scene_fields,
             "start_s": plan.start_s,
@@ -721,7 +724,10 @@ def segment_scene(
         options = _with_layout(options, choice)
         plan = plan_scene(scene, options)
         views = viewing.result()
-    groups = node_groups(scene, plan, options.slice_s)
+    groups, faint = without_faint_members(node_groups(scene, plan, options.slice_s), scene, options)
+    if faint:
+        stage(f"leaving out {faint} Gaussians too faint to show at quality {options.quality}")
+    stored = sum(len(g) for _, g in groups)
     members = [g for _, g in groups]
     stage(_layers_stage(options.layers, "rendering", "cutting the scene into chunks"))
     layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
@@ -736,11 +742,11 @@ def segment_scene(
         jobs, lambda job: job_part(scene, job, split), lambda job: job_work(scene, job, split)
     )
     meter = Meter(sum(parts.work(job) for job in jobs))
-    stage(_encoding(len(jobs), plan.stored, options.workers))
+    stage(_encoding(len(jobs), stored, options.workers))
     tl = scene.timeline
     fields: dict[str, Any] = {
-        "gaussians": len(scene),
-        "stored": plan.stored,
+        "gaussians": len(scene) - faint,
+        "stored": stored,
         "fps": tl.fps if tl is not None else None,
         "timeline_type": int(tl.type) if tl is not None else None,
         "temporal": {a: int(c.shape[1]) for a, c in scene.temporal.items()},
@@ -761,10 +767,26 @@ def segment_scene(
     return replace(report, layout=choice)
 
 
-def _encoding(chunks: int, gaussians: int, workers: int) -> str:
-    """The encoding phase, as a stage line."""
+def without_faint_members(
+    groups: list[tuple[NodeKey, Ints]], scene: Scene, options: SegmentOptions
+) -> tuple[list[tuple[NodeKey, Ints]], int]:
+    """The groups (:func:`node_groups`) without the Gaussians too faint to store at the
+    options' quality (precision.faint_at; a group left empty goes), and how many those are:
+    indices, not a copy of the scene without them (a 5M scene is 1.2 GiB)."""
+    faint = faint_at(scene, options.quality)
+    count = int(np.count_nonzero(faint))
+    if count == 0:
+        return groups, 0
+    kept = [(key, members[~faint[members]]) for key, members in groups]
+    return [(key, members) for key, members in kept if len(members)], count
+
+
+def _encoding(chunks: int, gaussians: int, workers: int, *, faint_left: bool = False) -> str:
+    """The encoding phase, as a stage line (``faint_left``: a sequence's windows have yet to
+    leave their faint Gaussians out, so the count is a bound)."""
     on = f"{workers} workers" if workers > 1 else "one process"
-    return f"encoding {chunks} chunks ({gaussians} Gaussians stored) on {on}"
+    stored = f"at most {gaussians}" if faint_left else f"{gaussians}"
+    return f"encoding {chunks} chunks ({stored} Gaussians stored) on {on}"
 
 
 def window_parts(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> list[Part]:
@@ -787,12 +809,13 @@ def _after(sh_of: int | None, written: int) -> int | None:
 
 
 def _sequence_parts(
-    seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan
+    seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan, quality: int
 ) -> Iterator[Part]:
-    """Parts of a frame sequence read here, one window of frames in memory at a time."""
+    """Parts of a frame sequence read here, one window of frames in memory at a time (less
+    the Gaussians too faint to store at ``quality``)."""
     written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
-        scene = seq.read(first, min(seq.count, first + per_window)).scene
+        scene = without_faint(seq.read(first, min(seq.count, first + per_window)).scene, quality)
         parts = window_parts(scene, w, max_count, layering)
         for part in parts:
             yield replace(part, sh_of=_after(part.sh_of, written))
@@ -816,7 +839,8 @@ class WindowJob:
 def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
     """Read a window's frames, cut and encode its chunks (run in worker processes; the
     window's scene is dropped once cut into parts)."""
-    parts = window_parts(job.frames.read().scene, job.index, job.max_count, job.layering)
+    scene = without_faint(job.frames.read().scene, job.quality)
+    parts = window_parts(scene, job.index, job.max_count, job.layering)
     works = [part_work(part) for part in parts]
     total, done = sum(works), 0.0
     encoded: list[tuple[PartInfo, bytes]] = []
@@ -849,7 +873,7 @@ def _sequence_encoded(
     passes through this process (the store or disk is read by the workers); otherwise
     windows are read here and their chunks are the jobs."""
     starts = range(0, seq.count, per_window)
-    parts = _sequence_parts(seq, per_window, max_count, layering)
+    parts = _sequence_parts(seq, per_window, max_count, layering, options.quality)
     if options.workers <= 1 and options.cluster is None:
         yield from _encoded(parts, plan, options, meter)
         return
@@ -1016,8 +1040,8 @@ def segment_sequence(
     windows = -(-seq.count // per_window)
     plan = Plan(0.0, seq.count / seq.fps, window_s, windows, {}, 0)
     fields: dict[str, Any] = {
-        "gaussians": seq.gaussians,
-        "stored": seq.gaussians,
+        "gaussians": None,  # what the chunks hold: each window leaves out its faint ones
+        "stored": None,
         "fps": seq.fps,
         "timeline_type": 0,
         "temporal": {},
@@ -1037,7 +1061,9 @@ def segment_sequence(
         layering = _layers_within_flipbook(seq, measured, layering, max_count, options, stage=stage)
     del measured
     total = _sequence_chunks(seq, per_window, max_count, layering)
-    stage(_encoding(total, seq.gaussians, options.workers))
+    stage(
+        _encoding(total, seq.gaussians, options.workers, faint_left=options.quality < QUALITY_MAX)
+    )
     meter = Meter(sum(_frames_work(seq.shapes, seq.sh_coeffs, layering.sh_apart)))
     encoded = _sequence_encoded(
         seq, per_window, max_count, layering, plan=plan, options=options, meter=meter
