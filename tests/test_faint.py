@@ -14,8 +14,8 @@ from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
 from tsog_stream.codec.precision import (
-    ALPHA_AT_ZERO,
     ALPHA_BYTE_ZERO,
+    FAINT_AT_ZERO,
     budget_fraction,
     faint_at,
     without_faint,
@@ -44,9 +44,9 @@ def _with_alphas(gaussians: Gaussians, alphas: np.ndarray) -> Gaussians:
     [
         (100, [False] * 6),  # today's precision: every Gaussian
         (99, [True, True, False, False, False, False]),  # alpha byte 0 (up to 0.00196) only
-        (90, [True, True, False, False, False, False]),  # slack 0.001: byte 0 still
-        (55, [True, True, True, True, False, False]),  # slack 0.02
-        (0, [True, True, True, True, True, False]),  # slack 0.1
+        (90, [True, True, False, False, False, False]),  # 0.002: about byte 0 still
+        (55, [True, True, True, True, False, False]),  # 0.0405
+        (0, [True, True, True, True, True, False]),  # 0.2
     ],
 )
 def test_faint_gaussians_are_those_whose_alpha_the_quality_lets_go_to_zero(
@@ -54,7 +54,7 @@ def test_faint_gaussians_are_those_whose_alpha_the_quality_lets_go_to_zero(
 ) -> None:
     scene = Scene(_with_alphas(static_gaussians(6, seed=1), ALPHAS))
     assert faint_at(scene, quality).tolist() == faint
-    limit = max(budget_fraction(quality) * ALPHA_AT_ZERO, ALPHA_BYTE_ZERO)
+    limit = max(budget_fraction(quality) * FAINT_AT_ZERO, ALPHA_BYTE_ZERO)
     if quality < 100:  # the rule, on many alphas
         many = Scene(_with_alphas(static_gaussians(4000, seed=2), np.geomspace(1e-5, 1, 4000)))
         alphas = logit_to_alpha(many.gaussians.opacities.ravel())
