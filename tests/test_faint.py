@@ -66,7 +66,7 @@ def test_none_is_faint_when_opacity_moves_or_every_one_is() -> None:
         _with_alphas(static_gaussians(50, seed=3), ALPHAS), duration_s=4.0, lifespan=(0.6, 1.0)
     )
     assert faint_at(scene, 0).any()
-    scene.temporal["opacities"] = np.zeros((len(scene), 1, 1), np.float32)
+    scene.temporal["opacity"] = np.zeros((len(scene), 1, 1), np.float32)
     assert not faint_at(scene, 0).any()  # its alpha over time is not bounded here
     all_faint = Scene(_with_alphas(static_gaussians(20, seed=4), np.array([0.001])))
     assert not faint_at(all_faint, 0).any()  # a chunk holds at least one Gaussian

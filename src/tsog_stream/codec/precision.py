@@ -159,7 +159,7 @@ def faint_at(scene: Scene, quality: int) -> npt.NDArray[np.bool_]:
     is (a chunk holds at least one Gaussian)."""
     none = np.zeros(len(scene), np.bool_)
     f = budget_fraction(quality)
-    if f <= 0.0 or len(scene) == 0 or "opacities" in scene.temporal:
+    if f <= 0.0 or len(scene) == 0 or "opacity" in scene.temporal:
         return none
     logits = np.asarray(scene.gaussians.opacities, np.float64).reshape(len(scene))
     # NaN compares False: kept, and refused by the encoder
