@@ -83,7 +83,7 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 11:01, with the faint Gaussians left
+bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 11:41, with the faint Gaussians left
 out): on the FreeTimeGS donuts and coffee10 and yellow_clip2 its rendered PSNR is within 0.1
 dB of quality 100's, worst view unchanged or better, for 8.3-17 % fewer bytes (the guitar
 clips 0.1-0.2 dB below for 9.9-17 %); spinach and coffeeshort2 0.3 and 0.2 dB below (worst
