@@ -115,6 +115,7 @@ def test_segmenting_a_scene_stores_every_gaussian_but_the_faint(tmp_path: Path) 
     report = segment_scene(scene, path, SegmentOptions(quality=55, window_s=1.0))
     gaussians, counts, lowest = _chunk_counts(path)
     assert gaussians == report.gaussians == kept == 1000
+    assert report.faint == 2000
     assert counts == report.stored >= kept  # copies of Gaussians crossing windows counted
     assert min(lowest) > 0.02
     every = segment_scene(scene, tmp_path / "all.tsogs", SegmentOptions(window_s=1.0))
@@ -137,4 +138,21 @@ def test_segmenting_frames_leaves_each_window_s_faint_out(tmp_path: Path, worker
     report = segment_sequence(seq, path, options)
     gaussians, counts, lowest = _chunk_counts(path)
     assert gaussians == counts == report.gaussians == report.stored == kept == 8 * 200
+    assert report.faint == 8 * 400
     assert min(lowest) > 0.02
+
+
+def test_tsog_segment_says_how_many_it_left_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        write_ply(
+            folder / f"frame_{k:04d}.ply", _with_alphas(static_gaussians(600, seed=k), ALPHAS)
+        )
+    out = tmp_path / "out.tsogs"
+    argv = ["segment", str(folder), "-o", str(out), "--quality", "55", "--workers", "1", "-q"]
+    assert main(argv) == 0
+    said = capsys.readouterr().out
+    assert "600 Gaussians, 600 stored copies (1200 too faint at quality 55 left out)" in said

@@ -342,7 +342,10 @@ def _segment(
     if report.layout is not None:
         _print_layout(report.layout, fps)
     print(f"  {report.windows} windows, {report.chunks} chunks")
-    print(f"  {report.gaussians} Gaussians, {report.stored} stored copies")
+    faint = (
+        f" ({report.faint} too faint at quality {args.quality} left out)" if report.faint else ""
+    )
+    print(f"  {report.gaussians} Gaussians, {report.stored} stored copies{faint}")
     print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
     print(f"  {_cameras_line(cameras, cameras_source, report)}")
     print(f"  {_layers_line(report)}")

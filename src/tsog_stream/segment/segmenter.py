@@ -168,6 +168,8 @@ class SegmentReport:
     """The index's quality layers (empty: one layer)."""
     layers_why: str = ""
     """How the layers were chosen (segment/layers.py)."""
+    faint: int = 0
+    """Gaussians too faint to store at the quality, left out (precision.faint_at)."""
 
 
 def palette_pixels(count: int, sh_bands: int) -> int:
@@ -764,7 +766,7 @@ def segment_scene(
         layering=layering,
         meter=meter,
     )
-    return replace(report, layout=choice)
+    return replace(report, layout=choice, faint=faint)
 
 
 def without_faint_members(
@@ -1080,7 +1082,7 @@ def segment_sequence(
         layering=layering,
         meter=meter,
     )
-    return replace(report, layout=choice)
+    return replace(report, layout=choice, faint=seq.gaussians - report.gaussians)
 
 
 VIEW_FRAMES = 5
