@@ -10,7 +10,7 @@ import socket
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -20,9 +20,10 @@ import numpy.typing as npt
 import pytest
 from aiohttp import web
 
-from tsog_stream import Scene, TimelineType
+from tsog_stream import Gaussians, Scene, TimelineType
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.constants import U16_MAX
+from tsog_stream.io.ply import write_ply
 from tsog_stream.segment.meter import report_progress
 from tsog_stream.server.app import start_server
 from tsog_stream.temporal import evaluate_all, lifespans, reference_times, visibility_half_width
@@ -92,6 +93,17 @@ class ThreadedServer:
 
 
 NGINX = Path("/usr/sbin/nginx")
+
+
+def write_ply_frames(folder: Path, frames: Iterable[Gaussians]) -> list[Path]:
+    """Each frame as a numbered float PLY (frame_0000.ply, ...) in the new ``folder``: a frame
+    sequence input; the paths in frame order."""
+    folder.mkdir()
+    paths = []
+    for k, gaussians in enumerate(frames):
+        paths.append(folder / f"frame_{k:04d}.ply")
+        write_ply(paths[-1], gaussians)
+    return paths
 
 
 def free_port() -> int:

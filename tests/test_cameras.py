@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from helpers import write_ply_frames
 from tsog_stream import framing
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
@@ -424,10 +425,7 @@ def test_cli_segment_info_and_render_use_the_cameras(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     folder = tmp_path / "frames"
-    folder.mkdir()
-    for k in range(3):
-        write_ply(folder / f"frame_{k:03d}.ply", blob_with_floaters(seed=k))
-    ply = folder / "frame_000.ply"
+    ply = write_ply_frames(folder, (blob_with_floaters(seed=k) for k in range(3)))[0]
     write_colmap_text(folder / "sparse" / "0", ring_cameras(3))
     out = tmp_path / "scene.tsogs"
     assert main(["segment", str(folder), "-o", str(out), "--temporal", "off", "-q"]) == 0

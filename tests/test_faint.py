@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import write_ply_frames
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
@@ -125,14 +126,12 @@ def test_segmenting_a_scene_stores_every_gaussian_but_the_faint(tmp_path: Path) 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_segmenting_frames_leaves_each_window_s_faint_out(tmp_path: Path, workers: int) -> None:
     """Windows read here (one process) and by the workers themselves (window jobs) alike."""
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    kept = 0
-    for k in range(8):
-        frame = _with_alphas(static_gaussians(600, seed=10 + k), np.roll(ALPHAS, k))
-        kept += int(np.count_nonzero(~faint_at(Scene(frame), 55)))
-        write_ply(folder / f"frame_{k:04d}.ply", frame)
-    seq = open_sequence(folder)
+    frames = [
+        _with_alphas(static_gaussians(600, seed=10 + k), np.roll(ALPHAS, k)) for k in range(8)
+    ]
+    kept = sum(int(np.count_nonzero(~faint_at(Scene(frame), 55))) for frame in frames)
+    write_ply_frames(tmp_path / "frames", frames)
+    seq = open_sequence(tmp_path / "frames")
     path = tmp_path / f"w{workers}.tsogs"
     options = SegmentOptions(quality=55, workers=workers, window_s=1 / seq.fps, layers=1)
     report = segment_sequence(seq, path, options)
@@ -146,11 +145,9 @@ def test_tsog_segment_says_how_many_it_left_out(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     folder = tmp_path / "frames"
-    folder.mkdir()
-    for k in range(3):
-        write_ply(
-            folder / f"frame_{k:04d}.ply", _with_alphas(static_gaussians(600, seed=k), ALPHAS)
-        )
+    write_ply_frames(
+        folder, (_with_alphas(static_gaussians(600, seed=k), ALPHAS) for k in range(3))
+    )
     out = tmp_path / "out.tsogs"
     argv = ["segment", str(folder), "-o", str(out), "--quality", "55", "--workers", "1", "-q"]
     assert main(argv) == 0

@@ -9,11 +9,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from helpers import write_ply_frames
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
 from tsog_stream.errors import InputError
-from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.merge import sequence as sequence_module
 from tsog_stream.merge.check import frame_errors
@@ -46,9 +46,7 @@ def moved(g: Gaussians, offset: npt.ArrayLike) -> Gaussians:
 def write_frames(folder: Path, frames: list[Gaussians], seed: int = 0) -> FrameSequence:
     """Frames as numbered PLYs, each frame's Gaussians in a fresh random order."""
     rng = np.random.default_rng(seed)
-    folder.mkdir()
-    for k, g in enumerate(frames):
-        write_ply(folder / f"frame_{k:03d}.ply", g.subset(rng.permutation(len(g))))
+    write_ply_frames(folder, (g.subset(rng.permutation(len(g))) for g in frames))
     return open_sequence(folder, fps=FPS)
 
 
