@@ -726,7 +726,9 @@ def segment_scene(
         options = _with_layout(options, choice)
         plan = plan_scene(scene, options)
         views = viewing.result()
-    groups, faint = without_faint_members(node_groups(scene, plan, options.slice_s), scene, options)
+    groups, faint = without_faint_members(
+        node_groups(scene, plan, options.slice_s), scene, options.quality
+    )
     if faint:
         stage(f"leaving out {faint} Gaussians too faint to show at quality {options.quality}")
     stored = sum(len(g) for _, g in groups)
@@ -770,12 +772,12 @@ def segment_scene(
 
 
 def without_faint_members(
-    groups: list[tuple[NodeKey, Ints]], scene: Scene, options: SegmentOptions
+    groups: list[tuple[NodeKey, Ints]], scene: Scene, quality: int
 ) -> tuple[list[tuple[NodeKey, Ints]], int]:
-    """The groups (:func:`node_groups`) without the Gaussians too faint to store at the
-    options' quality (precision.faint_at; a group left empty goes), and how many those are:
+    """The groups (:func:`node_groups`) without the Gaussians too faint to store at
+    ``quality`` (precision.faint_at; a group left empty goes), and how many those are:
     indices, not a copy of the scene without them (a 5M scene is 1.2 GiB)."""
-    faint = faint_at(scene, options.quality)
+    faint = faint_at(scene, quality)
     count = int(np.count_nonzero(faint))
     if count == 0:
         return groups, 0
