@@ -31,7 +31,7 @@ import os
 import struct
 import zipfile
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import IO, Any, BinaryIO, Final, Literal, cast
@@ -190,18 +190,25 @@ def _velocity(extra: dict[str, npt.NDArray[np.generic]], where: str) -> F64 | No
 def sniff_freetimegs_npz(data: bytes | memoryview | BinaryIO) -> bool:
     """True for a zip holding ``means.npy``, ``times.npy`` and ``durations.npy`` (the whole
     file, or an open one: the zip directory is at its end, read without the rest)."""
-    if isinstance(data, bytes | memoryview):
-        if bytes(data[:4]) != b"PK\x03\x04":
-            return False
-        source: BinaryIO = io.BytesIO(data)
-    else:
-        source = data
+    if isinstance(data, bytes | memoryview) and bytes(data[:4]) != b"PK\x03\x04":
+        return False
+    return is_freetimegs_npz(zip_members(data) or set())
+
+
+def is_freetimegs_npz(members: Collection[str]) -> bool:
+    """Whether a zip's member names are a FreeTimeGS checkpoint's."""
+    return {"means.npy", "times.npy", "durations.npy"} <= set(members)
+
+
+def zip_members(data: bytes | memoryview | BinaryIO) -> set[str] | None:
+    """The member names of a zip (bytes or an open file: its directory only is read); None
+    when it is no readable zip."""
+    source: BinaryIO = io.BytesIO(data) if isinstance(data, bytes | memoryview) else data
     try:
         with zipfile.ZipFile(source) as zf:
-            names = set(zf.namelist())
+            return set(zf.namelist())
     except (zipfile.BadZipFile, OSError, ValueError, EOFError):
-        return False
-    return {"means.npy", "times.npy", "durations.npy"} <= names
+        return None
 
 
 def parse_freetimegs_npz(
@@ -465,8 +472,10 @@ def _build(
 
 
 __all__ = [
+    "is_freetimegs_npz",
     "is_freetimegs_ply",
     "parse_freetimegs_npz",
     "parse_freetimegs_ply",
     "sniff_freetimegs_npz",
+    "zip_members",
 ]

@@ -20,12 +20,14 @@ from .cameras import cameras_for_input
 from .chunks import is_unbundled, read_chunk
 from .compressed_ply import is_compressed_ply
 from .files import open_regular, read_bytes, read_head
+from .foreign import foreign_format, foreign_npz
 from .fourdgs import parse_4dgs, sniff_4dgs
 from .freetimegs import (
+    is_freetimegs_npz,
     is_freetimegs_ply,
     parse_freetimegs_npz,
     parse_freetimegs_ply,
-    sniff_freetimegs_npz,
+    zip_members,
 )
 from .loaded import Loaded4D
 from .objects import Location, as_location
@@ -94,17 +96,30 @@ def _detect_file(p: Location) -> str:
     if sniff_4dgs(head):
         return "4dgs"
     if is_zip(head):
-        with open_regular(p) as file:  # the zip directory only, not the whole file
-            return "freetimegs-npz" if sniff_freetimegs_npz(file) else "sog"
+        return _zip_format(p)
     if sniff_ply(head):
         header = parse_header(head, name=str(p))
         if is_compressed_ply(header):
             return "compressed-ply"
         return "freetimegs-ply" if is_freetimegs_ply(header) else "ply"
     raise UnsupportedError(
-        "not a PLY, SOG/TSOG, .splatv, .4dgs or FreeTimeGS file (unknown magic bytes)",
+        foreign_format(head, str(p))
+        or "not a PLY, SOG/TSOG, .splatv, .4dgs or FreeTimeGS file (unknown magic bytes)",
         where=str(p),
     )
+
+
+def _zip_format(p: Location) -> str:
+    """A zip's format from its member names (its directory only is read, not the whole file):
+    a FreeTimeGS checkpoint, another NumPy .npz (refused by name), else a SOG bundle."""
+    with open_regular(p) as file:
+        members = zip_members(file) or set()
+    if is_freetimegs_npz(members):
+        return "freetimegs-npz"
+    foreign = foreign_npz(members)
+    if foreign is not None:
+        raise UnsupportedError(foreign, where=str(p))
+    return "sog"
 
 
 def detect_format(path: str | os.PathLike[str]) -> str:
