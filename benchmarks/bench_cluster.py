@@ -44,6 +44,7 @@ import numpy as np
 import psutil
 
 from common import write_section
+from tsog_stream import open_stream
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.model import Scene
@@ -209,17 +210,21 @@ def measure_here(source: str, engine: str, workers: int, out: Path) -> None:
     print(json.dumps(vars(run)), flush=True)
 
 
-def table(runs: list[Run], gaussians: int) -> list[str]:
-    """The runs as a Markdown table, with the scaling line under it."""
+def table(runs: list[Run], gaussians: int, fixed: dict[str, float], job_mib: float) -> list[str]:
+    """The runs as a Markdown table, with the scaling line under it. A worker's peak is also
+    given above ``fixed`` (its engine's worker peak on a tiny input: imports, threads, the
+    engine's own state) against ``job_mib``, the largest job's raw arrays."""
     rows = [
-        "| engine | workers | wall | Gaussians/s | CPU | worker peak RSS |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| engine | workers | wall | Gaussians/s | CPU | worker peak RSS | above a tiny input's |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in runs:
         peak = f"{r.worker_peak_mib:.0f} MiB" if r.worker_peak_mib else "(in the parent)"
+        above = r.worker_peak_mib - fixed[r.engine]
+        held = f"{above:.0f} MiB ({above / job_mib:.1f}x)" if r.worker_peak_mib else "–"
         rows.append(
             f"| {r.engine} | {r.workers} | {r.wall_s:.1f} s | "
-            f"{gaussians / r.wall_s / 1e3:.0f}k | {r.cpu_percent:.0f} % | {peak} |"
+            f"{gaussians / r.wall_s / 1e3:.0f}k | {r.cpu_percent:.0f} % | {peak} | {held} |"
         )
     by = {(r.engine, r.workers): r.wall_s for r in runs}
     same = len({r.digest for r in runs}) == 1
@@ -228,9 +233,34 @@ def table(runs: list[Run], gaussians: int) -> list[str]:
         f"Scaling from 1 to 2 workers: pool {by['pool', 1] / by['pool', 2]:.2f}x, Dask "
         f"{by['dask', 1] / by['dask', 2]:.2f}x; Dask against the pool at 2 workers: "
         f"{by['dask', 2] / by['pool', 2]:.2f}x the time. Containers byte-identical: "
-        f"{'yes' if same else 'NO'}.",
+        f"{'yes' if same else 'NO'}. Above a tiny input's: a worker's peak less its engine's "
+        f"worker peak on {TINY_FRAMES} frames of {TINY_GAUSSIANS} Gaussians, against the "
+        f"largest job's raw arrays ({job_mib:.1f} MiB; target: at most 2x).",
     ]
     return rows
+
+
+TINY_FRAMES, TINY_GAUSSIANS = 2, 64
+"""The tiny input whose worker peak is an engine's fixed cost."""
+
+
+def fixed_costs(folder: Path) -> dict[str, float]:
+    """Each engine's worker peak RSS (MiB) segmenting a tiny frame sequence on 2 workers:
+    what a worker holds whatever the input (interpreter, numpy, Pillow, the engine)."""
+    frames_of(folder / "tiny", TINY_FRAMES, TINY_GAUSSIANS)
+    return {
+        engine: measure_in_child(
+            str(folder / "tiny"), engine, 2, folder / f"tiny-{engine}.tsogs"
+        ).worker_peak_mib
+        for engine in ("pool", "dask")
+    }
+
+
+def largest_job_mib(container: Path, raw_per_gaussian: float) -> float:
+    """The raw arrays of the container's largest chunk (its job's Gaussians), in MiB."""
+    with open_stream(container) as stream:
+        most = max(c.count for c in stream.index.manifest.chunks)
+    return most * raw_per_gaussian / MiB
 
 
 def _peak_mib() -> float:
@@ -411,6 +441,7 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory() as tmp:
         seq = frames_of(Path(tmp) / "frames", args.frames, args.per_frame)
+        fixed = fixed_costs(Path(tmp))
         seq_runs = run_all(str(Path(tmp) / "frames"), Path(tmp), "frames")
         sent, window_raw, back = job_bytes(seq, seq_runs[0].container_bytes)
         parent_seq = max(r.parent_peak_mib for r in seq_runs if r.workers == 2)
@@ -419,6 +450,7 @@ def main() -> None:
         del scene
         scene_runs = run_all(f"scene:{args.gaussians}", Path(tmp), "scene")
         parent_scene = max(r.parent_peak_mib for r in scene_runs if r.workers == 2)
+        scene_job = largest_job_mib(Path(tmp) / "scene-dask2.tsogs", raw / args.gaussians)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     body = [
         "## Segmenting on the local pool and on Dask (issue 20)",
@@ -438,7 +470,7 @@ def main() -> None:
         f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "
         "its Gaussians.",
         "",
-        *table(scene_runs, args.gaussians),
+        *table(scene_runs, args.gaussians, fixed, scene_job),
         f"The parent's peak RSS with two workers: {parent_scene:.0f} MiB (the scene, the jobs "
         "in flight and the finished chunks waiting for their turn).",
         "",
@@ -451,7 +483,7 @@ def main() -> None:
         f"two workers: {parent_seq:.0f} MiB (it reads only the few frames it samples for the "
         "layout, the opening view and the layers).",
         "",
-        *table(seq_runs, seq.gaussians),
+        *table(seq_runs, seq.gaussians, fixed, window_raw / MiB),
         "",
     ]
     write_section("cluster", "\n".join(body), "bench_cluster.py")
