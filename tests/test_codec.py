@@ -22,12 +22,14 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
 from tsog_stream.codec.rotations import SQRT2, decode_quats, encode_quats
 from tsog_stream.codec.sog_decode import decode_sh
+from tsog_stream.codec.sog_encode import scale_importance
 from tsog_stream.codec.webp import ImageDecoder, ImageEncoder, decode_webp, encode_webp
 from tsog_stream.compare import attribute_errors, rotation_angles_deg
 from tsog_stream.io.ply import read_ply
 from tsog_stream.model import Gaussians, Timeline
 from tsog_stream.morton import morton_order
 from tsog_stream.opacity import alpha_to_logit
+from tsog_stream.quantize import assign_codebook, build_codebook
 from tsog_stream.synthetic import small_scene, static_gaussians
 from tsog_stream.temporal import (
     lifespans,
@@ -495,3 +497,37 @@ def test_a_chunks_files_keep_their_writing_order_while_encoded_as_they_come() ->
     for name, data in files.items():
         if name != "meta.json":
             assert encode_webp(decode_webp(data, where=name)) == data
+
+
+def _drawn_and_undrawn(seed: int) -> tuple[Scene, np.ndarray]:
+    """A few big opaque Gaussians among many tiny faint ones spread over a wide range of
+    sizes (a capture's floaters and dust); the mask of the big opaque ones."""
+    rng = np.random.default_rng(seed)
+    g = static_gaussians(20_000, sh_bands=0, seed=seed)
+    drawn = np.zeros(len(g), bool)
+    drawn[rng.choice(len(g), 2_000, replace=False)] = True
+    g.scales[:] = np.where(
+        drawn[:, None],
+        rng.normal(-1.0, 0.3, g.scales.shape),
+        rng.normal(-9.0, 3.0, g.scales.shape),
+    ).astype(np.float32)
+    g.opacities[:] = alpha_to_logit(np.where(drawn, 0.9, 0.02)).reshape(g.opacities.shape)
+    return Scene(g), drawn
+
+
+def test_the_scale_codebook_serves_the_gaussians_a_view_draws() -> None:
+    """Weighted by what a size error shows (alpha and footprint), the codebook's entries go
+    to the big opaque Gaussians: their decoded sizes are far closer than a codebook fitted
+    by count gives them."""
+    scene, drawn = _drawn_and_undrawn(31)
+    weight = scale_importance(scene.gaussians)
+    assert weight.shape == scene.gaussians.scales.shape
+    assert np.median(weight[drawn]) > 1000 * np.median(weight[~drawn])
+    order = texel_order(scene)
+    decoded = decode_chunk(encode_chunk(scene, quality=100)).gaussians
+    source = scene.gaussians.scales[order].astype(np.float64)
+    error = np.abs(decoded.scales - source)[drawn[order]]
+    by_count = build_codebook(scene.gaussians.scales).astype(np.float64)
+    plain = np.abs(by_count[assign_codebook(source, by_count)] - source)[drawn[order]]
+    assert error.mean() < 0.25 * plain.mean(), (error.mean(), plain.mean())
+    assert error.max() <= plain.max()

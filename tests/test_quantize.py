@@ -355,3 +355,64 @@ def test_short_codebook_moves_entries_within_its_grid_and_halves_the_digits(seed
     assert np.abs(short.astype(np.float64) - codebook).max() <= span / SHORT_CODEBOOK_STEPS
     digits = sum(len(str(v)) for v in short)
     assert digits < 0.75 * sum(len(str(v)) for v in codebook)
+
+
+def _weighted_mse(samples: F64, weights: F64, codebook: npt.NDArray[np.float32]) -> float:
+    table = codebook.astype(np.float64)
+    err = samples - table[assign_codebook(samples, table)]
+    return float(np.dot(weights, err * err) / weights.sum())
+
+
+def _mixture(rng: np.random.Generator) -> tuple[F64, F64]:
+    """Many light samples spread wide (tiny, faint Gaussians' log sizes) beside a few heavy
+    ones in a narrow range (the sizes a view draws)."""
+    light = rng.normal(-10.0, 3.0, 90_000)
+    heavy = rng.normal(-1.0, 0.4, 10_000)
+    samples = np.concatenate([light, heavy]).astype(np.float32).astype(np.float64)
+    weights = np.concatenate([np.full(light.size, 1e-3), np.ones(heavy.size)])
+    return samples, weights
+
+
+def test_weights_send_the_entries_where_the_error_costs() -> None:
+    samples, weights = _mixture(np.random.default_rng(21))
+    plain = build_codebook(samples)
+    weighted = build_codebook(samples, weights)
+    heavy = weights == 1.0
+    # measured: the weighted error 0.62x, the heavy samples' own 0.03x, their entries 224 / 29
+    assert _weighted_mse(samples, weights, weighted) < 0.8 * _weighted_mse(samples, weights, plain)
+    assert codebook_mse(samples[heavy], weighted) < 0.1 * codebook_mse(samples[heavy], plain)
+    assert np.all(np.diff(weighted) >= 0) and weighted.dtype == np.float32
+    inside = (weighted > -2.2) & (weighted < 0.2)
+    assert inside.sum() > 4 * ((plain > -2.2) & (plain < 0.2)).sum()
+    np.testing.assert_array_equal(build_codebook(samples, weights), weighted)  # deterministic
+
+
+def test_weighted_codebook_still_stores_few_distinct_values_exactly() -> None:
+    rng = np.random.default_rng(22)
+    values = np.sort(rng.normal(0.0, 2.0, 200)).astype(np.float32)
+    samples = rng.choice(values, 20_000)
+    weights = rng.exponential(1.0, samples.size)
+    table = build_codebook(samples, weights)
+    assert set(values.tolist()) <= set(table.tolist())
+    assert codebook_mse(samples, table) == 0.0
+
+
+def test_weights_keep_the_infinity_sentinels_and_ignore_what_is_not_finite() -> None:
+    samples, weights = _mixture(np.random.default_rng(23))
+    with_inf = np.concatenate([samples, [-np.inf, np.inf, np.nan]])
+    weights = np.concatenate([weights, [1.0, np.nan, 5.0]])
+    weights[:10] = [np.inf, -1.0, np.nan, 0, 0, 0, 0, 0, 0, 0]  # counted as no weight
+    table = build_codebook(with_inf, weights)
+    finite = samples[np.isfinite(samples)]
+    assert table[0] == np.float32(finite.min() - 20.0)
+    assert table[-1] == np.float32(finite.max() + 20.0)
+    assert np.all(np.isfinite(table)) and np.all(np.diff(table) >= 0)
+
+
+def test_weights_with_nothing_positive_give_the_unweighted_codebook() -> None:
+    samples, _ = _mixture(np.random.default_rng(24))
+    np.testing.assert_array_equal(
+        build_codebook(samples, np.zeros(samples.size)), build_codebook(samples)
+    )
+    with pytest.raises(InputError, match="weights"):
+        build_codebook(samples, np.ones(samples.size - 1))
