@@ -83,15 +83,13 @@ QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
 """``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 11:41, with the faint Gaussians left
-out): on the FreeTimeGS donuts and coffee10 and yellow_clip2 its rendered PSNR is within 0.1
-dB of quality 100's, worst view unchanged or better, for 8.3-17 % fewer bytes (the guitar
-clips 0.1-0.2 dB below for 9.9-17 %); spinach and coffeeshort2 0.3 and 0.2 dB below (worst
-view -0.3 / +0.4 dB) for 14-17 %: the Gaussians left out there are ones no reader draws, and
-the scale codebook fitted without them costs that (docs/design/chunk-codec.md); on the
-fireworks PLY frames 0.5 dB below (worst view 0.7) for 5.3 %; 75 costs up to 2.2 dB on
-those (the long donut), 3.4-3.7 dB on the guitar clips and 9 dB on the fireworks (worst
-view 12.5)."""
+bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 13:33, with the faint Gaussians left
+out and the weighted scale codebook): on the FreeTimeGS donuts and the four captures its
+rendered PSNR is within 0.1 dB of quality 100's, worst view within 0.1 dB or better, for
+8.3-17 % fewer bytes (the guitar clips 0.1-0.2 dB below for 9.9-17 %); on the fireworks PLY
+frames 0.6 dB below (worst view 0.8) for 5.3 %. 75 costs up to 2.6 dB on those
+(coffeeshort2), 3.8-4.1 dB on the guitar clips and 9 dB on the fireworks (worst view
+12.5)."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
