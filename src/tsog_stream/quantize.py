@@ -199,39 +199,12 @@ def _weighted_centroids(values: F64, weights: F64, slots: int) -> F32:
     filled = bin_mass > 0
     density = np.power(bin_mass[filled], DENSITY_ALPHA)
     start = _dp_centroids(bin_moment[filled] / bin_mass[filled], density, slots)
-    return _weighted_lloyd(centres, mass, np.sort(start))
+    return _lloyd_1d(centres, np.sort(start), mass)[0]
 
 
 def _sums(index: npt.NDArray[np.intp], values: F64, bins: int) -> F64:
     """The sum of ``values`` in each of ``bins`` bins, by bin index."""
     return np.asarray(np.bincount(index, values, bins), np.float64)
-
-
-def _weighted_lloyd(centres: F64, mass: F64, start: F32) -> F32:
-    """1-D Lloyd passes over weighted points (ascending ``centres`` of ``mass``): the
-    codebook with the lowest weighted squared error met, ascending."""
-    shift = centres[centres.size // 2]
-    zero = np.zeros(1)
-    p0 = np.concatenate([zero, np.cumsum(mass)])
-    p1 = np.concatenate([zero, np.cumsum(mass * (centres - shift))])
-    p2 = np.concatenate([zero, np.cumsum(mass * (centres - shift) ** 2)])
-    best, best_sse = start, np.inf
-    current = start
-    for _ in range(REFINE_PASSES):
-        edges = _edges(centres, current)
-        held = p0[edges[1:]] - p0[edges[:-1]]
-        sums = p1[edges[1:]] - p1[edges[:-1]]
-        c = current.astype(np.float64) - shift
-        sse = float(np.sum(p2[edges[1:]] - p2[edges[:-1]] - 2.0 * c * sums + c * c * held))
-        if sse < best_sse:
-            best, best_sse = current, sse
-        with np.errstate(invalid="ignore", divide="ignore"):
-            moved = np.where(held > 0, sums / held + shift, current).astype(np.float32)
-        moved.sort()
-        if np.array_equal(moved, current):
-            break
-        current = moved
-    return best
 
 
 def _finite_centroids(finite: F64, slots: int, refine: bool) -> F32:
@@ -357,22 +330,29 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     return out.astype(np.float32)
 
 
-def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:
-    """1-D Lloyd passes on the sorted samples; the codebook with the lowest exact SSE, its SSE.
+def _lloyd_1d(points: F64, start: F32, mass: F64 | None = None) -> tuple[F32, float]:
+    """1-D Lloyd passes on ascending ``points`` (each of weight ``mass``; 1 when None: the
+    sorted samples themselves); the codebook with the lowest exact (weighted) SSE, its SSE.
 
     Each codebook's group edges are searched once: a pass moves the entries by the edges its
     SSE was measured with (they were searched again for the next pass; a few per cent of a
     1M-value codebook's time)."""
-    shift = finite[finite.size // 2]
-    centred = finite - shift
+    shift = points[points.size // 2]
+    centred = points - shift
     zero = np.zeros(1)
-    p1 = np.concatenate([zero, np.cumsum(centred)])
-    p2 = np.concatenate([zero, np.cumsum(centred * centred)])
-    edges = _edges(finite, start)
-    best, best_sse = start, _sse_1d(edges, p1, p2, shift, start)
+    weighted = centred if mass is None else mass * centred
+    p0 = None if mass is None else np.concatenate([zero, np.cumsum(mass)])
+    p1 = np.concatenate([zero, np.cumsum(weighted)])
+    p2 = np.concatenate([zero, np.cumsum(weighted * centred)])
+
+    def held(edges: npt.NDArray[np.intp]) -> npt.NDArray[np.floating]:
+        return np.diff(edges) if p0 is None else p0[edges[1:]] - p0[edges[:-1]]
+
+    edges = _edges(points, start)
+    counts = held(edges)
+    best, best_sse = start, _sse_1d(edges, p1, p2, shift, start, counts=counts)
     current = start
     for _ in range(REFINE_PASSES):
-        counts = np.diff(edges)
         sums = p1[edges[1:]] - p1[edges[:-1]]
         with np.errstate(invalid="ignore", divide="ignore"):
             moved = np.where(counts > 0, sums / counts + shift, current).astype(np.float32)
@@ -380,8 +360,9 @@ def _lloyd_1d(finite: F64, start: F32) -> tuple[F32, float]:
         if np.array_equal(moved, current):
             break
         current = moved
-        edges = _edges(finite, current)
-        sse = _sse_1d(edges, p1, p2, shift, current)
+        edges = _edges(points, current)
+        counts = held(edges)
+        sse = _sse_1d(edges, p1, p2, shift, current, counts=counts)
         if sse < best_sse:
             best, best_sse = current, sse
     return best, best_sse
@@ -394,13 +375,22 @@ def _edges(finite: F64, table: F32) -> npt.NDArray[np.intp]:
     return np.concatenate([[0], cuts, [finite.size]]).astype(np.intp)
 
 
-def _sse_1d(edges: npt.NDArray[np.intp], p1: F64, p2: F64, shift: float, table: F32) -> float:
-    """Exact sum of squared errors of the sorted samples against ``table`` (its group
-    ``edges`` among them, :func:`_edges`), via prefix sums."""
+def _sse_1d(
+    edges: npt.NDArray[np.intp],
+    p1: F64,
+    p2: F64,
+    shift: float,
+    table: F32,
+    *,
+    counts: npt.NDArray[np.floating] | npt.NDArray[np.intp],
+) -> float:
+    """Exact (weighted) sum of squared errors of the sorted points against ``table`` (its
+    group ``edges`` among them, :func:`_edges`, each group's ``counts`` or mass), via prefix
+    sums."""
     c = table.astype(np.float64) - shift
     s1 = p1[edges[1:]] - p1[edges[:-1]]
     s2 = p2[edges[1:]] - p2[edges[:-1]]
-    return float(np.sum(s2 - 2.0 * c * s1 + c * c * np.diff(edges)))
+    return float(np.sum(s2 - 2.0 * c * s1 + c * c * counts))
 
 
 SHORT_CODEBOOK_STEPS: Final = 65536
