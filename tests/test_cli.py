@@ -201,6 +201,24 @@ def test_a_long_first_stage_is_logged_from_the_first_seconds(
     assert quick.getvalue() == ""
 
 
+def test_a_log_gets_a_bar_line_every_few_seconds_not_one_per_step(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Without a terminal a bar is logged at most every LOG_BAR_SECONDS and when full: the
+    monkey flipbook's 150 chunks were 150 lines."""
+    monkeypatch.setattr(progress_module, "QUIET_SECONDS", 0.0)
+    for every, lines in ((progress_module.LOG_BAR_SECONDS, 2), (0.0, 150)):
+        monkeypatch.setattr(progress_module, "LOG_BAR_SECONDS", every)
+        log = io.StringIO()
+        progress = Progress(stream=log)
+        for done in range(1, 151):
+            progress.bar(f"chunk {done}/150", done / 150)
+        said = log.getvalue().splitlines()
+        assert len(said) == lines, said[:3]
+        assert said[0].endswith("chunk 1/150 [..............................]   0.7%")
+        assert said[-1].endswith("chunk 150/150 [##############################] 100.0%")
+
+
 @pytest.fixture(scope="module")
 def dynamic_stream(dynamic_chunk: Path) -> Path:
     """The dynamic chunk's scene segmented into a container."""

@@ -11,6 +11,10 @@ from . import interrupt
 
 QUIET_SECONDS = 2.0
 """Without a terminal, stages are logged only once the work has lasted this long."""
+LOG_BAR_SECONDS = 5.0
+"""Without a terminal, a bar is logged at most this often (and when it is full): the monkey
+flipbook's 150 chunks in 3 s were 150 lines of a log, an hour of capture would be tens of
+thousands."""
 
 
 class Progress:
@@ -30,6 +34,8 @@ class Progress:
         self._pending: str | None = None
         """A stage begun before QUIET_SECONDS, printed then if it is still running."""
         self._timer: threading.Timer | None = None
+        self._bar_logged = -LOG_BAR_SECONDS
+        """When the last bar line was logged (seconds since the start; without a terminal)."""
 
     def __call__(self, stage: str) -> None:
         """Announce that ``stage`` has begun (and stop here if Ctrl-C was pressed)."""
@@ -78,7 +84,14 @@ class Progress:
         self.done()
 
     def bar(self, stage: str, fraction: float) -> None:
-        """Draw a bar for ``stage`` at ``fraction`` (0..1)."""
+        """Draw a bar for ``stage`` at ``fraction`` (0..1); without a terminal, a line at most
+        every LOG_BAR_SECONDS, and the full bar."""
+        if not self.live and fraction < 1.0:
+            now = time.monotonic() - self.start
+            if now - self._bar_logged < LOG_BAR_SECONDS:
+                interrupt.check()
+                return
+            self._bar_logged = now
         filled = int(max(0.0, min(1.0, fraction)) * 30)
         self(f"{stage} [{'#' * filled}{'.' * (30 - filled)}] {fraction * 100:5.1f}%")
 
