@@ -71,7 +71,7 @@ def scale_importance(gaussians: Gaussians) -> npt.NDArray[np.float64]:
     root of its footprint's area (its two largest sigmas), on all three of its axes. A
     label's error resizes the footprint by a share of itself, which shows in proportion to
     the Gaussian's opacity and size; fitted by count, the entries went to the tiny and the
-    faint that no view draws (coffee10 at quality 100: 40.6 -> 45.8 dB rendered; every
+    faint that no view draws (coffee10 at quality 100: 40.6 -> 45.5 dB rendered; every
     bench_rate scene the same or better, docs/design/quantizers.md). The square root: alpha²
     times the area, the squared error's own weight, gave captures 1-2 dB less."""
     alpha = logit_to_alpha(gaussians.opacities).astype(np.float64).reshape(-1)
