@@ -201,6 +201,34 @@ def test_a_long_first_stage_is_logged_from_the_first_seconds(
     assert quick.getvalue() == ""
 
 
+@pytest.mark.parametrize("quiet", [True, False])
+def test_the_resource_tracker_says_nothing_after_the_command(quiet: bool) -> None:
+    """A semaphore unlinked by a pool's finalizer that Ctrl-C cut short is one the resource
+    tracker finds leaked and gone: it printed two warnings after "tsog: interrupted". The CLI
+    starts it with those warnings ignored (without: the very lines CI saw)."""
+    code = (
+        "from tsog_stream.cli import interrupt\n"
+        + ("interrupt.quiet_resource_tracker()\n" if quiet else "")
+        + "from multiprocessing import resource_tracker\n"
+        + "resource_tracker.register('/tsog-test-unlinked', 'semaphore')\n"
+    )
+    argv = [sys.executable, "-c", code]
+    done = subprocess.run(argv, check=True, capture_output=True, text=True, timeout=60)
+    if quiet:
+        assert done.stderr == ""
+    else:
+        assert "resource_tracker: '/tsog-test-unlinked': [Errno 2]" in done.stderr
+
+
+def test_the_cli_quiets_the_resource_tracker_once_before_running_a_command(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(sys, "warnoptions", [])
+    assert main(["info", "/no/such/file", "-q"]) == 1
+    assert main(["info", "/no/such/file", "-q"]) == 1
+    assert sys.warnoptions == [interrupt.TRACKER_QUIET]
+
+
 def test_a_log_gets_a_bar_line_every_few_seconds_not_one_per_step(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

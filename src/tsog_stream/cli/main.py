@@ -302,6 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tsog`` console script."""
     args = build_parser().parse_args(argv)
     progress = Progress(quiet=args.quiet)
+    interrupt.quiet_resource_tracker()
     try:
         with interrupt.latched():
             return COMMANDS[args.command](args, progress)
