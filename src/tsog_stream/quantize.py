@@ -191,9 +191,7 @@ def _weighted_centroids(values: F64, weights: F64, slots: int) -> F32:
     share = np.cumsum(mass)
     rank = (share - mass) / share[-1]
     q25, q75 = centres[np.searchsorted(rank, [0.25, 0.75], side="right") - 1]
-    beta = max(BETA_MIN, min(BETA_MAX, 1.0 - (q75 - q25) / (high - low)))
-    position = beta * rank + (1.0 - beta) * ((centres - low) / (high - low))
-    coarse = np.clip(np.floor(HIST_BINS * position), 0, HIST_BINS - 1).astype(np.intp)
+    coarse = _blended_bins(rank, centres, q75 - q25, low, high - low, bins=HIST_BINS)
     bin_mass = _sums(coarse, mass, HIST_BINS)
     bin_moment = _sums(coarse, moment, HIST_BINS)
     filled = bin_mass > 0
@@ -243,15 +241,23 @@ def _histogram(finite: F64) -> tuple[F64, F64]:
     bins = min(HIST_BINS, n)
     vmin, vrange = finite[0], finite[-1] - finite[0]
     iqr = finite[int(n * 0.75)] - finite[int(n * 0.25)]
-    beta = max(BETA_MIN, min(BETA_MAX, 1.0 - iqr / vrange))
-    position = beta * (np.arange(n) / n) + (1.0 - beta) * ((finite - vmin) / vrange)
-    index = np.minimum(bins - 1, np.floor(bins * position)).astype(np.intp)
+    index = _blended_bins(np.arange(n) / n, finite, iqr, vmin, vrange, bins=bins)
     counts = np.bincount(index, minlength=bins).astype(np.float64)
     sums = np.bincount(index, weights=finite, minlength=bins)
     empty_centre = vmin + (np.arange(bins) + 0.5) / bins * vrange
     with np.errstate(invalid="ignore", divide="ignore"):
         centers = np.where(counts > 0, sums / counts, empty_centre)
     return centers, counts
+
+
+def _blended_bins(
+    rank: F64, values: F64, iqr: float, low: float, span: float, *, bins: int
+) -> npt.NDArray[np.intp]:
+    """Each point's bin of the reference's histogram: its rank (0..1) and its value blended,
+    the more by rank the narrower the interquartile range ``iqr`` is against the ``span``."""
+    beta = max(BETA_MIN, min(BETA_MAX, 1.0 - iqr / span))
+    position = beta * rank + (1.0 - beta) * ((values - low) / span)
+    return np.clip(np.floor(bins * position), 0, bins - 1).astype(np.intp)
 
 
 def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:

@@ -74,7 +74,7 @@ def scale_importance(gaussians: Gaussians) -> npt.NDArray[np.float64]:
     faint that no view draws (coffee10 at quality 100: 40.6 -> 45.5 dB rendered; every
     bench_rate scene the same or better, docs/design/quantizers.md). The square root: alpha²
     times the area, the squared error's own weight, gave captures 1-2 dB less."""
-    alpha = logit_to_alpha(gaussians.opacities).astype(np.float64).reshape(-1)
+    alpha = logit_to_alpha(gaussians.opacities).reshape(-1)
     logs = np.sort(gaussians.scales.astype(np.float64), axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
         weight = alpha * np.exp(0.5 * (logs[:, 1] + logs[:, 2]))
