@@ -47,7 +47,7 @@ SEED = Integer(0, 2**32 - 1)
 QUALITY = Integer(0, 100)
 QUALITY_HELP = (
     "0..100: how precisely to keep positions, rotations, scales, colours, opacity, lifespans "
-    "and motion (default 90: within 0.5 dB of 100 on every scene measured, 5-17 %% smaller; "
+    "and motion (default 90: within 0.6 dB of 100 on every scene measured, 5-17 %% smaller; "
     "100 keeps every 16-bit code and every Gaussian). Lower keeps only what fits an error "
     "budget per Gaussian: at 50, an opaque Gaussian moves by at most 1/1935 of the radius of "
     "the chunk's dense core (about a quarter pixel of a 1080p view of it; a faint one "
