@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import multiprocessing
 import os
 import pickle
 import signal
+import tempfile
 import threading
 import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 from typing import cast
 
+import numpy as np
 import pytest
 
 from helpers import reporting_job
@@ -106,3 +113,45 @@ def test_workers_are_one_per_core_as_far_as_memory_holds_them() -> None:
     assert engines.workers_for(8, 3 * gib + gib // 2) == 3  # three workers fit, not four
     assert engines.workers_for(8, 0) == 1  # one at least, to do the work at all
     assert engines.workers_for(1, 100 * gib) == 1
+
+
+def _arenas_after_threads(threads: int = 4) -> int:
+    """Run in a fresh process: glibc's arenas once ``threads`` threads have each allocated
+    small arrays at the same time (``malloc_info`` writes one <heap> per arena)."""
+    ready = threading.Barrier(threads)
+
+    def allocate() -> None:
+        held = [np.ones(2048) for _ in range(64)]  # 16 KiB each: from an arena, not mmap
+        ready.wait(timeout=30)
+        del held
+
+    started = [threading.Thread(target=allocate) for _ in range(threads)]
+    for thread in started:
+        thread.start()
+    for thread in started:
+        thread.join()
+    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+    libc.fopen.restype = ctypes.c_void_p
+    libc.fopen.argtypes = [ctypes.c_char_p, ctypes.c_char_p]
+    libc.malloc_info.argtypes = [ctypes.c_int, ctypes.c_void_p]
+    libc.fclose.argtypes = [ctypes.c_void_p]
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "malloc.xml"
+        stream = libc.fopen(str(path).encode(), b"w")
+        libc.malloc_info(0, stream)
+        libc.fclose(stream)
+        return path.read_text().count("<heap nr=")
+
+
+def test_pool_workers_keep_freed_memory_in_one_arena(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each thread of a worker (the job's, the codec's pools) kept freed memory in an arena
+    of its own that the others could not reuse (the 1M scene's largest job: 382 against 338
+    MiB): pool workers start with one arena, which a plain spawned process does not have.
+    (A Dask nanny leaves its workers' variables in the environment of the process that
+    started it, MALLOC_ARENA_MAX among them.)"""
+    monkeypatch.delenv("MALLOC_ARENA_MAX", raising=False)
+    plain = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    with plain:
+        assert plain.submit(_arenas_after_threads).result(timeout=60) > 1
+    with engines.engine(1, None) as running:
+        assert running.executor.submit(_arenas_after_threads).result(timeout=60) == 1

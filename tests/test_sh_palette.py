@@ -245,9 +245,10 @@ def test_vectors_handed_over_are_freed_before_the_fit(monkeypatch: pytest.Monkey
 
 
 def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Merging, leaf neighbours and the distinct-row check work a block of rows at a time to
-    bound memory; blocks of a few rows give the same results as one block of everything, and
-    a row matched to a different row is seen in the last block too."""
+    """Merging (its means copied or compacted in place), leaf neighbours, tree coordinates,
+    the refinement's cluster means and the distinct-row check work a block of rows at a time
+    to bound memory; blocks of a few rows give the same results as one block of everything,
+    and a row matched to a different row is seen in the last block too."""
     points = _sh_like(2000, 45, seed=8)
     rng = np.random.default_rng(3)
     mass = rng.random(2000) + 0.5
@@ -255,13 +256,21 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
     movers = sh_palette._pick_moves(partner, rng.random(2000), 600)
     leaves = sh_palette._leaves(points[:, :4].copy(), 64)
     repeated = points[rng.integers(0, 2000, 2000)]
+    axes = sh_palette._principal_axes(points, mass)
+    centroids = points[:300].copy()
+    labels = rng.integers(0, 299, 2000)  # the last centroid has no point: it moves
 
     def run() -> list[npt.NDArray[np.generic]]:
-        merged = sh_palette._merge(points, mass, movers, partner)
+        merged = sh_palette._merge(points, mass, movers, partner, own=False)
+        compacted = sh_palette._merge(points.copy(), mass, movers, partner, own=True)
         near = sh_palette._leaf_neighbours(points, *leaves, 3)
-        return [*merged, near, *sh_palette._unique_rows(repeated)]
+        coords = sh_palette._tree_coords(points, axes, 1, np.random.default_rng(2))
+        means = sh_palette._update(points, mass, centroids, labels)
+        return [*merged, *compacted, near, coords, *means, *sh_palette._unique_rows(repeated)]
 
     whole = run()
+    for copied, in_place in zip(whole[:3], whole[3:6], strict=True):
+        np.testing.assert_array_equal(copied, in_place)
     monkeypatch.setattr(sh_palette, "BLOCK_BYTES", 1024)
     for a, b in zip(whole, run(), strict=True):
         np.testing.assert_array_equal(a, b)
@@ -270,3 +279,23 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
     assert sh_palette._each_matches(repeated, first, inverse)
     inverse[-1] = (inverse[-1] + 1) % len(first)  # the last row matched to another row
     assert not sh_palette._each_matches(repeated, first, inverse)
+
+
+def test_cluster_means_are_each_clusters_weighted_mean() -> None:
+    """The refinement's new centroids are each cluster's weighted mean summed in float64 in
+    point order, bit for bit (a cluster's sum as ``np.bincount`` adds it), and an empty
+    cluster takes the worst-served point."""
+    points = _sh_like(3000, 45, seed=9)
+    rng = np.random.default_rng(4)
+    weights = rng.random(3000) + 0.5
+    labels = rng.integers(0, 199, 3000)
+    centroids = points[:200].copy()
+    moved, relabelled = sh_palette._update(points, weights, centroids, labels)
+    mass = np.bincount(labels, weights, minlength=200)
+    for coordinate in (0, 17, 44):
+        sums = np.bincount(labels, weights * points[:, coordinate], minlength=200)
+        expected = (sums[:199] / mass[:199]).astype(np.float32)
+        np.testing.assert_array_equal(moved[:199, coordinate], expected)
+    worst = int(relabelled[relabelled != labels][0])
+    assert worst == 199 and np.count_nonzero(relabelled != labels) == 1
+    np.testing.assert_array_equal(moved[199], points[np.flatnonzero(relabelled == 199)[0]])

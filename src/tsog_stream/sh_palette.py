@@ -245,8 +245,14 @@ def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
 
 
 def _tree_coords(points: F32, axes: tuple[F32, F32], tree: int, rng: np.random.Generator) -> F32:
-    """Split coordinates of tree ``tree``: PCA coordinates, leading ones rotated after tree 0."""
-    coords: F32 = np.matmul(points - axes[0], axes[1])
+    """Split coordinates of tree ``tree``: PCA coordinates, leading ones rotated after tree 0.
+
+    Projected a block of rows at a time: the centred points whole were as large as the points
+    (the fit's peak on 400k SH3 vectors, 63 MiB)."""
+    coords: F32 = np.empty((len(points), axes[1].shape[1]), np.float32)
+    step = _rows_per_block(4 * points.shape[1])
+    for start in range(0, len(points), step):
+        np.matmul(points[start : start + step] - axes[0], axes[1], out=coords[start : start + step])
     mixed = min(MIXED_DIMS, coords.shape[1])
     if tree > 0 and mixed > 1:
         rotation, _ = np.linalg.qr(rng.standard_normal((mixed, mixed)))
@@ -395,9 +401,11 @@ def _agglomerate(
         clusters = len(means)
         partner, cost = _cheapest_partner(means, mass, _neighbours(means, axes, 1, rng))
         movers = _pick_moves(partner, cost, len(means) - k)
-        means, mass, new_id = _merge(means, mass, movers, partner)
+        means, mass, new_id = _merge(means, mass, movers, partner, own=means is not points)
         labels = new_id[labels]
         meter.merged(clusters, len(means) - k)
+    if means.base is not None:  # compacted in place: let the first round's array go
+        means = means.copy()
     return means, labels
 
 
@@ -439,10 +447,13 @@ def _pick_moves(partner: Ints, cost: F64, need: int) -> Ints:
     return chosen
 
 
-def _merge(means: F32, mass: F64, movers: Ints, partner: Ints) -> tuple[F32, F64, Ints]:
+def _merge(
+    means: F32, mass: F64, movers: Ints, partner: Ints, *, own: bool
+) -> tuple[F32, F64, Ints]:
     """Fold every mover into its partner; returns new means, masses and the old->new id map.
     The movers are added a block at a time, in order (the same sums as all at once, without
-    a float64 copy of every mover: 143 MiB in the first round of 833k SH3 vectors)."""
+    a float64 copy of every mover: 143 MiB in the first round of 833k SH3 vectors). Means the
+    merging ``own`` (every round's after the first) are compacted in place, not copied."""
     target = np.arange(len(means))
     target[movers] = partner[movers]
     keep = np.ones(len(means), bool)
@@ -452,16 +463,31 @@ def _merge(means: F32, mass: F64, movers: Ints, partner: Ints) -> tuple[F32, F64
     weighted = np.take(means, hosts, axis=0).astype(np.float64) * mass[hosts, None]
     slot = np.searchsorted(hosts, target[movers])
     step = _rows_per_block(8 * means.shape[1])
+    taken = np.empty((min(step, len(movers)), means.shape[1]), np.float32)
+    moved = np.empty(taken.shape, np.float64)  # both reused: one block's memory at a time
     for start in range(0, len(movers), step):
         block = movers[start : start + step]
-        moved = np.take(means, block, axis=0).astype(np.float64) * mass[block, None]
-        np.add.at(weighted, slot[start : start + step], moved)
+        rows = len(block)
+        np.take(means, block, axis=0, out=taken[:rows])
+        np.multiply(taken[:rows], mass[block, None], out=moved[:rows])
+        np.add.at(weighted, slot[start : start + step], moved[:rows])
     total = mass.copy()
     np.add.at(total, target[movers], mass[movers])
-    out = np.take(means, np.flatnonzero(keep), axis=0)  # hosts are never movers: all kept
+    kept = np.flatnonzero(keep)  # hosts are never movers: all kept
+    out = _compacted(means, kept) if own else np.take(means, kept, axis=0)
     weighted /= total[hosts, None]
     out[new_id[hosts]] = weighted  # cast to float32 as it is stored
     return out, total[keep], new_id
+
+
+def _compacted(rows: F32, kept: Ints) -> F32:
+    """``rows[kept]`` (``kept`` ascending) moved to the front of ``rows`` in place, a block at a
+    time, as a view: a row is only written over once every block that reads it is done."""
+    step = _rows_per_block(4 * rows.shape[1])
+    for start in range(0, len(kept), step):
+        block = kept[start : start + step]
+        rows[start : start + len(block)] = np.take(rows, block, axis=0)
+    return rows[: len(kept)]
 
 
 def _refine(
@@ -480,18 +506,18 @@ def _refine(
     The points are visited in label order, so a block's candidate centroids are a few rows
     used over and over (gathered at random they took 60 % of a pass: 833k vectors 20 -> 15 s).
     They are put in that order in place (``points`` is the fit's own array of distinct rows):
-    a sorted copy beside them was 143 MiB more on 833k SH3 vectors.
+    a sorted copy beside them was 143 MiB more on 833k SH3 vectors, as was a transposed copy
+    for the cluster sums (:func:`_update` transposes a block at a time).
     """
     order = np.argsort(labels, kind="stable")
     points[...] = np.take(points, order, axis=0)
     weights, labels = weights[order], labels[order]
     errors = _errors(points, centroids, labels)
-    columns = np.ascontiguousarray(points.T)  # each coordinate contiguous for _update's sums
     for _ in range(iterations):
         near = _neighbours(centroids, axes, REFINE_CANDIDATES, rng)
         options = np.concatenate([np.arange(len(centroids))[:, None], near], axis=1)
         assigned = _assign(points, centroids, options, labels)
-        moved, relabelled = _update(points, columns, weights, centroids, assigned)
+        moved, relabelled = _update(points, weights, centroids, assigned)
         moved_errors = _errors(points, moved, relabelled)
         meter.refined()
         before = float(np.einsum("n,n->", weights, errors))
@@ -520,20 +546,22 @@ def _assign(points: F32, centroids: F32, options: Ints, labels: Ints) -> Ints:
     return out
 
 
-def _update(
-    points: F32, columns: F32, weights: F64, centroids: F32, labels: Ints
-) -> tuple[F32, Ints]:
-    """Weighted means of the clusters (``columns``: the points transposed, so each sum reads
-    contiguous memory); empty clusters move onto the worst-served points."""
+def _update(points: F32, weights: F64, centroids: F32, labels: Ints) -> tuple[F32, Ints]:
+    """Weighted means of the clusters; empty clusters move onto the worst-served points.
+
+    The sums are taken a block of rows at a time, each block transposed so every coordinate is
+    contiguous, and divided in place: a whole transposed copy of the points, a sum array per
+    coordinate and the filled rows' copies were 2.9x the points' memory on 400k SH3 vectors
+    (:func:`_cluster_sums`)."""
     count = len(centroids)
     mass = np.bincount(labels, weights, minlength=count)
-    sums = np.stack(
-        [np.bincount(labels, weights * column, minlength=count) for column in columns], axis=1
-    )
-    filled = mass > 0
+    means = _cluster_sums(points, weights, labels, count)
+    filled = (mass > 0)[:, None]
+    np.divide(means, mass[:, None], out=means, where=filled)
     out = centroids.copy()
-    out[filled] = (sums[filled] / mass[filled, None]).astype(np.float32)
-    empty = np.flatnonzero(~filled)
+    np.copyto(out, means, where=filled, casting="same_kind")
+    del means
+    empty = np.flatnonzero(~filled[:, 0])
     if len(empty):
         errors = _errors(points, out, labels) * weights
         worst = np.argsort(-errors, kind="stable")[: len(empty)]
@@ -544,17 +572,37 @@ def _update(
     return out, labels
 
 
+def _cluster_sums(points: F32, weights: F64, labels: Ints, count: int) -> F64:
+    """(count, D) float64 sums of each cluster's weighted points, added point by point in
+    order (``np.add.at`` onto a zeroed array adds as ``np.bincount`` does: the same bits for
+    any block size)."""
+    sums = np.zeros((count, points.shape[1]), np.float64)
+    step = _rows_per_block(4 * points.shape[1])
+    columns = np.empty((points.shape[1], min(step, len(points))), np.float32)  # reused
+    for start in range(0, len(points), step):
+        block = columns[:, : min(step, len(points) - start)]
+        np.copyto(block, points[start : start + step].T)
+        rows, scale = labels[start : start + step], weights[start : start + step]
+        for coordinate, values in enumerate(block):
+            np.add.at(sums[:, coordinate], rows, scale * values)
+    return sums
+
+
 def _errors(points: F32, centroids: F32, labels: Ints) -> F64:
     """Squared distance of every point to its assigned centroid."""
     return _distances(points, centroids, labels)
 
 
 def _distances(rows: F32, others: F32, picks: Ints) -> F64:
-    """Squared distance of every row to ``others[picks]``, in blocks: small temporaries
-    reuse memory instead of faulting in fresh pages on every call."""
+    """Squared distance of every row to ``others[picks]``, in blocks through one buffer: fresh
+    temporaries faulted in new pages on every call, and the block before was still held while
+    the next was made (three blocks at once)."""
     out: F64 = np.empty(len(rows), np.float64)
     step = _rows_per_block(4 * rows.shape[1])
+    buffer = np.empty((min(step, len(rows)), rows.shape[1]), np.float32)
     for start in range(0, len(rows), step):
-        diff = rows[start : start + step] - np.take(others, picks[start : start + step], axis=0)
+        diff = buffer[: min(step, len(rows) - start)]
+        np.take(others, picks[start : start + step], axis=0, out=diff)
+        np.subtract(rows[start : start + step], diff, out=diff)
         out[start : start + step] = np.einsum("nd,nd->n", diff, diff)
     return out

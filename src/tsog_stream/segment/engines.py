@@ -41,7 +41,7 @@ CONNECT_TIMEOUT_S = 10.0
 """How long to try reaching a scheduler before a one-line error."""
 JOB_RETRIES = 2
 """Times Dask runs a job again when the worker running it is lost."""
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
 """glibc ``mallopt`` parameters (malloc.h)."""
 MALLOC_PLUGIN = "tsog-stream-malloc"
 PROGRESS_TOPIC = "tsog-stream-job-progress"
@@ -51,12 +51,16 @@ QUIET_DASK: dict[str, object] = {
     "distributed.admin.tick.interval": "1s",
     "distributed.worker.memory.monitor-interval": "1s",
     "distributed.admin.system-monitor.interval": "5s",
+    "distributed.nanny.pre-spawn-environ.MALLOC_ARENA_MAX": 1,
 }
 """Dask settings of the clusters tsog starts (``--cluster local``): no statistical profiler
 (it samples every thread's stack every 10 ms), the event-loop tick and the memory and system
 monitors at 1 s, 1 s and 5 s (20, 100 and 500 ms by default). Each takes the GIL from the
 encoding thread; 24 SH3 frames on two workers: 26.5-29.1 s with Dask's defaults, 22.9-26.0 s
-with these (bench_cluster; docs/design/cluster.md says how to set them on a cluster of yours)."""
+with these (bench_cluster; docs/design/cluster.md says how to set them on a cluster of yours).
+Its workers start with one malloc arena (:func:`tune_malloc` says why; set from the worker
+plugin it comes too late for the threads Dask has started: the 1M scene's largest job 433
+MiB that way, 364 from the start)."""
 WORKER_MEMORY: Final = 5 << 28
 """Memory (1.25 GiB) a local encoder process is allowed for when choosing how many to start: it
 holds one job at a time, of at most MAX_CHUNK_GAUSSIANS Gaussians (the 5M SH3 checkpoint's
@@ -86,12 +90,16 @@ other, a 1M SH3 scene 30.4 s and 51 CPU-s against 26.8 s and 46 CPU-s."""
 
 def tune_malloc() -> bool:
     """Give glibc's allocator the thresholds it would have grown to by itself (mmap 32 MiB,
-    trim 64 MiB); False where there is no glibc.
+    trim 64 MiB) and one arena for every thread; False where there is no glibc.
 
     Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back sooner),
     which also pins the mmap threshold at 128 KiB: every large temporary array is then mapped
     and zeroed afresh, and encoding a window ran 1.6x slower in a Dask worker than in a plain
     process (14.4 s against 8.9 s for three 40k-Gaussian SH3 frames; 9.1 s after this).
+    One arena: a worker's threads (Dask's event loop receiving a job, the thread running it,
+    the codec's pools) each kept freed memory in an arena of their own that the others could
+    not reuse; the 1M scene's largest job peaked at 469 MiB in a Dask worker, 364 MiB with
+    one arena (a pool worker 382 -> 338), in the same time.
     """
     name = ctypes.util.find_library("c")
     try:
@@ -99,7 +107,8 @@ def tune_malloc() -> bool:
         mallopt = libc.mallopt
     except (OSError, AttributeError):
         return False
-    return bool(mallopt(M_MMAP_THRESHOLD, 32 << 20) and mallopt(M_TRIM_THRESHOLD, 64 << 20))
+    settings = ((M_MMAP_THRESHOLD, 32 << 20), (M_TRIM_THRESHOLD, 64 << 20), (M_ARENA_MAX, 1))
+    return all([bool(mallopt(name, value)) for name, value in settings])
 
 
 def _register_malloc_tuning(client: Any) -> None:
@@ -243,8 +252,10 @@ def engine(workers: int, cluster: str | None, listener: Listener | None = None) 
 def _start_worker(reports: Connection) -> None:
     """A pool worker's start: Ctrl-C ignored (the parent handles it), job reports written to
     ``reports`` (one pipe for every worker: a report is one write of < PIPE_BUF bytes, which
-    the kernel never interleaves, so no lock a terminated worker could leave held)."""
+    the kernel never interleaves, so no lock a terminated worker could leave held), the
+    allocator tuned as a Dask worker's is (:func:`tune_malloc`), before any thread starts."""
     _ignore_interrupts()
+    tune_malloc()
     _WORKER.reports = reports
 
 
