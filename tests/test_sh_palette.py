@@ -266,12 +266,17 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
         near = sh_palette._leaf_neighbours(points, *leaves, 3)
         coords = sh_palette._tree_coords(points, axes, 1, np.random.default_rng(2))
         means = sh_palette._update(points, mass, centroids, labels)
-        return [*merged, *compacted, near, coords, *means, *sh_palette._unique_rows(repeated)]
+        summed = sh_palette._principal_axes(points, mass)  # its own blocks: COVARIANCE_BLOCK_BYTES
+        found: list[npt.NDArray[np.generic]] = [*merged, *compacted, near, coords, *means]
+        return [*found, *summed, *sh_palette._unique_rows(repeated)]
 
     whole = run()
     for copied, in_place in zip(whole[:3], whole[3:6], strict=True):
         np.testing.assert_array_equal(copied, in_place)
+    fitted = sh_palette.fit_palette(points, 256, seed=2)
     monkeypatch.setattr(sh_palette, "BLOCK_BYTES", 1024)
+    for fit, again in zip(fitted, sh_palette.fit_palette(points, 256, seed=2), strict=True):
+        np.testing.assert_array_equal(fit, again)  # the whole fit: only the covariance's blocks
     for a, b in zip(whole, run(), strict=True):
         np.testing.assert_array_equal(a, b)
     _, first, inverse = np.unique(repeated, axis=0, return_index=True, return_inverse=True)

@@ -32,10 +32,17 @@ Ints = npt.NDArray[np.intp]
 Labels = npt.NDArray[np.uint16] | npt.NDArray[np.uint32]
 Progress = Callable[[float], None]
 
-BLOCK_BYTES: Final = 16 << 20
+BLOCK_BYTES: Final = 2 << 20
 """Upper bound on the bytes of one block of products or distances: under glibc's mmap
 threshold, so blocks reuse memory (blocks of 256 MiB were mapped and zeroed afresh each time:
-a third of the leaf products' time)."""
+a third of the leaf products' time). 2 MiB blocks stay in cache: 300k SH3 vectors fitted in
+3.3 s against 3.6 s with 16 MiB (1 MiB: 3.2 s, 512 KiB: 3.4 s), and hold 40 MiB less.
+
+Results do not depend on it, except the principal axes' covariance, whose block sums are
+part of the palette's definition and use COVARIANCE_BLOCK_BYTES."""
+COVARIANCE_BLOCK_BYTES: Final = 16 << 20
+"""Rows of the points summed at a time into the covariance of the principal axes (a fixed
+summation order: the palette, and so a chunk's bytes, depend on it)."""
 LEAF_SIZE: Final = 128
 """Points per kd-tree leaf searched by brute force (128: 1M random SH3 vectors 34.4 -> 31.4 s
 at 0.1 % lower error, the real alti vectors within 0.12 %; docs/design/quantizers.md)."""
@@ -202,9 +209,10 @@ def _each_matches(data: F32, first: Ints, inverse: Ints) -> bool:
     return True
 
 
-def _rows_per_block(row_bytes: int) -> int:
-    """Rows of ``row_bytes`` each that a block of BLOCK_BYTES holds (at least one)."""
-    return max(1, BLOCK_BYTES // max(1, row_bytes))
+def _rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:
+    """Rows of ``row_bytes`` each that a block of ``block_bytes`` (BLOCK_BYTES) holds (at
+    least one)."""
+    return max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // max(1, row_bytes))
 
 
 HASH_MULTIPLIER: Final = np.uint64(0x9E3779B97F4A7C15)
@@ -234,7 +242,7 @@ def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
     mean = np.einsum("n,nd->d", weights, points) / weights.sum()  # float64 sums, no copy
     centre = mean.astype(np.float32)
     cov = np.zeros((points.shape[1], points.shape[1]), np.float64)
-    step = _rows_per_block(4 * points.shape[1])
+    step = _rows_per_block(4 * points.shape[1], COVARIANCE_BLOCK_BYTES)
     for start in range(0, len(points), step):
         centred = points[start : start + step] - centre
         weighted = centred * weights[start : start + step, None].astype(np.float32)
