@@ -77,7 +77,10 @@ class Run:
     worker_peak_mib: float
     """The largest worker's RSS, sampled every 0.2 s (0: encoded in the parent)."""
     parent_peak_mib: float = 0.0
-    """The peak RSS of the process that segmented (a fresh one for each run)."""
+    """The peak RSS of the process that segmented (a fresh one for each run), while it
+    segmented: making its input before is not counted."""
+    parent_before_mib: float = 0.0
+    """That process's RSS just before it segmented, its input made (a scene: held)."""
 
 
 def scene_of(n: int) -> Scene:
@@ -205,8 +208,11 @@ def measure_here(source: str, engine: str, workers: int, out: Path) -> None:
         what = scene_of(int(source.removeprefix("scene:")))
     else:
         what = open_sequence(source)
+    before = _status_mib("VmRSS")
+    _reset_peak()  # making a scene peaked higher than segmenting it (904 against 783 MiB)
     run = measure(what, engine, workers, out)
     run.parent_peak_mib = _peak_mib()
+    run.parent_before_mib = before
     print(json.dumps(vars(run)), flush=True)
 
 
@@ -264,16 +270,30 @@ def largest_job_mib(container: Path, raw_per_gaussian: float) -> float:
 
 
 def _peak_mib() -> float:
-    """This process's peak RSS since it started: the kernel's high-water mark of its memory
-    (VmHWM, which starts afresh at exec), not getrusage's, which a process started by exec
-    inherits from its parent at the fork (the bench's own 3 GB after the 5M checkpoint made a
-    1M scene's run report 2.9 GB)."""
+    """This process's peak RSS since it started or :func:`_reset_peak`: the kernel's
+    high-water mark of its memory (VmHWM, which starts afresh at exec), not getrusage's, which
+    a process started by exec inherits from its parent at the fork (the bench's own 3 GB after
+    the 5M checkpoint made a 1M scene's run report 2.9 GB)."""
+    found = _status_mib("VmHWM")
+    return found if found else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _status_mib(field: str) -> float:
+    """A memory figure of /proc/self/status in MiB (0 where there is none)."""
     try:
         status = Path("/proc/self/status").read_text()
     except OSError:
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    kib = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:"))
-    return kib / 1024
+        return 0.0
+    prefix = f"{field}:"
+    return next(
+        (int(ln.split()[1]) / 1024 for ln in status.splitlines() if ln.startswith(prefix)), 0.0
+    )
+
+
+def _reset_peak() -> None:
+    """Start this process's high-water mark afresh at its current RSS (Linux: clear_refs 5)."""
+    with contextlib.suppress(OSError):
+        Path("/proc/self/clear_refs").write_text("5")
 
 
 def checkpoint_npz(path: Path, n: int) -> int:
@@ -449,7 +469,9 @@ def main() -> None:
         raw = sum(a.nbytes for a in vars(scene.gaussians).values())
         del scene
         scene_runs = run_all(f"scene:{args.gaussians}", Path(tmp), "scene")
-        parent_scene = max(r.parent_peak_mib for r in scene_runs if r.workers == 2)
+        two = [r for r in scene_runs if r.workers == 2]
+        parent_scene = max(r.parent_peak_mib for r in two)
+        parent_held = max(r.parent_before_mib for r in two)
         scene_job = largest_job_mib(Path(tmp) / "scene-dask2.tsogs", raw / args.gaussians)
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     body = [
@@ -464,15 +486,19 @@ def main() -> None:
         "workers' over the wall time. Worker peak RSS: the largest of any worker process, "
         "sampled every 0.2 s. The LocalCluster is the one `--cluster local` starts "
         "(`engines.local_cluster`: no profiler, event-loop tick and monitors at 1-5 s), its "
-        "workers with glibc's malloc thresholds set back (`engines.tune_malloc`).",
+        "workers with glibc's malloc thresholds set back and one malloc arena (`engines.tune_malloc`).",
         "",
         f"**A scene in memory**: a generated FreeTimeGS-style clip of {args.gaussians} SH3 Gaussians "
         f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "
         "its Gaussians.",
         "",
         *table(scene_runs, args.gaussians, fixed, scene_job),
-        f"The parent's peak RSS with two workers: {parent_scene:.0f} MiB (the scene, the jobs "
-        "in flight and the finished chunks waiting for their turn).",
+        f"The parent's peak RSS while segmenting with two workers: {parent_scene:.0f} MiB, "
+        f"{parent_scene - parent_held:.0f} MiB ({(parent_scene - parent_held) * MiB / raw:.1f}x "
+        f"the raw arrays) above the {parent_held:.0f} MiB it held with the scene made (the "
+        "parts cut for the first jobs, each pickled as well while a pool sends it, then the "
+        "finished chunks waiting for their turn; making the scene, not counted, peaked "
+        "higher).",
         "",
         f"**A frame sequence on disk**: {args.frames} generated SH3 PLY frames of "
         f"{args.per_frame} Gaussians (a window per frame). With 2 workers each job is a window "
