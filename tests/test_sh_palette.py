@@ -304,3 +304,27 @@ def test_cluster_means_are_each_clusters_weighted_mean() -> None:
     worst = int(relabelled[relabelled != labels][0])
     assert worst == 199 and np.count_nonzero(relabelled != labels) == 1
     np.testing.assert_array_equal(moved[199], points[np.flatnonzero(relabelled == 199)[0]])
+
+
+def test_merged_means_are_each_hosts_weighted_mean_with_its_movers_in_order() -> None:
+    """A merging round's grown means equal the host's and its movers' weighted sum taken in
+    mover order in float64 (the sums of the palette before it folded a block of hosts at a
+    time), bit for bit, copied or compacted in place, with blocks of a few rows too."""
+    points = _sh_like(3000, 45, seed=10)
+    rng = np.random.default_rng(5)
+    mass = rng.random(3000) + 0.5
+    partner = rng.integers(0, 40, 3000)  # few hosts, many movers each
+    movers = np.flatnonzero(np.arange(3000) >= 40)
+    target = np.arange(3000)
+    target[movers] = partner[movers]
+    expected = points[:40].astype(np.float64) * mass[:40, None]
+    np.add.at(expected, target[movers], points[movers].astype(np.float64) * mass[movers, None])
+    total = mass.copy()
+    np.add.at(total, target[movers], mass[movers])
+    expected = (expected / total[:40, None]).astype(np.float32)
+    for block_bytes in (sh_palette.BLOCK_BYTES, 1024):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(sh_palette, "BLOCK_BYTES", block_bytes)
+            for own in (False, True):
+                merged, _, _ = sh_palette._merge(points.copy(), mass, movers, partner, own=own)
+                np.testing.assert_array_equal(merged, expected)
