@@ -112,8 +112,8 @@ def _callback_ms(dask_worker: Any) -> dict[str, float]:
 def test_a_local_cluster_s_workers_leave_the_gil_to_the_encoding() -> None:
     """The cluster tsog starts runs its workers without the statistical profiler and with
     the event-loop tick and memory and system monitors at 1 s, 1 s and 5 s (each call takes
-    the GIL from the job), and its scheduler ticks at 1 s too. Its workers start with one
-    malloc arena (set by the worker plugin, it came after Dask's threads had theirs)."""
+    the GIL from the job), and its scheduler ticks at 1 s too. Its workers have one malloc
+    arena from their start (the worker plugin sets it after Dask's threads have theirs)."""
     with engines.local_cluster(1) as cluster, Client(cluster) as client:  # type: ignore[no-untyped-call]
         (worker,) = client.run(_callback_ms).values()
         scheduler = client.run_on_scheduler(_callback_ms_of_scheduler)

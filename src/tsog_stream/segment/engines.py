@@ -108,7 +108,7 @@ def tune_malloc() -> bool:
     except (OSError, AttributeError):
         return False
     settings = ((M_MMAP_THRESHOLD, 32 << 20), (M_TRIM_THRESHOLD, 64 << 20), (M_ARENA_MAX, 1))
-    return all([bool(mallopt(name, value)) for name, value in settings])
+    return all([bool(mallopt(option, value)) for option, value in settings])  # every one set
 
 
 def _register_malloc_tuning(client: Any) -> None:
