@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import tracemalloc
 from collections.abc import Callable
 
 import numpy as np
@@ -416,3 +417,55 @@ def test_weights_with_nothing_positive_give_the_unweighted_codebook() -> None:
     )
     with pytest.raises(InputError, match="weights"):
         build_codebook(samples, np.ones(samples.size - 1))
+
+
+def _codebook_work(samples: npt.NDArray[np.float32]) -> list[npt.NDArray[np.generic]]:
+    """Everything the module computes a block at a time, for one input."""
+    weights = np.abs(samples.astype(np.float64)) + 0.1
+    centers, density = _histogram_of(samples[np.isfinite(samples)].astype(np.float64))
+    table = build_codebook(samples)
+    return [
+        table,
+        dp_codebook(samples),
+        build_codebook(samples, weights),
+        assign_codebook(samples, table),
+        quantize._dp_centroids(centers, density, 256),
+    ]
+
+
+def test_blocks_change_no_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Histograms, prefix sums, the DP's costs and labels worked out in blocks of 7 values
+    equal the same work on the whole arrays, bit for bit (NaN and infinities included)."""
+    rng = np.random.default_rng(25)
+    samples = np.concatenate([rng.standard_t(3, 90_000), [np.nan, np.inf, -np.inf] * 4])
+    samples = samples.astype(np.float32)
+    monkeypatch.setattr(quantize, "BLOCK_VALUES", 1 << 40)
+    whole = _codebook_work(samples)
+    monkeypatch.setattr(quantize, "BLOCK_VALUES", 7)
+    for blocked, at_once in zip(_codebook_work(samples), whole, strict=True):
+        assert blocked.dtype == at_once.dtype
+        assert np.array_equal(blocked.view(np.uint8), at_once.view(np.uint8))
+
+
+def _traced_peak(work: Callable[[], object]) -> int:
+    """Bytes numpy allocated at most while ``work`` ran, beyond what it held before."""
+    tracemalloc.start()
+    try:
+        work()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_codebooks_of_many_values_hold_few_copies_of_them() -> None:
+    """A codebook of n values (an SH palette's 65536 x 45 are 2.9M) holds at most 3.5 float64
+    copies of them at once (5.1 when computed whole: 115 MiB at 2.9M), their labels a byte a
+    value and a few blocks (24 bytes a value: a float64 copy, positions and indexes whole),
+    the DP of 1024 bins 20 MiB (31 with its cost matrix computed whole)."""
+    values = np.random.default_rng(26).standard_t(4, 1 << 21).astype(np.float32)
+    assert _traced_peak(lambda: build_codebook(values)) <= 3.5 * 8 * values.size
+    table = build_codebook(values)
+    assert _traced_peak(lambda: assign_codebook(values, table)) <= values.size + (4 << 20)
+    centers, density = _histogram_of(values[:50_000].astype(np.float64))
+    assert centers.size == quantize.HIST_BINS
+    assert _traced_peak(lambda: quantize._dp_centroids(centers, density, 256)) <= 20 << 20

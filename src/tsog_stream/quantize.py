@@ -20,7 +20,7 @@ weight per sample it minimises the weighted error instead (the scale codebook's 
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -40,6 +40,10 @@ BETA_MIN: Final = 0.5
 BETA_MAX: Final = 0.999
 REFINE_PASSES: Final = 200
 """Upper bound on 1-D Lloyd passes in :func:`build_codebook`; it stops when nothing moves."""
+BLOCK_VALUES: Final = 1 << 16
+"""Values a block of the histogram's or the prefix sums' arithmetic holds (512 KiB of
+float64): a codebook of a 65536-entry SH palette's 2.9M values held five times its values
+as float64 temporaries (115 MiB) when they were computed whole."""
 
 
 def dp_codebook(samples: npt.ArrayLike) -> F32:
@@ -72,12 +76,18 @@ def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
     table = table.astype(np.float64)
     if not np.all(np.isfinite(table)) or np.any(np.diff(table) < 0):
         raise InputError("codebook must hold finite values in ascending order")
-    data = np.asarray(values, dtype=np.float64)
     mids = (table[:-1] + table[1:]) * 0.5
-    labels = _binned_labels(data, mids) if data.size >= BINNED_FROM else None
-    if labels is None:
-        return np.searchsorted(mids, data, side="right").astype(np.uint8)
-    return labels
+    data = np.asarray(values)
+    flat = data.reshape(-1)
+    bins = _label_bins(flat, mids) if flat.size >= BINNED_FROM else None
+    labels = np.empty(flat.size, np.uint8)
+    for start in range(0, flat.size, BLOCK_VALUES):  # float64 a block at a time
+        block = np.asarray(flat[start : start + BLOCK_VALUES], dtype=np.float64)
+        if bins is None:
+            labels[start : start + len(block)] = np.searchsorted(mids, block, side="right")
+        else:
+            labels[start : start + len(block)] = _binned_labels(block, mids, bins)
+    return labels.reshape(data.shape)
 
 
 BINNED_FROM: Final = 1 << 16
@@ -89,31 +99,48 @@ BIN_MARGIN: Final = 2
 """Bins on each side a value's computed bin is trusted within (its rounding moves it far less)."""
 
 
-def _binned_labels(data: F64, mids: F64) -> U8 | None:
-    """``searchsorted(mids, data, side="right")`` as bytes, without searching most values:
-    each bin over the finite range (widened by BIN_MARGIN bins each side) whose label is
-    the same at both ends gives its values that label, exactly, as the label only grows
-    with the value; the values of bins a midpoint falls in, and non-finite ones, are searched
-    (1M Gaussians' three columns: 147 -> ~45 ms). None where no bins can be laid (no finite
-    value, or a range too narrow for its magnitude): every value is to be searched."""
-    finite = np.isfinite(data)
-    everywhere = bool(finite.all())
-    if not everywhere and not finite.any():
-        return None
-    binned = data if everywhere else np.where(finite, data, data[finite][0])
-    low, high = float(binned.min()), float(binned.max())
+class _LabelBins(NamedTuple):
+    """Equal bins over the values' finite range and the labels at each bin's two ends."""
+
+    low: float
+    width: float
+    first: U8
+    last: U8
+
+
+def _label_bins(values: npt.NDArray[Any], mids: F64) -> _LabelBins | None:
+    """The bins :func:`_binned_labels` reads (their range from the finite values, a block
+    at a time); None where none can be laid (no finite value, or a range too narrow for its
+    magnitude): every value is to be searched."""
+    low, high = np.inf, -np.inf
+    for start in range(0, values.size, BLOCK_VALUES):
+        block = np.asarray(values[start : start + BLOCK_VALUES], dtype=np.float64)
+        block = block[np.isfinite(block)]
+        if block.size:
+            low, high = min(low, float(block.min())), max(high, float(block.max()))
     width = (high - low) / LABEL_BINS
-    if not (width > 1e-9 * max(abs(low), abs(high)) and np.isfinite(width)):
+    if not (np.isfinite(width) and width > 1e-9 * max(abs(low), abs(high))):
         return None
     edges = low + width * np.arange(-BIN_MARGIN, LABEL_BINS + BIN_MARGIN + 1)
     at_edge = np.searchsorted(mids, edges, side="right").astype(np.uint8)
-    first, last = at_edge[:LABEL_BINS], at_edge[2 * BIN_MARGIN + 1 :]  # bin b: edges b..b+2M+1
-    position = binned - low
-    position *= 1.0 / width
+    # bin b: edges b..b+2M+1
+    return _LabelBins(low, width, at_edge[:LABEL_BINS], at_edge[2 * BIN_MARGIN + 1 :])
+
+
+def _binned_labels(data: F64, mids: F64, bins: _LabelBins) -> U8:
+    """``searchsorted(mids, data, side="right")`` as bytes, without searching most values:
+    each bin (widened by BIN_MARGIN bins each side) whose label is the same at both ends
+    gives its values that label, exactly, as the label only grows with the value; the values
+    of bins a midpoint falls in, and non-finite ones, are searched (1M Gaussians' three
+    columns: 147 -> ~45 ms)."""
+    finite = np.isfinite(data)
+    everywhere = bool(finite.all())
+    position = data - bins.low if everywhere else np.where(finite, data, bins.low) - bins.low
+    position *= 1.0 / bins.width
     index = position.astype(np.intp)  # truncation is the floor: no position is negative
-    np.minimum(index, LABEL_BINS - 1, out=index)
-    labels = np.take(first, index)
-    unsure = labels != np.take(last, index)
+    np.clip(index, 0, LABEL_BINS - 1, out=index)
+    labels = np.take(bins.first, index)
+    unsure = labels != np.take(bins.last, index)
     if not everywhere:
         unsure |= ~finite
     if unsure.any():
@@ -141,7 +168,7 @@ def _codebook(samples: npt.ArrayLike, *, refine: bool, weights: npt.ArrayLike | 
         data = data.astype(np.float64)
     data = data.reshape(-1)
     usable = np.isfinite(data)
-    finite = np.sort(data[usable]).astype(np.float64)  # sort before widening: faster
+    finite = _sorted_wide(data[usable])
     weighed = _usable_weights(weights, data.size, usable) if weights is not None else None
     has_neg = bool(np.any(data == -np.inf))
     has_pos = bool(np.any(data == np.inf))
@@ -150,11 +177,24 @@ def _codebook(samples: npt.ArrayLike, *, refine: bool, weights: npt.ArrayLike | 
     if not (has_neg or has_pos) and finite[-1] - finite[0] < 1e-20:
         return np.full(CODEBOOK_SIZE, finite[0], np.float32)
     slots = CODEBOOK_SIZE - int(has_neg) - int(has_pos)
-    if weighed is not None and np.count_nonzero(np.diff(finite)) >= slots:
+    if weighed is not None and _steps(finite) >= slots:
         centroids = _weighted_centroids(data[usable].astype(np.float64), weighed, slots)
     else:
         centroids = _finite_centroids(finite, slots, refine)
     return _compose(centroids, finite, has_neg, has_pos)
+
+
+def _sorted_wide(values: npt.NDArray[np.floating]) -> F64:
+    """The values sorted (before widening: faster), as float64; sorted in place, so that the
+    narrow copy is the only one beside the wide one."""
+    values.sort()
+    return values.astype(np.float64)
+
+
+def _steps(ascending: F64) -> int:
+    """How many neighbours differ in the ascending values (their distinct values less one),
+    without the differences themselves (8 bytes a value)."""
+    return int(np.count_nonzero(ascending[1:] != ascending[:-1]))
 
 
 def _usable_weights(weights: npt.ArrayLike, size: int, usable: npt.NDArray[np.bool_]) -> F64 | None:
@@ -211,7 +251,7 @@ def _finite_centroids(finite: F64, slots: int, refine: bool) -> F32:
         return np.zeros(0, np.float32)
     if finite[-1] - finite[0] < 1e-20:
         return finite[:1].astype(np.float32)
-    if refine and np.count_nonzero(np.diff(finite)) < slots:
+    if refine and _steps(finite) < slots:
         return np.unique(finite.astype(np.float32))  # few distinct values: store them exactly
     centers, counts = _histogram(finite)
     centroids = _dp_centroids(centers, counts**DENSITY_ALPHA, slots)
@@ -241,7 +281,11 @@ def _histogram(finite: F64) -> tuple[F64, F64]:
     bins = min(HIST_BINS, n)
     vmin, vrange = finite[0], finite[-1] - finite[0]
     iqr = finite[int(n * 0.75)] - finite[int(n * 0.25)]
-    index = _blended_bins(np.arange(n) / n, finite, iqr, vmin, vrange, bins=bins)
+    index = np.empty(n, np.intp)
+    for start in range(0, n, BLOCK_VALUES):
+        stop = min(n, start + BLOCK_VALUES)
+        rank = np.arange(start, stop) / n
+        index[start:stop] = _blended_bins(rank, finite[start:stop], iqr, vmin, vrange, bins=bins)
     counts = np.bincount(index, minlength=bins).astype(np.float64)
     sums = np.bincount(index, weights=finite, minlength=bins)
     empty_centre = vmin + (np.arange(bins) + 0.5) / bins * vrange
@@ -271,22 +315,29 @@ def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:
 
 def _cost_matrix(pw: F64, pwx: F64, pwxx: F64, out: F64 | None = None) -> F64:
     """cost[end, start] = weighted SSE of bins start..end (inf where start > end), written
-    into ``out`` when given (an (H, H) view). Computed in place: three (H, H) arrays at once
-    instead of seven (1024 bins: 24 MiB, not 56, and half the time)."""
+    into ``out`` when given (an (H, H) view). Computed in place, a block of ends at a time:
+    whole, its two (H, H) temporaries were 16 MiB beside the 8 MiB result at 1024 bins."""
     h = pw.size - 1
     cost = np.empty((h, h)) if out is None else out
-    np.subtract(pwxx[1:, None], pwxx[None, :-1], out=cost)
-    w = pw[1:, None] - pw[None, :-1]
-    wx = pwx[1:, None] - pwx[None, :-1]
+    step = max(1, BLOCK_VALUES // h)
+    for first in range(0, h, step):
+        _group_costs_ending(pw, pwx, pwxx, first, cost[first : first + step])
+    return cost
+
+
+def _group_costs_ending(pw: F64, pwx: F64, pwxx: F64, first: int, out: F64) -> None:
+    """Rows ``first``.. of :func:`_cost_matrix` (one per end bin), into ``out``."""
+    ends = slice(first + 1, first + 1 + len(out))
+    np.subtract(pwxx[ends, None], pwxx[None, :-1], out=out)
+    w = pw[ends, None] - pw[None, :-1]
+    wx = pwx[ends, None] - pwx[None, :-1]
     with np.errstate(invalid="ignore", divide="ignore"):
         wx *= wx
         wx /= w
-    cost -= wx
-    cost[~(w > 0)] = 0.0
-    del w, wx
-    bins = np.arange(h)
-    cost[bins[None, :] > bins[:, None]] = np.inf
-    return cost
+    out -= wx
+    out[~(w > 0)] = 0.0
+    starts = np.arange(out.shape[1])
+    out[starts[None, :] > np.arange(first, first + len(out))[:, None]] = np.inf
 
 
 def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
@@ -314,14 +365,22 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     row[:band] = cost[:band, 0]  # m = 1: one group over bins 0..j, j in [0, band)
     splits = np.zeros((groups + 1, band), np.intp)
     low = np.zeros(band, np.intp)  # each end's first candidate split, in band terms
+    next_row = np.empty(band)  # row m's values, kept apart until every end has read row m - 1
+    best = np.empty(band, np.intp)
     for m in range(2, groups + 1):
         # end j = m - 1 + i, splits s from low[i] on (inf past i): cost[j, m - 1 + s] + row[s]
-        candidates = low[:, None] + np.arange(int((ends - low).max()) + 1)
-        total = np.take(flat, ((m - 1) * (stride + 1) + ends * stride)[:, None] + candidates)
-        total += np.take(row, candidates)
-        pick = np.argmin(total, axis=1)  # the first minimum: the smallest split
-        best = low + pick
-        row[:band] = total[ends, pick]
+        width = int((ends - low).max()) + 1
+        step = max(1, BLOCK_VALUES // width)  # wide in the first rows: ends a block at a time
+        for first in range(0, band, step):
+            block = slice(first, first + step)
+            candidates = low[block, None] + np.arange(width)
+            first_cells = (m - 1) * (stride + 1) + ends[block] * stride
+            total = np.take(flat, first_cells[:, None] + candidates)
+            total += np.take(row, candidates)
+            pick = np.argmin(total, axis=1)  # the first minimum: the smallest split
+            best[block] = low[block] + pick
+            next_row[block] = total[np.arange(len(pick)), pick]
+        row[:band] = next_row
         splits[m] = best + (m - 2)
         low[:-1], low[-1] = best[1:], best[-1]
         np.maximum(low - 1, 0, out=low)
@@ -344,12 +403,8 @@ def _lloyd_1d(points: F64, start: F32, mass: F64 | None = None) -> tuple[F32, fl
     SSE was measured with (they were searched again for the next pass; a few per cent of a
     1M-value codebook's time)."""
     shift = points[points.size // 2]
-    centred = points - shift
-    zero = np.zeros(1)
-    weighted = centred if mass is None else mass * centred
-    p0 = None if mass is None else np.concatenate([zero, np.cumsum(mass)])
-    p1 = np.concatenate([zero, np.cumsum(weighted)])
-    p2 = np.concatenate([zero, np.cumsum(weighted * centred)])
+    p0 = None if mass is None else np.concatenate([np.zeros(1), np.cumsum(mass)])
+    p1, p2 = _prefix_moments(points, shift, mass)
 
     def held(edges: npt.NDArray[np.intp]) -> npt.NDArray[np.floating]:
         return np.diff(edges) if p0 is None else p0[edges[1:]] - p0[edges[:-1]]
@@ -372,6 +427,24 @@ def _lloyd_1d(points: F64, start: F32, mass: F64 | None = None) -> tuple[F32, fl
         if sse < best_sse:
             best, best_sse = current, sse
     return best, best_sse
+
+
+def _prefix_moments(points: F64, shift: float, mass: F64 | None) -> tuple[F64, F64]:
+    """Prefix sums, from 0, of each point's weighted offset from ``shift`` and of its
+    weighted square (weight ``mass``, 1 when None): the terms computed a block at a time into
+    the sums' own arrays and summed there (whole, the offsets and terms were three more
+    arrays of the points' size)."""
+    n = points.size
+    p1, p2 = np.zeros(n + 1), np.zeros(n + 1)
+    for start in range(0, n, BLOCK_VALUES):
+        stop = min(n, start + BLOCK_VALUES)
+        centred = points[start:stop] - shift
+        weighted = centred if mass is None else mass[start:stop] * centred
+        p1[start + 1 : stop + 1] = weighted
+        np.multiply(weighted, centred, out=p2[start + 1 : stop + 1])
+    np.cumsum(p1[1:], out=p1[1:])
+    np.cumsum(p2[1:], out=p2[1:])
+    return p1, p2
 
 
 def _edges(finite: F64, table: F32) -> npt.NDArray[np.intp]:
