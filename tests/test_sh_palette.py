@@ -254,7 +254,7 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
     mass = rng.random(2000) + 0.5
     partner = rng.integers(0, 2000, 2000)
     movers = sh_palette._pick_moves(partner, rng.random(2000), 600)
-    leaves = sh_palette._leaves(points[:, :4].copy(), 64)
+    leaves = sh_palette._leaves(points[:, :4].T.copy(), 64)
     repeated = points[rng.integers(0, 2000, 2000)]
     axes = sh_palette._principal_axes(points, mass)
     centroids = points[:300].copy()

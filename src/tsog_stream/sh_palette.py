@@ -253,31 +253,39 @@ def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
 
 
 def _tree_coords(points: F32, axes: tuple[F32, F32], tree: int, rng: np.random.Generator) -> F32:
-    """Split coordinates of tree ``tree``: PCA coordinates, leading ones rotated after tree 0.
+    """Split coordinates of tree ``tree``, one row per coordinate (coordinate j of point i at
+    [j, i]): PCA coordinates, leading ones rotated after tree 0.
 
-    Projected a block of rows at a time: the centred points whole were as large as the points
-    (the fit's peak on 400k SH3 vectors, 63 MiB)."""
-    coords: F32 = np.empty((len(points), axes[1].shape[1]), np.float32)
-    step = _rows_per_block(4 * points.shape[1])
-    for start in range(0, len(points), step):
-        np.matmul(points[start : start + step] - axes[0], axes[1], out=coords[start : start + step])
-    mixed = min(MIXED_DIMS, coords.shape[1])
+    Projected (and rotated) a block of rows at a time and written transposed: the centred
+    points whole were as large as the points (the fit's peak on 400k SH3 vectors, 63 MiB),
+    and the leaves read the coordinates by axis, which took a transposed copy of them."""
+    dims = axes[1].shape[1]
+    by_axis: F32 = np.empty((dims, len(points)), np.float32)
+    mixed = min(MIXED_DIMS, dims)
+    rotation = None
     if tree > 0 and mixed > 1:
-        rotation, _ = np.linalg.qr(rng.standard_normal((mixed, mixed)))
-        coords[:, :mixed] = np.matmul(coords[:, :mixed], rotation.astype(np.float32))
-    return coords
+        rotation = np.linalg.qr(rng.standard_normal((mixed, mixed)))[0].astype(np.float32)
+    step = _rows_per_block(4 * points.shape[1])
+    coords: F32 = np.empty((min(step, len(points)), dims), np.float32)
+    for start in range(0, len(points), step):
+        block = coords[: min(step, len(points) - start)]
+        np.matmul(points[start : start + step] - axes[0], axes[1], out=block)
+        if rotation is not None:
+            block[:, :mixed] = np.matmul(block[:, :mixed], rotation)
+        by_axis[:, start : start + step] = block.T
+    return by_axis
 
 
-def _leaves(coords: F32, leaf: int) -> tuple[Ints, npt.NDArray[np.bool_]]:
+def _leaves(by_axis: F32, leaf: int) -> tuple[Ints, npt.NDArray[np.bool_]]:
     """Balanced kd-tree leaves as (C, L) point ids; padding slots repeat points, flagged False.
 
-    Each level splits every segment at its median along its widest coordinate with one
-    ``argpartition`` over equal-length rows, so a level costs O(n). Rows and keys are
-    gathered by ``np.take`` (keys from the coordinates transposed): fancy indexing took 2-3x
-    as long.
+    ``by_axis``: the points' coordinates, one row per coordinate. Each level splits every
+    segment at its median along its widest coordinate with one ``argpartition`` over
+    equal-length rows, so a level costs O(n). Keys are gathered by ``np.take``: fancy
+    indexing took 2-3x as long.
     """
-    n = len(coords)
-    by_axis = np.ascontiguousarray(coords.T).reshape(-1)  # coordinate j of point i at j*n + i
+    n = by_axis.shape[1]
+    flat = by_axis.reshape(-1)  # coordinate j of point i at j*n + i
     levels = max(0, int(np.ceil(np.log2(max(1.0, n / leaf)))))
     cells = 1 << levels
     length = -(-n // cells)
@@ -286,13 +294,24 @@ def _leaves(coords: F32, leaf: int) -> tuple[Ints, npt.NDArray[np.bool_]]:
     real = np.concatenate([np.ones(n, bool), np.zeros(pad, bool)])
     for level in range(levels):
         rows = ids.reshape(1 << level, -1)
-        sample = np.take(coords, rows[:, :: max(1, rows.shape[1] // WIDTH_SAMPLE)], axis=0)
-        widest = np.argmax(sample.max(axis=1) - sample.min(axis=1), axis=1)
-        key = np.take(by_axis, widest[:, None] * n + rows)
+        widest = np.argmax(
+            _widths(by_axis, rows[:, :: max(1, rows.shape[1] // WIDTH_SAMPLE)]), axis=0
+        )
+        key = np.take(flat, widest[:, None] * n + rows)
         order = np.argpartition(key, rows.shape[1] // 2 - 1, axis=1)
         ids = np.take_along_axis(rows, order, axis=1).reshape(-1)
         real = np.take_along_axis(real.reshape(rows.shape), order, axis=1).reshape(-1)
     return ids.reshape(cells, length), real.reshape(cells, length)
+
+
+def _widths(by_axis: F32, picks: Ints) -> F32:
+    """(D, C) extent along each coordinate of each row of ``picks`` (C sampled point ids),
+    a coordinate at a time (all at once, the samples were 13 MiB at 270k points)."""
+    out: F32 = np.empty((len(by_axis), len(picks)), np.float32)
+    for axis, coordinate in enumerate(by_axis):
+        sample = np.take(coordinate, picks)
+        np.subtract(sample.max(axis=1), sample.min(axis=1), out=out[axis])
+    return out
 
 
 def _leaf_neighbours(points: F32, ids: Ints, real: npt.NDArray[np.bool_], count: int) -> Ints:
