@@ -109,19 +109,33 @@ def _callback_ms(dask_worker: Any) -> dict[str, float]:
     return {name: pc.callback_time for name, pc in dask_worker.periodic_callbacks.items()}
 
 
-def test_a_local_cluster_s_workers_leave_the_gil_to_the_encoding() -> None:
+def test_a_local_cluster_s_workers_leave_the_gil_to_the_encoding(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """The cluster tsog starts runs its workers without the statistical profiler and with
     the event-loop tick and memory and system monitors at 1 s, 1 s and 5 s (each call takes
     the GIL from the job), and its scheduler ticks at 1 s too. Its workers have one malloc
-    arena from their start (the worker plugin sets it after Dask's threads have theirs)."""
+    arena from their start (the worker plugin sets it after Dask's threads have theirs); the
+    process that starts them keeps its own environment, while the cluster runs and after."""
+    for name in ("MALLOC_ARENA_MAX", "MALLOC_TRIM_THRESHOLD_"):
+        monkeypatch.delenv(name, raising=False)
+    before = dict(os.environ)
     with engines.local_cluster(1) as cluster, Client(cluster) as client:  # type: ignore[no-untyped-call]
         (worker,) = client.run(_callback_ms).values()
         scheduler = client.run_on_scheduler(_callback_ms_of_scheduler)
-        (arenas,) = client.run(os.environ.get, "MALLOC_ARENA_MAX").values()
+        (arenas,) = client.run(_variable, "MALLOC_ARENA_MAX").values()
+        assert dict(os.environ) == before
+    assert dict(os.environ) == before
     assert arenas == "1"
     assert "profile" not in worker and "profile-cycle" not in worker
     assert (worker["tick"], worker["memory_monitor"], worker["monitor"]) == (1000, 1000, 5000)
     assert scheduler["tick"] == 1000
+
+
+def _variable(name: str) -> str | None:
+    """An environment variable of the process this runs in (``os.environ.get`` sent to a
+    worker is a bound method: it takes the sender's environment along and reads that)."""
+    return os.environ.get(name)
 
 
 def _callback_ms_of_scheduler(dask_scheduler: Any) -> dict[str, float]:

@@ -342,7 +342,7 @@ def local_cluster(workers: int) -> Iterator[Any]:
     import dask  # noqa: PLC0415 - an optional extra
     from distributed import LocalCluster  # noqa: PLC0415
 
-    with dask.config.set(QUIET_DASK):
+    with _environ_kept(), dask.config.set(QUIET_DASK):
         cluster = LocalCluster(  # type: ignore[no-untyped-call]
             n_workers=workers,
             threads_per_worker=1,
@@ -350,8 +350,23 @@ def local_cluster(workers: int) -> Iterator[Any]:
             dashboard_address="127.0.0.1:0",
             host="127.0.0.1",
         )
-    with cluster:
+    with _environ_kept(), cluster:  # a worker started again sets them again
         yield cluster
+
+
+@contextlib.contextmanager
+def _environ_kept() -> Iterator[None]:
+    """This process's environment as it was before the body, after it: Dask's nanny writes
+    its workers' pre-spawn variables (MALLOC_TRIM_THRESHOLD_, MALLOC_ARENA_MAX) into the
+    environment of the process that starts them and leaves them there, for every process
+    it starts later (a PLY writer's subprocess, a test's child) to inherit."""
+    before = dict(os.environ)
+    try:
+        yield
+    finally:
+        for name in [name for name in os.environ if name not in before]:
+            del os.environ[name]
+        os.environ.update(before)
 
 
 def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
