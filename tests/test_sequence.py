@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -14,12 +15,14 @@ from helpers import log_space_error, means_log_step
 from tsog_stream import Gaussians, InputError, Scene, TimelineType
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.compare import rotation_angles_deg
+from tsog_stream.io import sequence as sequence_module
 from tsog_stream.io.chunks import read_chunk
 from tsog_stream.io.ply import read_ply, write_ply
 from tsog_stream.io.sequence import (
     DEFAULT_FPS,
     detect_sequence,
     list_frames,
+    open_sequence,
     read_ply_sequence,
     read_sog_sequence,
 )
@@ -213,3 +216,31 @@ def test_bad_sequences_are_refused(samples: Path, tmp_path: Path) -> None:
         read_ply_sequence(tmp_path, fps=0.0)
     with pytest.raises(InputError, match="expected a folder"):
         read_ply_sequence(tmp_path / "f_1.ply")
+
+
+def test_a_window_of_one_frame_is_that_frame_s_arrays(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A window of one frame takes the frame's arrays as read, not a copy of them (a window
+    job's worker held a 500k SH3 frame twice while it was copied); a frame whose SH must be
+    padded to the sequence's, and a window of several frames, are copied."""
+    write_ply(tmp_path / "f_0.ply", static_gaussians(5, sh_bands=2, seed=1))
+    write_ply(tmp_path / "f_1.ply", static_gaussians(4, sh_bands=1, seed=2))
+    seq = open_sequence(tmp_path)
+    read: list[Gaussians] = []
+    real = sequence_module._read_frame
+
+    def recorded(kind: str, path: Any) -> tuple[Gaussians, list[str], set[str]]:
+        found = real(kind, path)
+        read.append(found[0])
+        return found
+
+    monkeypatch.setattr(sequence_module, "_read_frame", recorded)
+    one = seq.window(0, 1).read().scene.gaussians
+    assert one.means is read[-1].means and one.shN is read[-1].shN
+    padded = seq.window(1, 2).read().scene.gaussians
+    assert padded.shN.shape == (4, 8, 3) and not padded.shN[:, 3:].any()
+    np.testing.assert_array_equal(padded.shN[:, :3], read[-1].shN)
+    both = seq.window(0, 2).read().scene.gaussians
+    assert not any(np.shares_memory(both.means, g.means) for g in read[-2:])
+    np.testing.assert_array_equal(both.means, np.concatenate([g.means for g in read[-2:]]))

@@ -793,18 +793,41 @@ def _encoding(chunks: int, gaussians: int, workers: int, *, faint_left: bool = F
     return f"encoding {chunks} chunks ({stored} Gaussians stored) on {on}"
 
 
-def window_parts(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> list[Part]:
-    """The parts of window ``w`` of a frame sequence: its chunks layer by layer, each frame's
-    most important Gaussians in its base (and its SH bands, if any, in SH-band chunks at the
-    start of layer 1, their hosts numbered from 0 within the window)."""
+def window_jobs(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> list[ChunkJob]:
+    """The chunk jobs of window ``w`` of a frame sequence: its chunks layer by layer, each
+    frame's most important Gaussians in its base (and its SH bands, if any, in SH-band chunks
+    at the start of layer 1, their hosts numbered from 0 within the window)."""
     layer_of = None
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), _frame_groups(scene))
     window = [(NodeKey(0, w), np.arange(len(scene)))]
     jobs = chunk_jobs(scene, window, max_count, layer_of)
-    if layering.sh_apart:
-        jobs = with_sh_jobs(jobs)
+    return with_sh_jobs(jobs) if layering.sh_apart else jobs
+
+
+def window_parts(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> list[Part]:
+    """The parts of :func:`window_jobs`, all at once (``scene`` is left as it is)."""
+    jobs = window_jobs(scene, w, max_count, layering)
     return [job_part(scene, job, layering.sh_apart) for job in jobs]
+
+
+def parts_taking_over(held: list[Scene], jobs: Sequence[ChunkJob], split: bool) -> Iterator[Part]:
+    """The parts of ``jobs``, each cut as it is asked for, from the one scene in ``held``
+    (the only reference to it, handed over): the scene is let go as the last part is cut, and
+    that part is the scene itself, reordered in place, when it holds every Gaussian. A window
+    job's worker held its window twice, as the scene and as its parts (four 500k SH3 frames:
+    a worker 4.0x its window above a tiny input's)."""
+    for number, job in enumerate(jobs):
+        if number + 1 < len(jobs):
+            yield job_part(held[0], job, split)
+            continue
+        scene = held.pop()
+        if len(job.indices) == len(scene) and not _bare(job, split):
+            part = Part(job.key, scene.reordered(job.indices), job.layer, job.sh_of)
+        else:
+            part = job_part(scene, job, split)
+        del scene
+        yield part
 
 
 def _after(sh_of: int | None, written: int) -> int | None:
@@ -819,11 +842,11 @@ def _sequence_parts(
     the Gaussians too faint to store at ``quality``)."""
     written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
-        scene = without_faint(seq.read(first, min(seq.count, first + per_window)).scene, quality)
-        parts = window_parts(scene, w, max_count, layering)
-        for part in parts:
+        held = [without_faint(seq.read(first, min(seq.count, first + per_window)).scene, quality)]
+        jobs = window_jobs(held[0], w, max_count, layering)
+        for part in parts_taking_over(held, jobs, layering.sh_apart):
             yield replace(part, sh_of=_after(part.sh_of, written))
-        written += len(parts)
+        written += len(jobs)
 
 
 @dataclass(frozen=True)
@@ -841,16 +864,18 @@ class WindowJob:
 
 
 def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
-    """Read a window's frames, cut and encode its chunks (run in worker processes; the
-    window's scene is dropped once cut into parts)."""
-    scene = without_faint(job.frames.read().scene, job.quality)
-    parts = window_parts(scene, job.index, job.max_count, job.layering)
-    works = [part_work(part) for part in parts]
+    """Read a window's frames, cut and encode its chunks one at a time (run in worker
+    processes; the window's scene is let go as its last part is cut)."""
+    held = [without_faint(job.frames.read().scene, job.quality)]
+    split = job.layering.sh_apart
+    jobs = window_jobs(held[0], job.index, job.max_count, job.layering)
+    works = [job_work(held[0], chunk, split) for chunk in jobs]
     total, done = sum(works), 0.0
     encoded: list[tuple[PartInfo, bytes]] = []
-    for part, work in zip(parts, works, strict=True):
+    for part, work in zip(parts_taking_over(held, jobs, split), works, strict=True):
         with share_of(done / total, work / total):
             encoded.extend(encoded_here([part], job.plan, job.seed, job.quality))
+        del part  # encoded: not held while the next is cut
         done += work
     return encoded
 
