@@ -13,6 +13,7 @@ import weakref
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -784,3 +785,35 @@ def test_a_window_s_parts_cut_as_asked_hold_its_scene_once(
     else:
         del got, part
         assert gone() is None
+
+
+def test_sampled_frames_are_read_once_and_held_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The frames a sequence's opening view and layers are measured on are each read once and
+    let go: the view's samples keep no SH bands, and the measured frames are one joined scene
+    (each frame its group, its number as its rows' id), not the frames beside their join."""
+    for k in range(7):
+        write_ply(tmp_path / f"f_{k}.ply", static_gaussians(50 + k, sh_bands=1, seed=k))
+    seq = open_sequence(tmp_path)
+    reads: list[int] = []
+    frames: list[weakref.ref[Scene]] = []
+    real = type(seq).read
+
+    def read(self: Any, first: int = 0, stop: int | None = None, progress: Any = None) -> Any:
+        loaded = real(self, first, stop, progress)
+        reads.append(first)
+        frames.append(weakref.ref(loaded.scene))
+        return loaded
+
+    monkeypatch.setattr(type(seq), "read", read)
+    framing, measured = segmenter._sampled_frames(seq)
+    assert reads == sorted(set(reads)) and len(reads) == len(frames)
+    assert all(frame() is None for frame in frames)
+    assert framing.shN.shape[1] == 0 and len(framing) == sum(50 + k for k in reads)
+    assert measured.numbers == [0, 3, 6]
+    monkeypatch.undo()
+    for number, rows in zip(measured.numbers, measured.groups, strict=True):
+        alone = seq.read(number, number + 1).scene
+        for joined, own in zip(measured.scene.subset(rows).arrays(), alone.arrays(), strict=True):
+            np.testing.assert_array_equal(joined, own)

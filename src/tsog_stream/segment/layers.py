@@ -26,7 +26,7 @@ from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..opacity import logit_to_alpha
 from ..render import render, to_uint8
-from ..render.camera import from_capture
+from ..render.camera import Camera, from_capture
 from ..render.metrics import mse, psnr_from_mse
 from ..schemas.cameras import CaptureCamera
 from ..temporal import time_range
@@ -51,6 +51,7 @@ FRACTIONS += (0.35, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Shares of the Gaussians (most important first) a cut may be made at."""
 F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
+U8 = npt.NDArray[np.uint8]
 
 
 def importance(gaussians: Gaussians) -> F64:
@@ -146,13 +147,14 @@ def plan_layers(
     if scene.timeline is None or view is None or len(scene) < 2:
         return LayerPlan.single("one layer: nothing visible to measure layers on")
     times = list(times) or _times(scene)
-    frames = [scene.at(t) for t in times]
-    shown = np.mean([len(frame) for frame in frames])
+    camera = from_capture(view, MEASURE_WIDTH)
+    counts, full = _full_pictures(scene, times, camera)
+    shown = np.mean(counts)
     if layers is None and shown < LAYERED_MIN_GAUSSIANS:
         return LayerPlan.single(
             f"one layer: a frame shows {shown:.0f} Gaussians (layered from {LAYERED_MIN_GAUSSIANS})"
         )
-    quality = _quality_of_share(scene, groups, view, dict(zip(times, frames, strict=True)))
+    quality = _quality_of_share(scene, groups, camera, dict(zip(times, full, strict=True)))
     limit = 1.0 if layers else AUTO_MAX_FRACTION
     shares: list[float] = []
     psnr: list[float | None] = []
@@ -173,15 +175,28 @@ def plan_layers(
     )
 
 
+def _full_pictures(
+    scene: Scene, times: Sequence[float], camera: Camera
+) -> tuple[list[int], list[U8]]:
+    """The Gaussians the scene shows at each time and their picture from ``camera``, each
+    frame evaluated, drawn and let go in turn (held all at once, three 500k-Gaussian frames
+    were 0.3 GB)."""
+    counts, pictures = [], []
+    for t in times:
+        frame = scene.at(t)
+        counts.append(len(frame))
+        pictures.append(to_uint8(render(frame, camera)))
+        del frame
+    return counts, pictures
+
+
 def _quality_of_share(
-    scene: Scene, groups: Sequence[Ints], view: CaptureCamera, frames: dict[float, Gaussians]
+    scene: Scene, groups: Sequence[Ints], camera: Camera, full_at: dict[float, U8]
 ) -> Callable[[float, bool], float]:
-    """PSNR (mean squared error over the sampled times, ``frames`` the whole scene at each) of
-    the most important ``share`` of each group (``bare``: with DC colour only, as a base whose
-    SH bands are split off) against everything, rendered from ``view``; cached."""
-    camera = from_capture(view, MEASURE_WIDTH)
-    times = list(frames)
-    full = [to_uint8(render(frame, camera)) for frame in frames.values()]
+    """PSNR (mean squared error over the sampled times, ``full_at`` the whole scene's picture
+    at each) of the most important ``share`` of each group (``bare``: with DC colour only, as
+    a base whose SH bands are split off) against everything, drawn from ``camera``; cached."""
+    times, full = list(full_at), list(full_at.values())
     weights = importance(scene.gaussians)
     cache: dict[tuple[float, bool], float] = {}
 

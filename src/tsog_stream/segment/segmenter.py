@@ -10,7 +10,7 @@ import contextlib
 import itertools
 import os
 from collections import deque
-from collections.abc import Callable, Collection, Generator, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
@@ -967,34 +967,18 @@ def _sequence_chunks(
 
 def _sequence_layers(
     seq: FrameSequence,
-    measured: dict[int, Scene],
+    measured: _Measured,
     view: CaptureCamera | None,
     layers: int | None,
     sh_apart: bool = True,
 ) -> LayerPlan:
-    """The layers of a frame sequence, measured on ``measured`` (frames by number: the
-    MEASURE_TIMES spread ones among those :func:`_sampled_frames` read), each frame its own
-    group, as when the chunks are cut."""
+    """The layers of a frame sequence, measured on the MEASURE_TIMES spread frames
+    :func:`_sampled_frames` joined, each frame its own group, as when the chunks are cut."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
-    picks = list(measured)
-    frames = list(measured.values())
-    timelines = [f.timeline for f in frames if f.timeline is not None]
-    sample = Scene(
-        Gaussians.concat([f.gaussians for f in frames]),
-        Timeline(
-            TimelineType.FRAME,
-            np.concatenate([tl.t0 for tl in timelines]),
-            np.concatenate([tl.t1 for tl in timelines]),
-            fps=seq.fps,
-            scene_length=seq.count / seq.fps,
-        ),
-    )
-    bounds = np.cumsum([0, *(len(f) for f in frames)])
-    groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds)]
-    times = [(k + 0.5) / seq.fps for k in picks]
-    return plan_layers(sample, groups, view, layers, times, sh_apart=sh_apart)
+    times = [(k + 0.5) / seq.fps for k in measured.numbers]
+    return plan_layers(measured.scene, measured.groups, view, layers, times, sh_apart=sh_apart)
 
 
 LAYER_CHECK_MAX_GAUSSIANS = 262144
@@ -1004,7 +988,7 @@ file (:func:`_layers_within_flipbook`): the check costs one frame's encode, befo
 
 def _layers_within_flipbook(
     seq: FrameSequence,
-    measured: dict[int, Scene],
+    measured: _Measured,
     layering: LayerPlan,
     max_count: int,
     options: SegmentOptions,
@@ -1015,18 +999,18 @@ def _layers_within_flipbook(
     the flipbook itself: the middle sampled frame's chunks, encoded in those layers, against
     that frame's own file. Layers cost each frame two more chunks' zip and meta.json and
     sparser positions (12 generated 30k frames: 1.9 %, 0.99x -> 1.01x the flipbook)."""
-    if layering.layers == 1 or seq.frames.kind != "sog" or not measured:
+    if layering.layers == 1 or seq.frames.kind != "sog" or not measured.numbers:
         return layering
-    number = sorted(measured)[len(measured) // 2]
-    frame = measured[number]
-    if len(frame) > LAYER_CHECK_MAX_GAUSSIANS:
+    middle = len(measured.numbers) // 2
+    number, rows = measured.numbers[middle], measured.groups[middle]
+    if len(rows) > LAYER_CHECK_MAX_GAUSSIANS:
         return layering
     try:
         own = size_of(seq.frames.paths[number])
     except OSError:  # gone since it was read: the windows' reads will say so
         return layering
     stage("weighing the layers against the flipbook's own files")
-    parts = window_parts(frame, 0, max_count, layering)
+    parts = window_parts(measured.scene.subset(rows), 0, max_count, layering)
     layered = sum(
         len(encode_job_payload(part.scene, options.seed, options.quality, part.sh_of is not None))
         for part in parts
@@ -1081,10 +1065,9 @@ def segment_sequence(
             options.layers, "rendering sampled frames", "reading sampled frames for the view"
         )
     )
-    sampled = _sampled_frames(seq)
-    views = Views.of(_framing_samples(sampled.values()), cameras)
-    measured = {k: sampled[k] for k in _spread(seq.count, MEASURE_TIMES)}
-    del sampled  # only the layers' frames are kept past the view, and none while encoding
+    framing, measured = _sampled_frames(seq)  # only the layers' frames are kept
+    views = Views.of(framing, cameras)
+    del framing
     layering = _sequence_layers(seq, measured, views.view, options.layers, options.sh_apart)
     if options.layers is None:
         layering = _layers_within_flipbook(seq, measured, layering, max_count, options, stage=stage)
@@ -1121,18 +1104,77 @@ def _spread(count: int, n: int) -> list[int]:
     return sorted({round(k) for k in np.linspace(0, count - 1, min(n, count))})
 
 
-def _sampled_frames(seq: FrameSequence) -> dict[int, Scene]:
-    """A few frames spread over the sequence, by number, read once for the opening view (a
-    first frame alone can be a launching rocket whose explosion fills the later frames) and
-    for measuring the layers."""
-    return {k: seq.read(k, k + 1).scene for k in _spread(seq.count, VIEW_FRAMES)}
+@dataclass(frozen=True)
+class _Measured:
+    """The frames a sequence's layers are measured on, joined as one type-0 scene: their
+    numbers, in order, and each one's rows (its group)."""
+
+    scene: Scene
+    numbers: list[int]
+    groups: list[Ints]
 
 
-def _framing_samples(frames: Collection[Scene]) -> Gaussians:
-    """The frames' Gaussians joined as Views.of samples them (FRAMING_SAMPLE in all, each
-    frame its share), not every frame whole: five 500k-Gaussian frames were copied whole."""
-    share = max(1, FRAMING_SAMPLE // max(len(frames), 1))
-    return Gaussians.concat([framing_sample(frame.gaussians, share) for frame in frames])
+def _sampled_frames(seq: FrameSequence) -> tuple[Gaussians, _Measured]:
+    """The Gaussians of VIEW_FRAMES frames spread over the sequence joined as Views.of samples
+    them (FRAMING_SAMPLE in all, each frame its share, without SH bands: the view does not
+    look at colour) for the opening view (a first frame alone can be a launching rocket whose
+    explosion fills the later frames), and the MEASURE_TIMES spread frames the layers are
+    measured on. Each frame is read once and let go as it is sampled and, for the measured
+    ones, copied into the joined scene: with 500k SH3 frames all five were held, then the
+    measured three twice and 1M samples with their bands (the parent 1.8 -> 1.1 GB)."""
+    picks = _spread(seq.count, VIEW_FRAMES)
+    numbers = _spread(seq.count, MEASURE_TIMES)
+    share = max(1, FRAMING_SAMPLE // max(len(picks), 1))
+    sizes = [seq.shapes[k][0] for k in numbers]
+    bounds = np.cumsum([0, *sizes])
+    joined = _JoinedFrames(int(bounds[-1]), seq)
+    samples: list[Gaussians] = []
+    for k in sorted({*picks, *numbers}):
+        frame = seq.read(k, k + 1).scene
+        if k in picks:
+            bare = replace(frame.gaussians, shN=np.zeros((len(frame), 0, 3), np.float32))
+            samples.append(framing_sample(bare, share))
+        if k in numbers:
+            at = numbers.index(k)
+            joined.put(int(bounds[at]), frame)
+        del frame
+    groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds.tolist())]
+    return Gaussians.concat(samples), _Measured(joined.scene(), numbers, groups)
+
+
+class _JoinedFrames:
+    """Frames copied one by one into one type-0 scene's arrays, made on the first."""
+
+    def __init__(self, total: int, seq: FrameSequence) -> None:
+        self.total, self.seq = total, seq
+        self.arrays: list[np.ndarray] = []
+        self.ids = np.zeros(total, np.float64)
+
+    def put(self, start: int, frame: Scene) -> None:
+        """Frame ``frame`` at rows ``start``.. (its frame number as each row's id)."""
+        g = frame.gaussians
+        columns = [g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN]
+        if not self.arrays:
+            self.arrays = [np.empty((self.total, *a.shape[1:]), a.dtype) for a in columns]
+        for into, column in zip(self.arrays, columns, strict=True):
+            into[start : start + len(g)] = column
+        assert frame.timeline is not None
+        self.ids[start : start + len(g)] = frame.timeline.t0
+
+    def scene(self) -> Scene:
+        """The joined frames (an empty scene when there were none)."""
+        if not self.arrays:
+            g = Gaussians.empty(SH_BANDS_BY_COEFFS[self.seq.sh_coeffs])
+        else:
+            g = Gaussians(*self.arrays)
+        timeline = Timeline(
+            TimelineType.FRAME,
+            self.ids,
+            np.zeros_like(self.ids),
+            fps=self.seq.fps,
+            scene_length=self.seq.count / self.seq.fps,
+        )
+        return Scene(g, timeline)
 
 
 COST_FRAMES = 3
