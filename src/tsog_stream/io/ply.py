@@ -84,11 +84,12 @@ def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents
     body = read_elements(data, header, ("vertex",), name=name)
     records = body.records["vertex"]
     rest = sh_column_order(k)
-    columns = gather_columns(records, (*REQUIRED, *rest))
+    groups = (POSITION, SCALES, ROTATION, (OPACITY,), F_DC, rest)
+    columns = [gather_columns(records, names) for names in groups]  # each its own array
     notes = body.notes
     notes.extend(nonfinite_notes(columns, (*REQUIRED, *rest)))
     extra = unmapped_columns(records, {*REQUIRED, *rest, *NORMALS}, notes)
-    return PlyContents(_split_columns(columns, k), extra, notes, header)
+    return PlyContents(_gaussians_of(columns, k), extra, notes, header)
 
 
 def read_ply(path: Readable) -> PlyContents:
@@ -117,16 +118,24 @@ def sh_column_order(k: int) -> tuple[str, ...]:
     return tuple(f"f_rest_{c * k + i}" for i in range(k) for c in range(3))
 
 
+GATHER_BLOCK_BYTES: Final = 1 << 20
+"""Rows of the file's body :func:`gather_columns` takes columns from at once: numpy copies
+an unaligned body (a header whose length is not a multiple of 4) before taking from it, and
+a whole body's copy was as large as the file."""
+
+
 def gather_columns(records: Records, names: Sequence[str]) -> F32:
     """Columns ``names`` as one (N, len(names)) float32 matrix, in a single pass when uniform."""
     base = _uniform_base(records.dtype)
+    out = np.empty((len(records), len(names)), np.float32)
     if base is not None:
         fields = records.dtype.names or ()
         matrix = records.view(base).reshape(len(records), len(fields))
-        position = {n: i for i, n in enumerate(fields)}
-        picked = np.take(matrix, [position[n] for n in names], axis=1)
-        return picked.astype(np.float32, copy=False)
-    out = np.empty((len(records), len(names)), np.float32)
+        position = [{n: i for i, n in enumerate(fields)}[n] for n in names]
+        step = max(1, GATHER_BLOCK_BYTES // max(1, records.dtype.itemsize))
+        for start in range(0, len(records), step):  # an unaligned body is copied to take from
+            out[start : start + step] = np.take(matrix[start : start + step], position, axis=1)
+        return out
     for j, column in enumerate(names):
         out[:, j] = records[column]
     return out
@@ -144,30 +153,33 @@ def _uniform_base(dtype: np.dtype[np.void]) -> np.dtype[np.generic] | None:
     return base if dtype.itemsize == base.itemsize * len(dtype.names) else None
 
 
-def _split_columns(columns: F32, k: int) -> Gaussians:
-    """Cut the gathered matrix (REQUIRED, then f_rest in :func:`sh_column_order`) into Gaussians."""
-    n = columns.shape[0]
-    return Gaussians(
-        means=columns[:, 0:3],
-        scales=columns[:, 3:6],
-        quats=columns[:, 6:10],
-        opacities=columns[:, 10],
-        sh0=columns[:, 11:14],
-        shN=columns[:, 14:].reshape(n, k, 3),
-    )
+def _gaussians_of(columns: Sequence[F32], k: int) -> Gaussians:
+    """Gaussians of the gathered columns of each attribute (POSITION, SCALES, ROTATION,
+    OPACITY, F_DC, then f_rest in :func:`sh_column_order`), taken as they are: one matrix of
+    every column, cut into the attributes' copies, held a 500k SH3 file's Gaussians twice
+    beside its bytes."""
+    means, scales, quats, opacity, sh0, rest = columns
+    return Gaussians(means, scales, quats, opacity.reshape(-1), sh0, rest.reshape(len(rest), k, 3))
 
 
-def nonfinite_notes(columns: F32, names: Sequence[str]) -> list[str]:
-    """A note counting NaN/inf per column, or nothing when every value is finite."""
-    with np.errstate(invalid="ignore", over="ignore"):  # inf + -inf is NaN: that is the test
-        if np.isfinite(columns.sum(dtype=np.float64)):  # cheap test: no NaN/inf anywhere
-            return []
-    counts = np.count_nonzero(~np.isfinite(columns), axis=0)
+def nonfinite_notes(columns: F32 | Sequence[F32], names: Sequence[str]) -> list[str]:
+    """A note counting NaN/inf per column (of one matrix, or of several side by side), or
+    nothing when every value is finite."""
+    matrices = [columns] if isinstance(columns, np.ndarray) else list(columns)
+    counts = np.concatenate([_nonfinite_per_column(matrix) for matrix in matrices])
     where = [f"{n}: {int(c)}" for n, c in zip(names, counts, strict=True) if c]
     if not where:
         return []
     total = int(counts.sum())
     return [f"kept {total} non-finite values as read ({', '.join(where)})"]
+
+
+def _nonfinite_per_column(matrix: F32) -> npt.NDArray[np.intp]:
+    """NaN/inf in each column of ``matrix``; a sum first (cheap) when all are finite."""
+    with np.errstate(invalid="ignore", over="ignore"):  # inf + -inf is NaN: that is the test
+        if np.isfinite(matrix.sum(dtype=np.float64)):  # cheap test: no NaN/inf anywhere
+            return np.zeros(matrix.shape[1], np.intp)
+    return np.asarray(np.count_nonzero(~np.isfinite(matrix), axis=0), np.intp)
 
 
 def unmapped_columns(
