@@ -85,7 +85,7 @@ def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents
     records = body.records["vertex"]
     rest = sh_column_order(k)
     groups = (POSITION, SCALES, ROTATION, (OPACITY,), F_DC, rest)
-    columns = [gather_columns(records, names) for names in groups]  # each its own array
+    columns = gather_column_groups(records, groups)  # each its own array
     notes = body.notes
     notes.extend(nonfinite_notes(columns, (*REQUIRED, *rest)))
     extra = unmapped_columns(records, {*REQUIRED, *rest, *NORMALS}, notes)
@@ -125,20 +125,34 @@ a whole body's copy was as large as the file."""
 
 
 def gather_columns(records: Records, names: Sequence[str]) -> F32:
-    """Columns ``names`` as one (N, len(names)) float32 matrix, in a single pass when uniform."""
+    """Columns ``names`` as one (N, len(names)) float32 matrix."""
+    return gather_column_groups(records, [names])[0]
+
+
+def gather_column_groups(records: Records, groups: Sequence[Sequence[str]]) -> list[F32]:
+    """Each group of columns as its own (N, len(group)) float32 matrix, in one pass over the
+    rows, a block at a time when the fields share one type (each block copied once when the
+    body is unaligned, then every group taken from it)."""
+    outs = [np.empty((len(records), len(names)), np.float32) for names in groups]
     base = _uniform_base(records.dtype)
-    out = np.empty((len(records), len(names)), np.float32)
-    if base is not None:
-        fields = records.dtype.names or ()
-        matrix = records.view(base).reshape(len(records), len(fields))
-        position = [{n: i for i, n in enumerate(fields)}[n] for n in names]
-        step = max(1, GATHER_BLOCK_BYTES // max(1, records.dtype.itemsize))
-        for start in range(0, len(records), step):  # an unaligned body is copied to take from
-            out[start : start + step] = np.take(matrix[start : start + step], position, axis=1)
-        return out
-    for j, column in enumerate(names):
-        out[:, j] = records[column]
-    return out
+    if base is None:
+        for out, names in zip(outs, groups, strict=True):
+            for j, column in enumerate(names):
+                out[:, j] = records[column]
+        return outs
+    fields = records.dtype.names or ()
+    matrix = records.view(base).reshape(len(records), len(fields))
+    position = {n: i for i, n in enumerate(fields)}
+    picks = [[position[n] for n in names] for names in groups]
+    step = max(1, GATHER_BLOCK_BYTES // max(1, records.dtype.itemsize))
+    for start in range(0, len(records), step):
+        block = np.require(matrix[start : start + step], requirements="A")  # aligned, once
+        for out, pick in zip(outs, picks, strict=True):
+            if block.dtype == out.dtype:
+                np.take(block, pick, axis=1, out=out[start : start + step])
+            else:
+                out[start : start + step] = np.take(block, pick, axis=1)
+    return outs
 
 
 def _uniform_base(dtype: np.dtype[np.void]) -> np.dtype[np.generic] | None:
