@@ -186,7 +186,7 @@ def detect_sequence(path: Source) -> str | None:
     return None
 
 
-class _FrameStack:
+class FrameStack:
     """Output arrays allocated once from per-frame (count, SH coefficients), filled in order."""
 
     def __init__(self, counts: Sequence[int], coeffs: Sequence[int], pad_to: int = 0) -> None:
@@ -231,11 +231,19 @@ class _FrameStack:
             for a, b in zip(mine, theirs, strict=True)
         )
 
-    def scene(self, fps: float, first: int = 0, total: int | None = None) -> Scene:
-        """The type-0 scene: frame id = first + position, scene_length = total frames / fps."""
+    def scene(
+        self,
+        fps: float,
+        first: int = 0,
+        total: int | None = None,
+        numbers: Sequence[int] | None = None,
+    ) -> Scene:
+        """The type-0 scene: frame id = first + position (or the frames' ``numbers``, for frames
+        not in a run), scene_length = total frames / fps."""
         g = Gaussians(self.means, self.scales, self.quats, self.opacities, self.sh0, self.shN)
         frames = len(self.counts)
-        ids = np.repeat(np.arange(first, first + frames, dtype=np.float64), self.counts)
+        given = range(first, first + frames) if numbers is None else numbers
+        ids = np.repeat(np.asarray(given, dtype=np.float64), self.counts)
         length = (frames if total is None else total) / fps
         timeline = Timeline(
             TimelineType.FRAME, ids, np.zeros_like(ids), fps=fps, scene_length=length
@@ -413,7 +421,7 @@ class FrameWindow:
     def read(self, progress: Progress | None = None) -> Loaded4D:
         """The frames as one type-0 scene with absolute frame ids."""
         shapes = self.shapes
-        stack = _FrameStack([c for c, _ in shapes], [k for _, k in shapes], self.sh_coeffs)
+        stack = FrameStack([c for c, _ in shapes], [k for _, k in shapes], self.sh_coeffs)
         per_frame: list[tuple[str, list[str]]] = []
         extras: set[str] = set()
         for i, path in enumerate(self.paths):
@@ -466,6 +474,7 @@ __all__ = [
     "PLY_SEQUENCE",
     "SOG_SEQUENCE",
     "FrameSequence",
+    "FrameStack",
     "FrameWindow",
     "detect_sequence",
     "frame_number",

@@ -37,8 +37,8 @@ from ..container.objects import container_output
 from ..errors import InputError
 from ..framing import FRAMING_SAMPLE, dense_core, framing_sample, opening_view, vec3
 from ..io.objects import size_of
-from ..io.sequence import FrameSequence, FrameWindow
-from ..model import Gaussians, Scene, Timeline, TimelineType
+from ..io.sequence import FrameSequence, FrameStack, FrameWindow
+from ..model import Gaussians, Scene
 from ..morton import morton_parts
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
@@ -1126,55 +1126,20 @@ def _sampled_frames(seq: FrameSequence) -> tuple[Gaussians, _Measured]:
     numbers = _spread(seq.count, MEASURE_TIMES)
     share = max(1, FRAMING_SAMPLE // max(len(picks), 1))
     sizes = [seq.shapes[k][0] for k in numbers]
-    bounds = np.cumsum([0, *sizes])
-    joined = _JoinedFrames(int(bounds[-1]), seq)
+    joined = FrameStack(sizes, [seq.shapes[k][1] for k in numbers], seq.sh_coeffs)
     samples: list[Gaussians] = []
     for k in sorted({*picks, *numbers}):
-        frame = seq.read(k, k + 1).scene
+        frame = seq.read(k, k + 1).scene.gaussians
         if k in picks:
-            bare = replace(frame.gaussians, shN=np.zeros((len(frame), 0, 3), np.float32))
+            bare = replace(frame, shN=np.zeros((len(frame), 0, 3), np.float32))
             samples.append(framing_sample(bare, share))
         if k in numbers:
-            at = numbers.index(k)
-            joined.put(int(bounds[at]), frame)
+            joined.put(numbers.index(k), frame, str(seq.frames.paths[k]))
         del frame
-    groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds.tolist())]
-    return Gaussians.concat(samples), _Measured(joined.scene(), numbers, groups)
-
-
-class _JoinedFrames:
-    """Frames copied one by one into one type-0 scene's arrays, made on the first."""
-
-    def __init__(self, total: int, seq: FrameSequence) -> None:
-        self.total, self.seq = total, seq
-        self.arrays: list[np.ndarray] = []
-        self.ids = np.zeros(total, np.float64)
-
-    def put(self, start: int, frame: Scene) -> None:
-        """Frame ``frame`` at rows ``start``.. (its frame number as each row's id)."""
-        g = frame.gaussians
-        columns = [g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN]
-        if not self.arrays:
-            self.arrays = [np.empty((self.total, *a.shape[1:]), a.dtype) for a in columns]
-        for into, column in zip(self.arrays, columns, strict=True):
-            into[start : start + len(g)] = column
-        assert frame.timeline is not None
-        self.ids[start : start + len(g)] = frame.timeline.t0
-
-    def scene(self) -> Scene:
-        """The joined frames (an empty scene when there were none)."""
-        if not self.arrays:
-            g = Gaussians.empty(SH_BANDS_BY_COEFFS[self.seq.sh_coeffs])
-        else:
-            g = Gaussians(*self.arrays)
-        timeline = Timeline(
-            TimelineType.FRAME,
-            self.ids,
-            np.zeros_like(self.ids),
-            fps=self.seq.fps,
-            scene_length=self.seq.count / self.seq.fps,
-        )
-        return Scene(g, timeline)
+    bounds = np.cumsum([0, *sizes]).tolist()
+    groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds)]
+    measured = joined.scene(seq.fps, total=seq.count, numbers=numbers)
+    return Gaussians.concat(samples), _Measured(measured, numbers, groups)
 
 
 COST_FRAMES = 3
