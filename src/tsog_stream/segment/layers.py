@@ -147,13 +147,15 @@ def plan_layers(
     if scene.timeline is None or view is None or len(scene) < 2:
         return LayerPlan.single("one layer: nothing visible to measure layers on")
     times = list(times) or _times(scene)
+    if layers is None:
+        shown = np.mean([len(scene.at(t)) for t in times])  # each frame let go once counted
+        if shown < LAYERED_MIN_GAUSSIANS:
+            return LayerPlan.single(
+                f"one layer: a frame shows {shown:.0f} Gaussians "
+                f"(layered from {LAYERED_MIN_GAUSSIANS})"
+            )
     camera = from_capture(view, MEASURE_WIDTH)
-    counts, full = _full_pictures(scene, times, camera)
-    shown = np.mean(counts)
-    if layers is None and shown < LAYERED_MIN_GAUSSIANS:
-        return LayerPlan.single(
-            f"one layer: a frame shows {shown:.0f} Gaussians (layered from {LAYERED_MIN_GAUSSIANS})"
-        )
+    full = [to_uint8(render(scene.at(t), camera)) for t in times]  # a frame at a time
     quality = _quality_of_share(scene, groups, camera, dict(zip(times, full, strict=True)))
     limit = 1.0 if layers else AUTO_MAX_FRACTION
     shares: list[float] = []
@@ -175,27 +177,14 @@ def plan_layers(
     )
 
 
-def _full_pictures(
-    scene: Scene, times: Sequence[float], camera: Camera
-) -> tuple[list[int], list[U8]]:
-    """The Gaussians the scene shows at each time and their picture from ``camera``, each
-    frame evaluated, drawn and let go in turn (held all at once, three 500k-Gaussian frames
-    were 0.3 GB)."""
-    counts, pictures = [], []
-    for t in times:
-        frame = scene.at(t)
-        counts.append(len(frame))
-        pictures.append(to_uint8(render(frame, camera)))
-        del frame
-    return counts, pictures
-
-
 def _quality_of_share(
     scene: Scene, groups: Sequence[Ints], camera: Camera, full_at: dict[float, U8]
 ) -> Callable[[float, bool], float]:
     """PSNR (mean squared error over the sampled times, ``full_at`` the whole scene's picture
     at each) of the most important ``share`` of each group (``bare``: with DC colour only, as
-    a base whose SH bands are split off) against everything, drawn from ``camera``; cached."""
+    a base whose SH bands are split off) against everything, drawn from ``camera``; cached.
+    The frames are evaluated and drawn one at a time (held all at once, three 500k-Gaussian
+    frames were 0.3 GB)."""
     times, full = list(full_at), list(full_at.values())
     weights = importance(scene.gaussians)
     cache: dict[tuple[float, bool], float] = {}
