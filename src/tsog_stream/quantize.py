@@ -185,8 +185,8 @@ def _codebook(samples: npt.ArrayLike, *, refine: bool, weights: npt.ArrayLike | 
 
 
 def _sorted_wide(values: npt.NDArray[np.floating]) -> F64:
-    """The values sorted (before widening: faster), as float64; sorted in place, so that the
-    narrow copy is the only one beside the wide one."""
+    """The values sorted (before widening: faster), as float64. ``values`` is the caller's own
+    copy, sorted in place, so that it is the only narrow copy beside the wide one."""
     values.sort()
     return values.astype(np.float64)
 
