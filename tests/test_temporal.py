@@ -10,6 +10,7 @@ import pytest
 
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
 from tsog_stream.temporal import (
+    count_at,
     evaluate_all,
     lifespans,
     opacity_at,
@@ -110,6 +111,9 @@ def test_opacity_at_is_what_evaluation_gives_the_visible(kind: TimelineType) -> 
     assert np.array_equal(got[shown], scene.at(0.4).opacities)
     assert np.array_equal(got[shown], evaluated.opacities[shown])
     assert np.all(got[~shown] == -np.inf)
+    for t in (0.0, 0.15, 0.4, 0.9):
+        assert count_at(scene, t) == len(scene.at(t))  # counted without evaluating
+    assert count_at(Scene(g), 0.4) == n
 
 
 def test_time_range_prefers_declared_length() -> None:

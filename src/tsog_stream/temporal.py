@@ -156,6 +156,14 @@ def evaluate_at(scene: Scene, t: float, threshold: float | None = None) -> Gauss
     return _evaluate(scene, scene.timeline, t, mask, None if factor is None else factor[mask])
 
 
+def count_at(scene: Scene, t: float, threshold: float | None = None) -> int:
+    """How many Gaussians :func:`evaluate_at` gives at ``t``, without evaluating them."""
+    _check_time(t)
+    if scene.timeline is None:
+        return len(scene)
+    return int(np.count_nonzero(_visible(scene.timeline, t, _threshold(threshold))[0]))
+
+
 def evaluate_all(
     scene: Scene, t: float, threshold: float | None = None
 ) -> tuple[Gaussians, npt.NDArray[np.bool_]]:

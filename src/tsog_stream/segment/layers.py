@@ -29,7 +29,7 @@ from ..render import render, to_uint8
 from ..render.camera import Camera, from_capture
 from ..render.metrics import mse, psnr_from_mse
 from ..schemas.cameras import CaptureCamera
-from ..temporal import time_range
+from ..temporal import count_at, time_range
 
 LAYER_TARGETS_DB = (25.0, 33.0, 38.0, 42.0, 45.0, 48.0, 50.0)
 """PSNR (against all layers) that layers 0, 1, ... reach with the layers below them: the base
@@ -148,7 +148,7 @@ def plan_layers(
         return LayerPlan.single("one layer: nothing visible to measure layers on")
     times = list(times) or _times(scene)
     if layers is None:
-        shown = np.mean([len(scene.at(t)) for t in times])  # each frame let go once counted
+        shown = np.mean([count_at(scene, t) for t in times])
         if shown < LAYERED_MIN_GAUSSIANS:
             return LayerPlan.single(
                 f"one layer: a frame shows {shown:.0f} Gaussians "
