@@ -28,6 +28,7 @@ from tsog_stream.client.adaptive import (
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.codec.precision import DEFAULT_QUALITY
+from tsog_stream.codec.sh_bands import without_sh
 from tsog_stream.container.stream_index import StreamIndex, unpacked_index
 from tsog_stream.errors import InputError, MetaError
 from tsog_stream.io.sequence import open_sequence
@@ -36,6 +37,7 @@ from tsog_stream.model import Gaussians, Scene
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
 from tsog_stream.schemas.manifest import Manifest, dump_manifest, parse_manifest
+from tsog_stream.segment import layers as quality_layers
 from tsog_stream.segment.layers import LAYER_TARGETS_DB, LayerPlan, importance, top_share
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import make_app, start_server
@@ -644,3 +646,20 @@ def test_a_size_spread_skews_importance_like_a_capture_and_changes_only_sizes() 
     assert top_fifth(plain) < 0.45 and top_fifth(spread) > 0.55  # captures: 0.65-0.86
     with pytest.raises(InputError, match="size_spread"):
         SceneSpec(size_spread=-1.0)
+
+
+@pytest.mark.parametrize("bare", [False, True])
+def test_a_share_is_drawn_at_a_time_from_the_rows_that_time_shows(bare: bool) -> None:
+    """A share's picture at t is made from the chosen rows t shows, evaluated: exactly the
+    Gaussians of the chosen rows' scene at t (its SH bands dropped for a base), without copying
+    what every other time shows."""
+    scene = generate_scene(SceneSpec(background=600, objects=3, per_object=80, sh_bands=1))
+    groups = [np.arange(0, 300), np.arange(300, len(scene))]
+    chosen = top_share(importance(scene.gaussians), groups, 0.4)
+    for t in (0.1, 0.5, 0.9):
+        part = scene.subset(chosen)
+        expected = (without_sh(part) if bare else part).at(t)
+        got = quality_layers._share_at(scene, chosen, t, bare)
+        assert 0 < len(got) < len(chosen)
+        for mine, theirs in zip(vars(got).values(), vars(expected).values(), strict=True):
+            assert np.array_equal(mine, theirs)

@@ -15,6 +15,7 @@ from tsog_stream.temporal import (
     lifespans,
     opacity_at,
     recentre,
+    shown_at,
     time_range,
     visibility_half_width,
 )
@@ -113,6 +114,8 @@ def test_opacity_at_is_what_evaluation_gives_the_visible(kind: TimelineType) -> 
     assert np.all(got[~shown] == -np.inf)
     for t in (0.0, 0.15, 0.4, 0.9):
         assert count_at(scene, t) == len(scene.at(t))  # counted without evaluating
+        rows = scene.subset(np.flatnonzero(shown_at(scene, t)))
+        assert np.array_equal(rows.gaussians.means, scene.at(t).means)
     assert count_at(Scene(g), 0.4) == n
 
 

@@ -156,12 +156,18 @@ def evaluate_at(scene: Scene, t: float, threshold: float | None = None) -> Gauss
     return _evaluate(scene, scene.timeline, t, mask, None if factor is None else factor[mask])
 
 
-def count_at(scene: Scene, t: float, threshold: float | None = None) -> int:
-    """How many Gaussians :func:`evaluate_at` gives at ``t``, without evaluating them."""
+def shown_at(scene: Scene, t: float, threshold: float | None = None) -> npt.NDArray[np.bool_]:
+    """Which Gaussians :func:`evaluate_at` gives at ``t`` (it gives them in row order), without
+    evaluating them."""
     _check_time(t)
     if scene.timeline is None:
-        return len(scene)
-    return int(np.count_nonzero(_visible(scene.timeline, t, _threshold(threshold))[0]))
+        return np.ones(len(scene), bool)
+    return _visible(scene.timeline, t, _threshold(threshold))[0]
+
+
+def count_at(scene: Scene, t: float, threshold: float | None = None) -> int:
+    """How many Gaussians :func:`evaluate_at` gives at ``t``, without evaluating them."""
+    return int(np.count_nonzero(shown_at(scene, t, threshold)))
 
 
 def evaluate_all(
