@@ -82,7 +82,7 @@ def parse_compressed_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> 
     bounds_names = _bound_names(chunk)
     bounds = gather_columns(chunk, bounds_names)
     notes = body.notes
-    notes.extend(nonfinite_notes(bounds, bounds_names))
+    notes.extend(nonfinite_notes([bounds], bounds_names))
     per_vertex = bounds.astype(np.float64)[np.arange(n) // CHUNK_SIZE]
     packed = {p: np.asarray(vertex[p], dtype=np.uint32) for p in PACKED}
     color, alpha = _unpack_color(packed["packed_color"], per_vertex, len(bounds_names) > 12)

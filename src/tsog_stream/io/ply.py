@@ -119,7 +119,7 @@ def sh_column_order(k: int) -> tuple[str, ...]:
 
 
 GATHER_BLOCK_BYTES: Final = 1 << 20
-"""Rows of the file's body :func:`gather_columns` takes columns from at once: numpy copies
+"""Bytes of the file's body :func:`gather_column_groups` takes columns from at once: numpy copies
 an unaligned body (a header whose length is not a multiple of 4) before taking from it, and
 a whole body's copy was as large as the file."""
 
@@ -176,10 +176,9 @@ def _gaussians_of(columns: Sequence[F32], k: int) -> Gaussians:
     return Gaussians(means, scales, quats, opacity.reshape(-1), sh0, rest.reshape(len(rest), k, 3))
 
 
-def nonfinite_notes(columns: F32 | Sequence[F32], names: Sequence[str]) -> list[str]:
-    """A note counting NaN/inf per column (of one matrix, or of several side by side), or
-    nothing when every value is finite."""
-    matrices = [columns] if isinstance(columns, np.ndarray) else list(columns)
+def nonfinite_notes(matrices: Sequence[F32], names: Sequence[str]) -> list[str]:
+    """A note counting NaN/inf per column of the matrices side by side (``names`` in that
+    order), or nothing when every value is finite."""
     counts = np.concatenate([_nonfinite_per_column(matrix) for matrix in matrices])
     where = [f"{n}: {int(c)}" for n, c in zip(names, counts, strict=True) if c]
     if not where:

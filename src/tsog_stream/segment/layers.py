@@ -183,8 +183,7 @@ def _quality_of_share(
     """PSNR (mean squared error over the sampled times, ``full_at`` the whole scene's picture
     at each) of the most important ``share`` of each group (``bare``: with DC colour only, as
     a base whose SH bands are split off) against everything, drawn from ``camera``; cached.
-    The frames are evaluated and drawn one at a time (held all at once, three 500k-Gaussian
-    frames were 0.3 GB)."""
+    Each time's share is evaluated and drawn on its own (:func:`_share_at`)."""
     times, full = list(full_at), list(full_at.values())
     weights = importance(scene.gaussians)
     cache: dict[tuple[float, bool], float] = {}
