@@ -27,15 +27,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import sample, write_section
+from common import alti_gaussians, write_section
 from tsog_stream.client import open_stream
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import open_sequence
-from tsog_stream.model import Gaussians, TimelineType
+from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import (
     SegmentOptions,
     SegmentReport,
@@ -46,7 +44,6 @@ from tsog_stream.server.link import LinkShape
 from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.throttled_play import play_through_link
 
-ALTI = "3dgs/gsplat_pr176_alti_splatfacto.npz"
 FACTORS = (0.5, 1.0)
 LATENCY_S = 0.05
 FPS = 30.0
@@ -96,15 +93,7 @@ def _three_ways(
 
 def alti_flipbook(work: Path) -> Clip:
     """The real SH3 capture as 10 frames at 5 fps."""
-    data = np.load(sample(ALTI, in_tree=False))
-    gaussians = Gaussians.from_arrays(
-        data["means3d"],
-        data["scales"],
-        data["quats"],
-        data["opacities"].reshape(-1),
-        data["colors"],
-        shN=data["features_rest"],
-    )
+    gaussians = alti_gaussians()
     frames = work / "alti"
     frames.mkdir()
     for k in range(10):

@@ -10,7 +10,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tsog_stream.model import TimelineType
+import numpy as np
+
+from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
@@ -20,6 +22,8 @@ IN_TREE = REPO / "tests" / "data" / "real"
 SPLAT_TRANSFORM = REPO / "node_modules" / ".bin" / "splat-transform"
 """The reference SOG codec (npm ``@playcanvas/splat-transform``, installed by scripts/setup)."""
 SAMPLE_DATA_ENV = "TSOG_SAMPLE_DATA"
+ALTI = "3dgs/gsplat_pr176_alti_splatfacto.npz"
+"""gsplat's splatfacto output of the alti scene: 22589 trained Gaussians with three SH bands."""
 
 
 def sample(rel: str, *, in_tree: bool = True) -> Path:
@@ -35,6 +39,19 @@ def sample(rel: str, *, in_tree: bool = True) -> Path:
     raise SystemExit(
         f"benchmark sample {rel} not found: set {SAMPLE_DATA_ENV}=/path/to/data (the layout of "
         "../shared/data, see its PROVENANCE.md) or put shared/data beside the checkout"
+    )
+
+
+def alti_gaussians() -> Gaussians:
+    """The alti capture's Gaussians (an npz no reader takes: gsplat's arrays by name)."""
+    data = np.load(sample(ALTI, in_tree=False))
+    return Gaussians.from_arrays(
+        data["means3d"],
+        data["scales"],
+        data["quats"],
+        data["opacities"].reshape(-1),
+        data["colors"],
+        shN=data["features_rest"],
     )
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import zlib
 from pathlib import Path
 from typing import Any
@@ -37,12 +38,14 @@ from tsog_stream.codec.precision import (
     stretch,
     to_codes,
 )
+from tsog_stream.codec.sh_bands import encode_sh_bands
 from tsog_stream.codec.tsog_images import quantize_timeline
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
 from tsog_stream.framing import dense_core
-from tsog_stream.model import Scene, Timeline, TimelineType
+from tsog_stream.model import Gaussians, Scene, Timeline, TimelineType
 from tsog_stream.opacity import alpha_to_logit, logit_to_alpha
+from tsog_stream.sh_palette import COLOUR_PER_SQUARED
 from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
 from tsog_stream.temporal import lifespans, recentre, reference_times, time_range
 
@@ -153,6 +156,32 @@ def test_positions_and_lifespans_stay_within_their_budgets(scene: Scene, quality
     assert np.all(_turn(cut.gaussians.quats, full.gaussians.quats) <= turn_budget + 1e-3)
     if quality <= 50:
         assert worst.max() > budget.max() / 100  # the budget is used, not ignored
+
+
+def _bands_colour_rms(decoded: Gaussians, source: Gaussians) -> float:
+    """RMS over Gaussians, channels and view directions of the colour error of the SH bands."""
+    squared = np.sum((decoded.shN.astype(np.float64) - source.shN) ** 2, axis=(1, 2))
+    return math.sqrt(float(np.mean(squared)) * COLOUR_PER_SQUARED)
+
+
+@pytest.mark.parametrize("quality", [90, 75])
+def test_the_sh_bands_colour_error_grows_within_the_colour_slack(quality: int) -> None:
+    """docs/spec.md §5.1: below 100 the palette's entries merge while the bands' colour error
+    (RMS over Gaussians and view directions) stays within its quality-100 palette's plus
+    f · 0.1 (decoded: through the 8-bit codebook as well); an SH-band chunk alike."""
+    scene = Scene(static_gaussians(3000, sh_bands=3, seed=4))
+    source = scene.subset(texel_order(scene)).gaussians
+    full, cut = encode_chunk(scene), encode_chunk(scene, quality=quality)
+    entries = [json.loads(files["meta.json"])["shN"]["count"] for files in (full, cut)]
+    assert entries[1] < entries[0] == 2048
+    was = _bands_colour_rms(decode_chunk(full).gaussians, source)
+    now = _bands_colour_rms(decode_chunk(cut).gaussians, source)
+    slack = budget_fraction(quality) * COLOUR_AT_ZERO
+    assert was + 0.5 * slack < now <= was + slack * 1.02
+    bands = [encode_sh_bands(scene, quality=q) for q in (100, quality)]
+    assert bands[0] == encode_sh_bands(scene)
+    counts = [json.loads(files["meta.json"])["shN"]["count"] for files in bands]
+    assert counts[1] == entries[1] < counts[0]
 
 
 def test_motion_seen_away_from_its_reference_time_keeps_the_worst_case_bound() -> None:

@@ -12,7 +12,9 @@ import pytest
 
 from tsog_stream import sh_palette
 from tsog_stream.errors import InputError
+from tsog_stream.render.sh import sh_basis
 from tsog_stream.sh_palette import (
+    COLOUR_PER_SQUARED,
     PASSES_BASE,
     PASSES_PER_RATIO,
     _Work,
@@ -328,3 +330,72 @@ def test_merged_means_are_each_hosts_weighted_mean_with_its_movers_in_order() ->
             for own in (False, True):
                 merged, _, _ = sh_palette._merge(points.copy(), mass, movers, partner, own=own)
                 np.testing.assert_array_equal(merged, expected)
+
+
+def _colour_rms(vectors: F32, centroids: F32, labels: npt.ArrayLike) -> float:
+    """RMS over vectors, channels and view directions of the colour error the bands make."""
+    return math.sqrt(palette_mse(vectors, centroids, labels) * COLOUR_PER_SQUARED)
+
+
+def test_colour_per_squared_is_the_mean_over_view_directions() -> None:
+    """An f_rest error vector's squared colour error averaged over the sphere (the renderer's
+    basis, 20000 evenly spread directions) and the three channels is its squared length
+    times COLOUR_PER_SQUARED."""
+    count = 20000
+    index = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * index / count
+    ring = np.sqrt(1.0 - z * z)
+    angle = math.pi * (1.0 + math.sqrt(5.0)) * index
+    dirs = np.stack([ring * np.cos(angle), ring * np.sin(angle), z], axis=1)
+    basis = sh_basis(dirs, 16)[:, 1:]  # the bands beyond DC
+    errors = np.random.default_rng(2).standard_normal((5, 3, 15))  # channel-major, as f_rest
+    for error in errors:
+        colour = basis @ error.T  # (directions, channels)
+        mean_square = float(np.mean(colour**2))
+        assert mean_square == pytest.approx(np.sum(error**2) * COLOUR_PER_SQUARED, rel=2e-3)
+
+
+@pytest.mark.parametrize("slack", [0.0005, 0.002, 0.01])
+def test_a_slack_merges_entries_while_the_colour_error_stays_within_it(slack: float) -> None:
+    vectors = _sh_like(4000, 45, seed=5)
+    full, full_labels = fit_palette(vectors, 1024, seed=2)
+    centroids, labels = fit_palette(vectors, 1024, seed=2, slack=slack)
+    assert len(centroids) < len(full) and int(labels.max()) < len(centroids)
+    assert len(np.unique(labels)) == len(centroids)  # no entry left unused
+    within = _colour_rms(vectors, full, full_labels) + slack
+    assert _colour_rms(vectors, centroids, labels) <= within * (1 + 1e-5)
+    assert _colour_rms(vectors, centroids, labels) > within - 2 * slack  # the slack is spent
+
+
+def test_larger_slacks_keep_fewer_entries() -> None:
+    vectors = _sh_like(4000, 45, seed=6)
+    sizes = [len(fit_palette(vectors, 1024, seed=1, slack=s)[0]) for s in (0.0, 0.001, 0.004)]
+    assert sizes[0] == 1024 and sizes[0] > sizes[1] > sizes[2]
+
+
+def test_merged_entries_are_the_means_of_their_vectors() -> None:
+    """Ward merging keeps every entry the weighted mean of the vectors labelled with it, which
+    makes each merge's added error exact."""
+    vectors = _sh_like(3000, 24, seed=7)
+    centroids, labels = fit_palette(vectors, 512, seed=3, slack=0.003)
+    for entry in range(0, len(centroids), 17):
+        members = vectors[labels == entry].astype(np.float64)
+        assert np.allclose(centroids[entry], members.mean(axis=0), atol=1e-5)
+
+
+def test_an_exact_palette_merges_within_its_slack_too() -> None:
+    """Fewer distinct vectors than k: the palette starts exact (no error) and its slack
+    alone bounds the error."""
+    distinct = _sh_like(300, 45, seed=8)
+    vectors = distinct[np.random.default_rng(0).integers(0, 300, 5000)]
+    exact, exact_labels = fit_palette(vectors, 1024)
+    assert palette_mse(vectors, exact, exact_labels) == 0.0
+    centroids, labels = fit_palette(vectors, 1024, slack=0.002)
+    assert 1 <= len(centroids) < len(exact)
+    assert _colour_rms(vectors, centroids, labels) <= 0.002 * (1 + 1e-5)
+
+
+@pytest.mark.parametrize("slack", [-0.001, math.nan])
+def test_a_negative_or_missing_slack_is_refused(slack: float) -> None:
+    with pytest.raises(InputError, match="slack"):
+        fit_palette(_sh_like(100, 9, seed=1), 16, slack=slack)

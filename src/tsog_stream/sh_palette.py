@@ -11,11 +11,14 @@ the squared error — with a lower error in a small fraction of the time
    balanced kd-trees in PCA coordinates, one matrix product per leaf — and the cheapest
    merges that do not conflict are applied together, until K clusters remain;
 3. Lloyd refinement where each vector compares only its centroid's nearest centroids,
-   stopping early when the error improvement falls under a tolerance.
+   stopping early when the error improvement falls under a tolerance;
+4. below quality 100 (``slack``), the fitted entries merge by Ward cost, cheapest first,
+   while the view-dependent colour error they add stays within the slack.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Final
 
@@ -83,6 +86,15 @@ passes measured on 200k and 833k random SH3 vectors into 65536 (0.8 and 0.35 of 
 vector in all), within 2 % on 300k realistic ones."""
 PASS_ENTRY_WEIGHT: Final = 1.8
 """Work of a refinement pass per palette entry (see PASS_WEIGHT)."""
+COARSEN_ROUND_LEAST: Final = 64
+"""Merging a palette's entries within a slack stops after a round that merged fewer than
+1/64 of them: the last rounds merged a few dozen of 36k each, for a neighbour search of all
+(100k random SH3 vectors: 9 rounds, 0.5 s, against 5; docs/design/quantizers.md)."""
+COLOUR_PER_SQUARED: Final = 1.0 / (12.0 * math.pi)
+"""Mean squared view-dependent colour error (each channel, over every view direction) per unit
+of an f_rest vector's squared error: the bands' basis is orthonormal over the sphere, so each
+coefficient's error adds its square over 4 pi to the mean over directions, and a vector holds
+three channels' coefficients."""
 
 
 def palette_size(n: int) -> int:
@@ -103,14 +115,18 @@ def fit_palette(
     seed: int = 0,
     iterations: int = 10,
     progress: Progress | None = None,
+    slack: float = 0.0,
 ) -> tuple[F32, Labels]:
     """Palette (M, D) float32 with M ≤ k rows and one label per vector (uint16 if M ≤ 65536).
 
-    ``k`` defaults to :func:`palette_size`. M < k only when there are fewer than k distinct
-    vectors; the palette is then exact. ``iterations`` bounds the refinement passes (like
-    splat-transform's ``--sh-iterations``). The result depends only on the input and ``seed``.
-    The fit reads the distinct rows only: vectors passed without a reference kept elsewhere
-    (``fit_palette(make_vectors())``) are freed before it starts.
+    ``k`` defaults to :func:`palette_size`. Without ``slack``, M < k only when there are
+    fewer than k distinct vectors; the palette is then exact. ``slack`` (colour units, 0..1)
+    lets the RMS over vectors and view directions of the colour error the bands make grow by
+    that much beyond the k-entry fit's: its entries then merge, cheapest first, while they stay
+    within it (:func:`coarsened`). ``iterations`` bounds the refinement passes (like
+    splat-transform's ``--sh-iterations``). The result depends only on the input, ``seed`` and
+    ``slack``. The fit reads the distinct rows only: vectors passed without a reference kept
+    elsewhere (``fit_palette(make_vectors())``) are freed before it starts.
     """
     data = _as_vectors(vectors)
     del vectors
@@ -119,27 +135,99 @@ def fit_palette(
         raise InputError(f"palette size k must be at least 1, got {k}")
     if iterations < 0:
         raise InputError(f"iterations must be >= 0, got {iterations}")
+    if not slack >= 0.0:
+        raise InputError(f"palette slack must be >= 0, got {slack}")
     report = progress or (lambda _fraction: None)
     unique, inverse, weights = _unique_rows(data)
     del data
-    if len(unique) <= target:
-        report(1.0)
-        return unique, _labels(inverse, len(unique))
     with threadpool_limits(limits=1, user_api="blas"):
-        centroids, labels = _fit(
-            unique, weights, target, seed=seed, iterations=iterations, report=report
-        )
+        if len(unique) <= target:
+            centroids, labels, error = unique, np.arange(len(unique)), 0.0
+        else:
+            centroids, labels, error = _fit(
+                unique, weights, target, seed=seed, iterations=iterations, report=report
+            )
+        entries = len(centroids)
+        if slack > 0.0 and entries > 1:
+            allowance = added_allowance(error, float(weights.sum()), slack)
+            centroids, entry = coarsened(centroids, labels, weights, allowance, seed=seed)
+            labels = entry[labels]
     report(1.0)
-    return centroids, _labels(labels[inverse], target)
+    return centroids, _labels(labels[inverse], entries)
+
+
+def added_allowance(error: float, total: float, slack: float) -> float:
+    """Squared error (summed over ``total`` weighted vectors) that merging a palette's entries
+    may add to its ``error`` so their RMS colour error grows by at most ``slack``."""
+    rms = math.sqrt(error / total * COLOUR_PER_SQUARED)
+    return total * ((rms + slack) ** 2 - rms**2) / COLOUR_PER_SQUARED
+
+
+def coarsened(
+    centroids: F32, labels: Ints, weights: F64, allowance: float, *, seed: int = 0
+) -> tuple[F32, Ints]:
+    """The palette's entries merged in Ward rounds, cheapest first, while the squared error
+    they add stays within ``allowance``, and each old entry's new one (unused entries are
+    dropped). Entries that are their vectors' weighted means (a fit's, or distinct vectors)
+    add exactly their Ward cost when merged; each round's addition is measured, and a round
+    that would overrun is retried with half the merges. Rounds stop once one merges under
+    1/COARSEN_ROUND_LEAST of the entries: each costs a neighbour search of them all."""
+    counted = np.bincount(labels, weights, minlength=len(centroids)).astype(np.float64)
+    used = np.flatnonzero(counted > 0)
+    entry = np.zeros(len(centroids), np.intp)
+    entry[used] = np.arange(len(used))
+    means, mass = np.take(centroids, used, axis=0), counted[used]
+    axes = _principal_axes(means, mass)
+    rng = np.random.default_rng(seed)
+    left = allowance
+    while len(means) > 1:
+        partner, cost = _cheapest_partner(means, mass, _neighbours(means, axes, 1, rng))
+        merged = _round_within(means, mass, (partner, cost), left)
+        if merged is None:
+            break
+        before = len(means)
+        means, mass, new_id, added = merged
+        left -= added
+        entry = new_id[entry]
+        if (before - len(means)) * COARSEN_ROUND_LEAST < before:
+            break
+    return means, entry
+
+
+def _round_within(
+    means: F32, mass: F64, partners: tuple[Ints, F64], left: float
+) -> tuple[F32, F64, Ints, float] | None:
+    """One merging round whose measured added error is within ``left`` (the merges its
+    cheapest costs afford, halved until it fits), or None when not even one fits."""
+    partner, cost = partners
+    need = min(_affordable(partner, cost, left), len(means) - 1)
+    while need > 0:
+        movers = _pick_moves(partner, cost, need)
+        merged, merged_mass, new_id = _merge(means, mass, movers, partner, own=False)
+        added = float(np.dot(mass, _distances(means, merged, new_id)))
+        if added <= left:
+            return merged, merged_mass, new_id, added
+        need //= 2
+    return None
+
+
+def _affordable(partner: Ints, cost: F64, left: float) -> int:
+    """How many of the cheapest finite costs add up to at most ``left``, a mutual pair's
+    counted once (it is one merge)."""
+    ids = np.arange(len(partner))
+    once = np.isfinite(cost) & ~((partner[partner] == ids) & (ids > partner))
+    ascending = np.sort(cost[once])
+    return int(np.searchsorted(np.cumsum(ascending), left, side="right"))
 
 
 def _fit(
     unique: F32, weights: F64, target: int, *, seed: int, iterations: int, report: Progress
-) -> tuple[F32, Ints]:
-    """Agglomeration then refinement of more than ``target`` distinct weighted vectors, on one
-    BLAS thread: the leaf products are thousands of small matrix products, which a
-    multi-threaded BLAS ran 60x slower on a busy machine, and one thread keeps every product's
-    summation order (and so the palette) the same in any process. ``unique`` is reordered in
+) -> tuple[F32, Ints, float]:
+    """Agglomeration then refinement of more than ``target`` distinct weighted vectors, with
+    the palette's squared error (weighted sum), on one BLAS thread (the caller's): the leaf
+    products are thousands of small matrix products, which a multi-threaded BLAS ran 60x
+    slower on a busy machine, and one thread keeps every product's summation order (and so
+    the palette) the same in any process. ``unique`` is reordered in
     place (by :func:`_refine`)."""
     rng = np.random.default_rng(seed)
     axes = _principal_axes(unique, weights)
@@ -551,8 +639,9 @@ def _refine(
     iterations: int,
     rng: np.random.Generator,
     meter: _Work,
-) -> tuple[F32, Ints]:
+) -> tuple[F32, Ints, float]:
     """Lloyd passes restricted to each centroid's nearest centroids; stop when gains stall.
+    Returns the centroids, each point's label and the weighted squared error.
 
     The points are visited in label order, so a block's candidate centroids are a few rows
     used over and over (gathered at random they took 60 % of a pass: 833k vectors 20 -> 15 s).
@@ -580,7 +669,7 @@ def _refine(
             break
     unsorted = np.empty_like(labels)
     unsorted[order] = labels
-    return centroids, unsorted
+    return centroids, unsorted, float(np.einsum("n,n->", weights, errors))
 
 
 def _assign(points: F32, centroids: F32, options: Ints, labels: Ints) -> Ints:

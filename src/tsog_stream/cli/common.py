@@ -46,14 +46,14 @@ SEED = Integer(0, 2**32 - 1)
 """Seeds of numpy's generators."""
 QUALITY = Integer(0, 100)
 QUALITY_HELP = (
-    "0..100: how precisely to keep positions, rotations, scales, colours, opacity, lifespans "
-    "and motion (default 90: within 0.6 dB of 100 on every scene measured, 5-17 %% smaller; "
-    "100 keeps every 16-bit code and every Gaussian). Lower keeps only what fits an error "
-    "budget per Gaussian: at 50, an opaque Gaussian moves by at most 1/1935 of the radius of "
-    "the chunk's dense core (about a quarter pixel of a 1080p view of it; a faint one "
-    "1/alpha times that, as a root mean square over its lifespan when it moves), a lifespan "
-    "by 1/40 of its temporal scale, and Gaussians of alpha 0.05 or less are left out "
-    "(0.2 (1 - q/100)^2; docs/spec.md 5.1)"
+    "0..100: how precisely to keep positions, rotations, scales, colours, SH bands, opacity, "
+    "lifespans and motion (default 90: within 0.6 dB of 100 on every real scene measured, "
+    "5-51 %% smaller; 100 keeps every 16-bit code and every Gaussian). Lower keeps only what "
+    "fits an error budget per Gaussian: at 50, an opaque Gaussian moves by at most 1/1935 of "
+    "the radius of the chunk's dense core (about a quarter pixel of a 1080p view of it; a "
+    "faint one 1/alpha times that, as a root mean square over its lifespan when it moves), a "
+    "lifespan by 1/40 of its temporal scale, and Gaussians of alpha 0.05 or less are left "
+    "out (0.2 (1 - q/100)^2; docs/spec.md 5.1)"
 )
 
 

@@ -20,6 +20,9 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
 - scales and base colours: at most ``f * SCALE_AT_ZERO`` (log-sigma) and ``f *
   COLOUR_AT_ZERO`` (colour 0..1) beyond their codebook error: labels move to fewer distinct
   entries of the same 256-entry codebook; opacity within ``f * ALPHA_AT_ZERO``;
+- SH bands: the colour they add in a view within ``f * COLOUR_AT_ZERO`` beyond the full
+  palette's error, as a root mean square over Gaussians and view directions: palette
+  entries merge while it holds (:func:`~tsog_stream.sh_palette.fit_palette`'s ``slack``);
 - the motion of rotations, scales, colours and opacity (their temporal coefficients): over
   the Gaussian's lifespan, each may add as much again as its base may move (the rotation
   budget; the scale, colour and opacity slacks), split evenly over the orders, as a root
@@ -89,7 +92,9 @@ rendered PSNR is within 0.1 dB of quality 100's, worst view within 0.1 dB or bet
 8.3-17 % fewer bytes (the guitar clips 0.1-0.2 dB below for 9.9-17 %); on the fireworks PLY
 frames 0.6 dB below (worst view 0.8) for 5.3 %. 75 costs up to 2.6 dB on those
 (coffeeshort2), 3.8-4.1 dB on the guitar clips and 9 dB on the fireworks (worst view
-12.5)."""
+12.5). With SH bands (benchmarks/bench_palette.py, 2026-11-28): the real alti and fruit-drops
+captures within 0.01 dB of 100 for 51 % and 6 % fewer bytes; generated random bands 1.5 dB
+below for 29 %."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
@@ -238,11 +243,15 @@ class Slacks:
     """f_dc."""
     alpha: float
     """Alpha (0..1)."""
+    bands: float
+    """The colour (0..1) the SH bands add in a view: the RMS over Gaussians and directions of
+    its error beyond the full palette's (sh_palette.fit_palette's ``slack``)."""
 
     @classmethod
     def at(cls, f: float) -> Slacks:
         """The slacks at a budget fraction f."""
-        return cls(f * SCALE_AT_ZERO, f * COLOUR_AT_ZERO / SH_C0, f * ALPHA_AT_ZERO)
+        colour = f * COLOUR_AT_ZERO
+        return cls(f * SCALE_AT_ZERO, colour / SH_C0, f * ALPHA_AT_ZERO, colour)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from ..schemas import ShBandsMeta, dump_sh_meta, parse_sh_meta
 from .bundle import read_bundle
 from .chunk import checked_images, texel_order
 from .layout import image_size
+from .precision import QUALITY_MAX, Slacks, budget_fraction
 from .sog_decode import decode_sh
 from .sog_encode import FractionDone, encode_sh_palette
 from .webp import ImageDecoder, encode_many
@@ -62,17 +63,23 @@ def without_sh(scene: Scene) -> Scene:
 
 
 def encode_sh_bands(
-    host: Scene, *, seed: int = 0, on_palette: FractionDone | None = None
+    host: Scene,
+    *,
+    seed: int = 0,
+    quality: int = QUALITY_MAX,
+    on_palette: FractionDone | None = None,
 ) -> dict[str, bytes]:
     """Files of the SH-band chunk of ``host`` (the Gaussians its chunk is encoded from, in any
-    order: they are put in the host chunk's texel order here), meta.json last; ``on_palette``
-    hears the palette fitting's fraction done."""
+    order: they are put in the host chunk's texel order here), meta.json last; ``quality``
+    sets the palette's slack as for a whole chunk; ``on_palette`` hears the palette fitting's
+    fraction done."""
     if len(host) == 0 or host.gaussians.sh_bands == 0:
         raise InputError("an SH-band chunk needs Gaussians with SH bands beyond DC")
     ordered = host.gaussians.subset(texel_order(host))
     width, height = image_size(len(ordered))
+    slack = Slacks.at(budget_fraction(quality)).bands
     images, shn = encode_sh_palette(
-        ordered, width, height, seed, lambda _msg: None, on_palette=on_palette
+        ordered, width, height, seed, lambda _msg: None, on_palette=on_palette, slack=slack
     )
     meta = {
         "version": C.SOG_VERSION,

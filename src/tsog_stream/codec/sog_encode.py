@@ -105,10 +105,12 @@ def encode_sh_palette(
     *,
     on_palette: FractionDone | None = None,
     given_up: bool = False,
+    slack: float = 0.0,
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Palette (k-means on f_rest), its codebook, the centroid image and the label image;
     ``on_palette`` hears the fitting's fraction done (most of an SH chunk's encoding).
-    ``given_up``: the Gaussians' SH bands are dropped once read (their owner is done)."""
+    ``given_up``: the Gaussians' SH bands are dropped once read (their owner is done).
+    ``slack``: the view-dependent colour error the palette may add (Slacks.bands)."""
     coeffs, bands = gaussians.shN.shape[1], gaussians.sh_bands
 
     def fitted(fraction: float) -> None:
@@ -121,6 +123,7 @@ def encode_sh_palette(
         palette_size(len(gaussians)),
         seed=seed,
         progress=fitted,
+        slack=slack,
     )
     count = centroids.shape[0]
     codebook = short_codebook(build_codebook(centroids))
@@ -210,7 +213,14 @@ def encode_appearance(
     if gaussians.sh_bands > 0 and len(gaussians) > 0:
         note("SH palette")
         sh_images, meta["shN"] = encode_sh_palette(
-            gaussians, width, height, seed, note, on_palette=on_palette, given_up=given_up
+            gaussians,
+            width,
+            height,
+            seed,
+            note,
+            on_palette=on_palette,
+            given_up=given_up,
+            slack=slacks.bands if slacks is not None else 0.0,
         )
         images.add(sh_images)
     return meta

@@ -351,7 +351,7 @@ def encode_job_payload(
         report_progress(fraction if sh_bands else palette_progress(coeffs, fraction))
 
     if sh_bands:
-        return bundle_bytes(encode_sh_bands(scene, seed=seed, on_palette=fitted))
+        return bundle_bytes(encode_sh_bands(scene, seed=seed, quality=quality, on_palette=fitted))
     files = encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted, given_up=True)
     return bundle_bytes(files)
 
