@@ -88,8 +88,16 @@ PASS_ENTRY_WEIGHT: Final = 1.8
 """Work of a refinement pass per palette entry (see PASS_WEIGHT)."""
 COARSEN_ROUND_LEAST: Final = 64
 """Merging a palette's entries within a slack stops after a round that merged fewer than
-1/64 of them: the last rounds merged a few dozen of 36k each, for a neighbour search of all
-(100k random SH3 vectors: 9 rounds, 0.5 s, against 5; docs/design/quantizers.md)."""
+1/64 of them: the last rounds merged a few dozen of 36k each, for a pass over all (100k
+random SH3 vectors: 9 rounds against 5, with a neighbour search each: 0.5 s against 0.2)."""
+COARSEN_NEIGHBOURS: Final = 1
+"""Nearest entries per tree each entry may merge with: found once, then renamed round after
+round. A search in every round took 0.22 s beside a 40k SH3 fit's 0.63 (0.10 s now, 0.8 %
+more entries kept); 2 and 4 per tree kept more entries, and took longer."""
+COARSEN_RESEARCH: Final = 4 / 3
+"""The entries' neighbours are searched again once a quarter of them have merged since the
+last search: renamed lists thin out as their entries merge (never searched again, quality
+75's slack stopped with under a third of it spent on 3000 random SH3 vectors)."""
 COLOUR_PER_SQUARED: Final = 1.0 / (12.0 * math.pi)
 """Mean squared view-dependent colour error (each channel, over every view direction) per unit
 of an f_rest vector's squared error: the bands' basis is orthonormal over the sphere, so each
@@ -171,34 +179,39 @@ def coarsened(
     dropped). Entries that are their vectors' weighted means (a fit's, or distinct vectors)
     add exactly their Ward cost when merged; each round's addition is measured, and a round
     that would overrun is retried with half the merges. Rounds stop once one merges under
-    1/COARSEN_ROUND_LEAST of the entries: each costs a neighbour search of them all."""
+    1/COARSEN_ROUND_LEAST of the entries."""
     counted = np.bincount(labels, weights, minlength=len(centroids)).astype(np.float64)
     used = np.flatnonzero(counted > 0)
     entry = np.zeros(len(centroids), np.intp)
     entry[used] = np.arange(len(used))
     means, mass = np.take(centroids, used, axis=0), counted[used]
-    axes = _principal_axes(means, mass)
     rng = np.random.default_rng(seed)
+    axes = _principal_axes(means, mass)
+    near, searched = _neighbours(means, axes, COARSEN_NEIGHBOURS, rng), len(means)
     left = allowance
     while len(means) > 1:
-        partner, cost = _cheapest_partner(means, mass, _neighbours(means, axes, 1, rng))
-        merged = _round_within(means, mass, (partner, cost), left)
+        merged = _round_within(means, mass, _cheapest_partner(means, mass, near), left)
         if merged is None:
             break
         before = len(means)
-        means, mass, new_id, added = merged
+        means, mass, new_id, added, kept = merged
         left -= added
         entry = new_id[entry]
         if (before - len(means)) * COARSEN_ROUND_LEAST < before:
             break
+        if len(means) * COARSEN_RESEARCH < searched:
+            near, searched = _neighbours(means, axes, COARSEN_NEIGHBOURS, rng), len(means)
+        else:  # the neighbours found before, renamed
+            near = new_id[near[kept]]
     return means, entry
 
 
 def _round_within(
     means: F32, mass: F64, partners: tuple[Ints, F64], left: float
-) -> tuple[F32, F64, Ints, float] | None:
+) -> tuple[F32, F64, Ints, float, npt.NDArray[np.bool_]] | None:
     """One merging round whose measured added error is within ``left`` (the merges its
-    cheapest costs afford, halved until it fits), or None when not even one fits."""
+    cheapest costs afford, halved until it fits): the new means and masses, each old entry's
+    new one, the error added and which old entries were kept; None when not even one fits."""
     partner, cost = partners
     need = min(_affordable(partner, cost, left), len(means) - 1)
     while need > 0:
@@ -206,7 +219,9 @@ def _round_within(
         merged, merged_mass, new_id = _merge(means, mass, movers, partner, own=False)
         added = float(np.dot(mass, _distances(means, merged, new_id)))
         if added <= left:
-            return merged, merged_mass, new_id, added
+            kept = np.ones(len(means), np.bool_)
+            kept[movers] = False
+            return merged, merged_mass, new_id, added, kept
         need //= 2
     return None
 
