@@ -6,8 +6,9 @@ the shared path makes look worse; this runs the encoder of that day itself (``RE
 checked out into a temporary git worktree) in turns with today's, on the same files: each
 input is read by each version's own reader and encoded in a child process (medians of
 ``ENCODES`` encodes; ``ROUNDS`` rounds, old and new in turn, as this machine drifts). Inputs:
-the real `.splatv` captures, and FreeTimeGS-style clips from the donut (short, medium, long
-lifespans) written as chunks and read back (few distinct scales and colours: the codebooks
+the real `.splatv` captures, the two real SH3 captures (their palette fitted, and below
+quality 100 merged within its slack), and FreeTimeGS-style clips from the donut (short,
+medium, long lifespans) written as chunks and read back (few distinct scales and colours: the codebooks
 are stored exactly, so the budgets' own cost shows plainly). Figures go to the
 "encode-then" section of docs/benchmarks.md and benchmarks/results/encode_then.json.
 
@@ -28,9 +29,10 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from common import REPO, sample, write_section
+from common import REPO, alti_gaussians, sample, write_section
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import load_scene
 from tsog_stream.synthetic import freetime_scene
 
@@ -48,6 +50,7 @@ TIMER = """
 import statistics, sys, time
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import load_scene
 scene = load_scene(sys.argv[1]).scene
 qualities = [int(q) for q in sys.argv[3].split(",")] if len(sys.argv) > 3 else [None]
@@ -112,6 +115,12 @@ def inputs(work: Path) -> dict[str, Path]:
         f"{name}.splatv": sample(f"4d/splatv/macaburguera_{name}.splatv", in_tree=False)
         for name in SPLATV
     }
+    alti = work / "alti.ply"
+    write_ply(alti, alti_gaussians())
+    chosen["alti (real, SH3), as a PLY"] = alti
+    chosen["fruit drops (real, SH3)"] = sample(
+        "3dgs/supersplat_pr291_fruit_drops_minimal.ply", in_tree=False
+    )
     donut = load_scene(sample("3dgs/v3dg_donut_fused.ply")).scene.gaussians
     for label, life in LIFESPANS.items():
         path = work / f"donut-{label}.sog"
