@@ -45,6 +45,7 @@ import psutil
 
 from common import write_section
 from tsog_stream import open_stream
+from tsog_stream.codec.precision import DEFAULT_QUALITY
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.model import Scene
@@ -138,9 +139,9 @@ def _segment(source: Scene | FrameSequence, path: Path, options: SegmentOptions)
 
 def measure(source: Scene | FrameSequence, engine: str, workers: int, path: Path) -> Run:
     """Segment ``source`` once on ``engine`` (local pool or a fresh Dask LocalCluster)."""
-    base = SegmentOptions(workers=workers, layers=1)
+    base = SegmentOptions(workers=workers, layers=1, quality=DEFAULT_QUALITY)
     if isinstance(source, FrameSequence):
-        base = SegmentOptions(workers=workers, layers=1, window_s=1 / source.fps)
+        base = replace(base, window_s=1 / source.fps)
     options = base
     with contextlib.ExitStack() as stack:
         cluster = None
@@ -171,7 +172,11 @@ def job_bytes(seq: FrameSequence, container_bytes: int) -> tuple[float, float, f
     max_count = max_gaussians_per_chunk(SegmentOptions().max_pixels, 3)
     one = LayerPlan.single()
     sent = [
-        len(pickle.dumps(WindowJob(seq.window(k, k + 1), k, max_count, one, plan, 0, 90)))
+        len(
+            pickle.dumps(
+                WindowJob(seq.window(k, k + 1), k, max_count, one, plan, 0, DEFAULT_QUALITY)
+            )
+        )
         for k in range(seq.count)
     ]
     arrays = [seq.read(k, k + 1).scene.gaussians for k in range(min(seq.count, 3))]
@@ -479,7 +484,8 @@ def main() -> None:
         "",
         f"Run {when} (`benchmarks/bench_cluster.py --gaussians {args.gaussians} --frames "
         f"{args.frames} --per-frame {args.per_frame}`), 2 cores. Each input segmented by each "
-        "engine in the same run, one layer, each run in a fresh process: `--workers N` (local "
+        "engine in the same run, one layer, at `tsog segment`'s default quality "
+        f"({DEFAULT_QUALITY}), each run in a fresh process: `--workers N` (local "
         "spawned processes; 1: in the parent) and `--cluster` on a fresh Dask LocalCluster of N "
         "single-threaded worker processes (its start not counted). CPU: the parent's, its "
         "children's and the Dask "
