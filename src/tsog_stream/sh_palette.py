@@ -131,7 +131,7 @@ def fit_palette(
     fewer than k distinct vectors; the palette is then exact. ``slack`` (colour units, 0..1)
     lets the RMS over vectors and view directions of the colour error the bands make grow by
     that much beyond the k-entry fit's: its entries then merge, cheapest first, while they stay
-    within it (:func:`coarsened`). ``iterations`` bounds the refinement passes (like
+    within it (:func:`_coarsened`). ``iterations`` bounds the refinement passes (like
     splat-transform's ``--sh-iterations``). The result depends only on the input, ``seed`` and
     ``slack``. The fit reads the distinct rows only: vectors passed without a reference kept
     elsewhere (``fit_palette(make_vectors())``) are freed before it starts.
@@ -157,21 +157,21 @@ def fit_palette(
             )
         entries = len(centroids)
         if slack > 0.0 and entries > 1:
-            allowance = added_allowance(error, float(weights.sum()), slack)
-            centroids, entry = coarsened(centroids, labels, weights, allowance, seed=seed)
+            allowance = _added_allowance(error, float(weights.sum()), slack)
+            centroids, entry = _coarsened(centroids, labels, weights, allowance, seed=seed)
             labels = entry[labels]
     report(1.0)
     return centroids, _labels(labels[inverse], entries)
 
 
-def added_allowance(error: float, total: float, slack: float) -> float:
+def _added_allowance(error: float, total: float, slack: float) -> float:
     """Squared error (summed over ``total`` weighted vectors) that merging a palette's entries
     may add to its ``error`` so their RMS colour error grows by at most ``slack``."""
     rms = math.sqrt(error / total * COLOUR_PER_SQUARED)
     return total * ((rms + slack) ** 2 - rms**2) / COLOUR_PER_SQUARED
 
 
-def coarsened(
+def _coarsened(
     centroids: F32, labels: Ints, weights: F64, allowance: float, *, seed: int = 0
 ) -> tuple[F32, Ints]:
     """The palette's entries merged in Ward rounds, cheapest first, while the squared error
