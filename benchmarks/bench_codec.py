@@ -94,6 +94,10 @@ def bench_case(n: int, bands: int, work: Path, args: argparse.Namespace) -> dict
     row["in_process"] = decode_against_ply(ply, ours)
     row["fresh_process"] = decode_in_fresh_process(ply, ours)
     row["ours_errors"] = errors_of(ours, source)
+    default = work / "ours_default.sog"  # what `tsog encode` writes without --quality
+    subprocess.run([str(TSOG), "encode", str(ply), str(default), "-f", "-q"], check=True)
+    row["default_bytes"] = default.stat().st_size
+    row["fresh_default"] = decode_in_fresh_process(ply, default)
     if not args.skip_reference:
         theirs = work / "theirs.sog"
         iters = (
@@ -166,20 +170,26 @@ def markdown(rows: list[dict[str, Any]], stamp: str) -> str:
         f"in the page cache, in turn, median of {DECODE_REPEATS}: in a process of its own (nothing "
         "before it, as a command or a player's first chunks), and inside this benchmark's "
         "process after the rows before it, whose heap often holds the PLY read's pages already "
-        "(docs/design/chunk-codec.md, 'Decoding as fast as reading a PLY'):",
+        "(docs/design/chunk-codec.md, 'Decoding as fast as reading a PLY'); and the chunk "
+        "`tsog encode` writes at its default quality (90: its SH palette merged within the "
+        "bands' slack, docs/spec.md §5.1), in a process of its own:",
         "",
         "| N | SH | own process: PLY read s | decode s | decode / PLY read "
-        "| after the rows before: PLY read s | decode s | decode / PLY read |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| after the rows before: PLY read s | decode s | decode / PLY read "
+        "| default quality, own process: MB | PLY read s | decode s | decode / PLY read |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         cells = [
             f"{p['ply_read_s']:.3f} | {p['decode_s']:.3f} | {p['decode_s'] / p['ply_read_s']:.2f}x"
             if (p := r.get(key))
             else "— | — | —"
-            for key in ("fresh_process", "in_process")
+            for key in ("fresh_process", "in_process", "fresh_default")
         ]
-        lines.append(f"| {r['gaussians']:,} | {r['sh_bands']} | {cells[0]} | {cells[1]} |")
+        size = _megabytes(r.get("default_bytes"))
+        lines.append(
+            f"| {r['gaussians']:,} | {r['sh_bands']} | {cells[0]} | {cells[1]} | {size} | {cells[2]} |"
+        )
     lines += [
         "",
         "Errors against the source (positions: max, scene units; rotation: mean degrees; scales, "
