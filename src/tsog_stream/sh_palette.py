@@ -92,8 +92,9 @@ COARSEN_ROUND_LEAST: Final = 64
 random SH3 vectors: 9 rounds against 5, with a neighbour search each: 0.5 s against 0.2)."""
 COARSEN_NEIGHBOURS: Final = 1
 """Nearest entries per tree each entry may merge with: found once, then renamed round after
-round. A search in every round took 0.22 s beside a 40k SH3 fit's 0.63 (0.10 s now, 0.8 %
-more entries kept); 2 and 4 per tree kept more entries, and took longer."""
+round, the first ones those of the fit's last refinement pass. A search in every round took
+0.22 s beside a 40k SH3 fit's 0.63 (0.08 s now, 0.2 % more entries kept); 2 and 4 per tree
+kept more entries, and took longer."""
 COARSEN_RESEARCH: Final = 4 / 3
 """The entries' neighbours are searched again once a quarter of them have merged since the
 last search: renamed lists thin out as their entries merge (never searched again, quality
@@ -149,16 +150,19 @@ def fit_palette(
     unique, inverse, weights = _unique_rows(data)
     del data
     with threadpool_limits(limits=1, user_api="blas"):
+        near: Ints | None = None
         if len(unique) <= target:
             centroids, labels, error = unique, np.arange(len(unique)), 0.0
         else:
-            centroids, labels, error = _fit(
+            centroids, labels, error, near = _fit(
                 unique, weights, target, seed=seed, iterations=iterations, report=report
             )
         entries = len(centroids)
         if slack > 0.0 and entries > 1:
             allowance = _added_allowance(error, float(weights.sum()), slack)
-            centroids, entry = _coarsened(centroids, labels, weights, allowance, seed=seed)
+            centroids, entry = _coarsened(
+                centroids, labels, weights, allowance, seed=seed, near=near
+            )
             labels = entry[labels]
     report(1.0)
     return centroids, _labels(labels[inverse], entries)
@@ -172,14 +176,21 @@ def _added_allowance(error: float, total: float, slack: float) -> float:
 
 
 def _coarsened(
-    centroids: F32, labels: Ints, weights: F64, allowance: float, *, seed: int = 0
+    centroids: F32,
+    labels: Ints,
+    weights: F64,
+    allowance: float,
+    *,
+    seed: int = 0,
+    near: Ints | None = None,
 ) -> tuple[F32, Ints]:
     """The palette's entries merged in Ward rounds, cheapest first, while the squared error
     they add stays within ``allowance``, and each old entry's new one (unused entries are
     dropped). Entries that are their vectors' weighted means (a fit's, or distinct vectors)
     add exactly their Ward cost when merged; each round's addition is measured, and a round
     that would overrun is retried with half the merges. Rounds stop once one merges under
-    1/COARSEN_ROUND_LEAST of the entries."""
+    1/COARSEN_ROUND_LEAST of the entries. ``near``: each entry's candidates from the fit's
+    last refinement pass (its first per tree serve; else they are searched here)."""
     counted = np.bincount(labels, weights, minlength=len(centroids)).astype(np.float64)
     used = np.flatnonzero(counted > 0)
     entry = np.zeros(len(centroids), np.intp)
@@ -187,7 +198,11 @@ def _coarsened(
     means, mass = np.take(centroids, used, axis=0), counted[used]
     rng = np.random.default_rng(seed)
     axes = _principal_axes(means, mass)
-    near, searched = _neighbours(means, axes, COARSEN_NEIGHBOURS, rng), len(means)
+    if near is None:
+        near = _neighbours(means, axes, COARSEN_NEIGHBOURS, rng)
+    else:  # the fit's last candidates: the nearest of each tree, renamed to the used entries
+        near = entry[near[used][:, ::REFINE_CANDIDATES]]
+    searched = len(means)
     left = allowance
     while len(means) > 1:
         merged = _round_within(means, mass, _cheapest_partner(means, mass, near), left)
@@ -237,9 +252,10 @@ def _affordable(partner: Ints, cost: F64, left: float) -> int:
 
 def _fit(
     unique: F32, weights: F64, target: int, *, seed: int, iterations: int, report: Progress
-) -> tuple[F32, Ints, float]:
+) -> tuple[F32, Ints, float, Ints | None]:
     """Agglomeration then refinement of more than ``target`` distinct weighted vectors, with
-    the palette's squared error (weighted sum), on one BLAS thread (the caller's): the leaf
+    the palette's squared error (weighted sum) and its entries' neighbours (:func:`_refine`),
+    on one BLAS thread (the caller's): the leaf
     products are thousands of small matrix products, which a multi-threaded BLAS ran 60x
     slower on a busy machine, and one thread keeps every product's summation order (and so
     the palette) the same in any process. ``unique`` is reordered in
@@ -654,9 +670,11 @@ def _refine(
     iterations: int,
     rng: np.random.Generator,
     meter: _Work,
-) -> tuple[F32, Ints, float]:
+) -> tuple[F32, Ints, float, Ints | None]:
     """Lloyd passes restricted to each centroid's nearest centroids; stop when gains stall.
-    Returns the centroids, each point's label and the weighted squared error.
+    Returns the centroids, each point's label, the weighted squared error and the last
+    pass's nearest centroids of each centroid (REFINE_CANDIDATES per tree; None without a
+    pass), which the palette's merging starts from.
 
     The points are visited in label order, so a block's candidate centroids are a few rows
     used over and over (gathered at random they took 60 % of a pass: 833k vectors 20 -> 15 s).
@@ -668,6 +686,7 @@ def _refine(
     points[...] = np.take(points, order, axis=0)
     weights, labels = weights[order], labels[order]
     errors = _errors(points, centroids, labels)
+    near: Ints | None = None
     for _ in range(iterations):
         near = _neighbours(centroids, axes, REFINE_CANDIDATES, rng)
         options = np.concatenate([np.arange(len(centroids))[:, None], near], axis=1)
@@ -684,7 +703,7 @@ def _refine(
             break
     unsorted = np.empty_like(labels)
     unsorted[order] = labels
-    return centroids, unsorted, float(np.einsum("n,n->", weights, errors))
+    return centroids, unsorted, float(np.einsum("n,n->", weights, errors)), near
 
 
 def _assign(points: F32, centroids: F32, options: Ints, labels: Ints) -> Ints:
