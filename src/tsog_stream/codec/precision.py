@@ -93,7 +93,7 @@ rendered PSNR is within 0.1 dB of quality 100's, worst view within 0.1 dB or bet
 frames 0.6 dB below (worst view 0.8) for 5.3 %. 75 costs up to 2.6 dB on those
 (coffeeshort2), 3.8-4.1 dB on the guitar clips and 9 dB on the fireworks (worst view
 12.5). With SH bands (benchmarks/bench_palette.py, 2026-11-28): the real alti and fruit-drops
-captures within 0.02 dB of 100 for 51 % and 6 % fewer bytes; generated random bands 1.5 dB
+captures within 0.03 dB of 100 for 51 % and 6 % fewer bytes; generated random bands 1.5 dB
 below for 29 %."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
