@@ -255,11 +255,10 @@ def _fit(
 ) -> tuple[F32, Ints, float, Ints | None]:
     """Agglomeration then refinement of more than ``target`` distinct weighted vectors, with
     the palette's squared error (weighted sum) and its entries' neighbours (:func:`_refine`),
-    on one BLAS thread (the caller's): the leaf
-    products are thousands of small matrix products, which a multi-threaded BLAS ran 60x
-    slower on a busy machine, and one thread keeps every product's summation order (and so
-    the palette) the same in any process. ``unique`` is reordered in
-    place (by :func:`_refine`)."""
+    on one BLAS thread (the caller's): the leaf products are thousands of small matrix
+    products, which a multi-threaded BLAS ran 60x slower on a busy machine, and one thread
+    keeps every product's summation order (and so the palette) the same in any process.
+    ``unique`` is reordered in place (by :func:`_refine`)."""
     rng = np.random.default_rng(seed)
     axes = _principal_axes(unique, weights)
     expected = PASSES_BASE + PASSES_PER_RATIO * len(unique) / target
