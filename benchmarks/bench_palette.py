@@ -21,7 +21,7 @@ import datetime as dt
 import json
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 from unittest import mock
@@ -34,7 +34,7 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, read_meta
 from tsog_stream.codec.precision import QUALITY_MAX, without_faint
 from tsog_stream.io.readers import load_scene
 from tsog_stream.model import Scene
-from tsog_stream.render.camera import scene_orbit
+from tsog_stream.render.camera import Camera, scene_orbit
 from tsog_stream.sh_palette import fit_palette
 from tsog_stream.synthetic import static_gaussians
 
@@ -65,14 +65,13 @@ def palette_kept_whole() -> Iterator[None]:
         yield
 
 
-def measure(scene: Scene, quality: int, views: int) -> dict[str, Any]:
+def measure(scene: Scene, quality: int, cameras: Sequence[Camera]) -> dict[str, Any]:
     """One chunk of ``scene`` at ``quality``, as ``tsog encode`` writes it, against the source."""
     kept = without_faint(scene, quality)
     started = time.perf_counter()
     files = encode_chunk(kept, quality=quality)
     seconds = time.perf_counter() - started
     decoded = decode_chunk(files)
-    cameras = scene_orbit(scene.gaussians, views, *SIZE)
     size = len(bundle_bytes(files))
     palette = read_meta(files, where="bench").shN
     return {
@@ -86,12 +85,13 @@ def measure(scene: Scene, quality: int, views: int) -> dict[str, Any]:
 
 def rows_of(name: str, scene: Scene, views: int) -> list[dict[str, Any]]:
     """Quality 100, then each quality both ways."""
-    rows = [{"scene": name, "quality": QUALITY_MAX, "way": "-", **measure(scene, 100, views)}]
+    cameras = scene_orbit(scene.gaussians, views, *SIZE)  # the same views for every chunk
+    rows = [{"scene": name, "quality": QUALITY_MAX, "way": "-", **measure(scene, 100, cameras)}]
     for quality in QUALITIES:
         with palette_kept_whole():
-            whole = measure(scene, quality, views)
+            whole = measure(scene, quality, cameras)
         rows.append({"scene": name, "quality": quality, "way": "K kept", **whole})
-        merged = measure(scene, quality, views)
+        merged = measure(scene, quality, cameras)
         rows.append({"scene": name, "quality": quality, "way": "merged", **merged})
         for row in rows[-2:]:
             print(json.dumps(row), file=sys.stderr, flush=True)

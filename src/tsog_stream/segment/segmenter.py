@@ -1129,12 +1129,11 @@ def _sampled_frames(seq: FrameSequence) -> tuple[Gaussians, _Measured]:
     joined = FrameStack(sizes, [seq.shapes[k][1] for k in numbers], seq.sh_coeffs)
     samples: list[Gaussians] = []
     for k in sorted({*picks, *numbers}):
-        frame = seq.read(k, k + 1).scene.gaussians
+        frame = seq.read(k, k + 1).scene
         if k in picks:
-            bare = replace(frame, shN=np.zeros((len(frame), 0, 3), np.float32))
-            samples.append(framing_sample(bare, share))
+            samples.append(framing_sample(without_sh(frame).gaussians, share))
         if k in numbers:
-            joined.put(numbers.index(k), frame, str(seq.frames.paths[k]))
+            joined.put(numbers.index(k), frame.gaussians, str(seq.frames.paths[k]))
         del frame
     bounds = np.cumsum([0, *sizes]).tolist()
     groups = [np.arange(a, b) for a, b in itertools.pairwise(bounds)]
