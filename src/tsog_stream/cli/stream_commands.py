@@ -37,7 +37,12 @@ from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Layer
-from ..segment.engines import WORKER_MEMORY, check_cluster, default_workers
+from ..segment.engines import (
+    WORKER_MEMORY,
+    check_cluster,
+    default_workers,
+    release_freed_memory,
+)
 from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
@@ -404,6 +409,7 @@ def _write_thumbnail(container: str, progress: Progress) -> None:
     from ..inputs import thumbnail_png  # noqa: PLC0415 - loads the renderer
 
     progress("drawing the thumbnail")
+    release_freed_memory()  # what segmenting freed, before the picture is decoded and drawn
     target = thumbnail_path(container)
     try:
         atomic_write_bytes(target, thumbnail_png(container))

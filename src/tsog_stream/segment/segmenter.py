@@ -44,7 +44,7 @@ from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .engines import Engine, HandOver, engine
+from .engines import Engine, HandOver, engine, release_freed_memory
 from .layers import (
     MEASURE_TIMES,
     ONE_LAYER_ASKED,
@@ -734,7 +734,9 @@ def segment_scene(
     stored = sum(len(g) for _, g in groups)
     members = [g for _, g in groups]
     stage(_layers_stage(options.layers, "rendering", "cutting the scene into chunks"))
+    release_freed_memory()  # the layout's sample encodes
     layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
+    release_freed_memory()
     layer_of = None
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), members)
@@ -1065,13 +1067,16 @@ def segment_sequence(
             options.layers, "rendering sampled frames", "reading sampled frames for the view"
         )
     )
+    release_freed_memory()  # the layout's sample encodes (and the merge probe's frames)
     framing, measured = _sampled_frames(seq)  # only the layers' frames are kept
     views = Views.of(framing, cameras)
     del framing
+    release_freed_memory()
     layering = _sequence_layers(seq, measured, views.view, options.layers, options.sh_apart)
     if options.layers is None:
         layering = _layers_within_flipbook(seq, measured, layering, max_count, options, stage=stage)
     del measured
+    release_freed_memory()
     total = _sequence_chunks(seq, per_window, max_count, layering)
     stage(
         _encoding(total, seq.gaussians, options.workers, faint_left=options.quality < QUALITY_MAX)
