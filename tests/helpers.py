@@ -233,6 +233,14 @@ def proc_stat(pid: int) -> list[str] | None:
         return None
 
 
+def resident_mib(pid: int) -> float:
+    """Resident memory of process ``pid`` now (VmRSS), in MiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmRSS")
+
+
 def live_processes(where: Callable[[list[str]], bool]) -> set[int]:
     """Pids of live (non-zombie) processes whose /proc stat fields satisfy ``where``."""
     found = set()

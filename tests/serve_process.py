@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from helpers import free_port, proc_stat
+from helpers import free_port, proc_stat, resident_mib
 
 TSOG = Path(sys.executable).with_name("tsog")
 TICK = os.sysconf("SC_CLK_TCK")
@@ -35,10 +35,7 @@ class Served:
 
     def rss_mib(self) -> float:
         """Resident memory now (VmRSS)."""
-        for line in Path(f"/proc/{self.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-        raise AssertionError("no VmRSS")
+        return resident_mib(self.pid)
 
     def cpu_s(self) -> float:
         """User plus system CPU seconds so far."""

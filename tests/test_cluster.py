@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from distributed import Client, LocalCluster
 
-from helpers import reporting_job, wait_until
+from helpers import reporting_job, resident_mib, wait_until
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
@@ -97,24 +97,15 @@ def test_every_worker_gets_glibc_s_usual_malloc_thresholds(scheduler: str, tmp_p
     assert all(engines.MALLOC_PLUGIN in names for names in found.values()), found
 
 
-def _resident_mib() -> float:
-    """This process's resident memory now (VmRSS), in MiB."""
-    with open("/proc/self/status") as status:
-        for line in status:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    raise AssertionError("no VmRSS")
-
-
 def test_freed_heap_pages_go_back_to_the_system() -> None:
     """A phase's temporaries freed between arrays that live on stay resident until released:
     48 MiB of small arrays, one in 50 kept, gives most of its pages back."""
     held = [np.ones(8192) for _ in range(768)]  # 64 KiB each: in the heap, pages touched
     kept = held[::50]
     del held
-    before = _resident_mib()
+    before = resident_mib(os.getpid())
     assert engines.release_freed_memory()  # glibc here: the call itself works
-    assert before - _resident_mib() > 24
+    assert before - resident_mib(os.getpid()) > 24
     assert all(float(a.sum()) == 8192.0 for a in kept)  # what lives on is left as it was
 
 
