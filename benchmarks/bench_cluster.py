@@ -492,7 +492,7 @@ def main() -> None:
         "workers' over the wall time. Worker peak RSS: the largest of any worker process, "
         "sampled every 0.2 s. The LocalCluster is the one `--cluster local` starts "
         "(`engines.local_cluster`: no profiler, event-loop tick and monitors at 1-5 s), its "
-        "workers with glibc's malloc thresholds set back and one malloc arena (`engines.tune_malloc`).",
+        "workers with glibc's malloc thresholds set back and one malloc arena (`machine.tune_malloc`).",
         "",
         f"**A scene in memory**: a generated FreeTimeGS-style clip of {args.gaussians} SH3 Gaussians "
         f"(10 s, lifespans 60-100 %; raw arrays {raw / MiB:.0f} MiB). The client sends each job "

@@ -13,11 +13,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from distributed import Client, LocalCluster
 
-from helpers import reporting_job, resident_mib, wait_until
+from helpers import reporting_job, wait_until
+from tsog_stream import machine
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
@@ -88,25 +88,13 @@ def _plugins(dask_worker: Any) -> list[str]:
 def test_every_worker_gets_glibc_s_usual_malloc_thresholds(scheduler: str, tmp_path: Path) -> None:
     """Dask starts workers with MALLOC_TRIM_THRESHOLD_ set (encoding ran 1.6x slower): the
     engine registers a worker plugin that sets the thresholds back, on every worker."""
-    assert engines.tune_malloc()  # glibc here: the call itself works
+    assert machine.tune_malloc()  # glibc here: the call itself works
     scene = generate_scene(SceneSpec(background=400, objects=1, per_object=100))
     segment_scene(scene, tmp_path / "o.tsogs", replace(OPTIONS, layers=1, cluster=scheduler))
     with Client(scheduler, timeout=10) as client:  # type: ignore[no-untyped-call]
         found = client.run(_plugins)
     assert len(found) == 2
     assert all(engines.MALLOC_PLUGIN in names for names in found.values()), found
-
-
-def test_freed_heap_pages_go_back_to_the_system() -> None:
-    """A phase's temporaries freed between arrays that live on stay resident until released:
-    48 MiB of small arrays, one in 50 kept, gives most of its pages back."""
-    held = [np.ones(8192) for _ in range(768)]  # 64 KiB each: in the heap, pages touched
-    kept = held[::50]
-    del held
-    before = resident_mib(os.getpid())
-    assert engines.release_freed_memory()  # glibc here: the call itself works
-    assert before - resident_mib(os.getpid()) > 24
-    assert all(float(a.sum()) == 8192.0 for a in kept)  # what lives on is left as it was
 
 
 def test_a_local_cluster_is_started_for_the_run(

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from helpers import check_decoded_at, log_space_error, means_log_step
-from tsog_stream import Scene, SogError, TimelineType, TsogError
-from tsog_stream.codec import webp
+from tsog_stream import Scene, SogError, TimelineType, TsogError, inplace
+from tsog_stream.codec import sog_encode, webp
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
@@ -78,16 +78,19 @@ def _dynamic_scene() -> Scene:
 
 @pytest.mark.parametrize("writable", [True, False])
 def test_a_scene_given_up_is_ordered_in_its_own_arrays_into_the_same_files(
-    writable: bool,
+    writable: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """``given_up``: the job's part is put in texel order in place (no second scene beside
-    it) and its SH bands dropped once the palette has them; the files are the ones a copy
-    gives. A scene with a read-only array is copied and left as it was."""
+    it, a few rows a step) and its SH bands, rearranged in place, handed to the palette; the
+    files are the ones a copy gives. A scene with a read-only array is copied and left as it
+    was."""
     scene = _dynamic_scene()
     before = [a.copy() for a in scene.arrays()]
     if not writable:
         scene.temporal["means"].flags.writeable = False
     expected = encode_chunk(_dynamic_scene(), seed=2, quality=80)
+    monkeypatch.setattr(inplace, "BLOCK_BYTES", 7 * 96)
+    monkeypatch.setattr(sog_encode, "TRANSPOSE_BLOCK_BYTES", 5 * 96)
     assert encode_chunk(scene, seed=2, quality=80, given_up=True) == expected
     order = texel_order(Scene(Gaussians(*(a for a in before[:6]))))
     now = scene.arrays()

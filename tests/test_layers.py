@@ -24,6 +24,7 @@ FLOORS: dict[str, int] = {
             "machine",
             "morton",
             "columns",
+            "inplace",
             "model",
             "temporal",
             "opacity",

@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tsog_stream import sh_palette
+from tsog_stream import inplace, sh_palette
 from tsog_stream.errors import InputError
 from tsog_stream.render.sh import sh_basis
 from tsog_stream.sh_palette import (
@@ -114,13 +114,15 @@ def test_exact_when_palette_holds_every_distinct_vector() -> None:
     np.testing.assert_array_equal(centroids[labels], points)
 
 
+@pytest.mark.parametrize("in_place", [False, True])
 @pytest.mark.parametrize("hashes", ["real", "colliding"])
 def test_distinct_rows_are_found_by_bytes_even_when_hashes_collide(
-    hashes: str, monkeypatch: pytest.MonkeyPatch
+    hashes: str, in_place: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Identical vectors (-0.0 and 0.0 are different bytes) collapse to one weighted row; a
     hash shared by distinct rows (forced here: every row hashes alike) falls back to the
-    rows' bytes, with the same distinct rows and counts."""
+    rows' bytes, with the same distinct rows and counts. ``in_place``: the same rows in the
+    same order, at the front of the vectors' own memory (moved a few rows a step)."""
     if hashes == "colliding":
         monkeypatch.setattr(sh_palette, "_row_hashes", lambda data: np.zeros(len(data), np.uint64))
     rng = np.random.default_rng(21)
@@ -129,12 +131,40 @@ def test_distinct_rows_are_found_by_bytes_even_when_hashes_collide(
     distinct[2] = -0.0
     pick = rng.integers(0, 40, 700)
     points = distinct[pick]
-    unique, inverse, weights = sh_palette._unique_rows(points)
+    given = points.copy()
+    monkeypatch.setattr(sh_palette, "BLOCK_BYTES", 4 * 9 * 3)
+    monkeypatch.setattr(inplace, "BLOCK_BYTES", 4 * 9 * 5)
+    unique, inverse, weights = sh_palette._unique_rows(given, in_place=in_place)
+    assert np.shares_memory(unique, given) == in_place
     expected = np.unique(points.view(np.uint32), axis=0)
     assert len(unique) == len(expected) == len(np.unique(pick))
     np.testing.assert_array_equal(unique[inverse].view(np.uint32), points.view(np.uint32))
+    if in_place:
+        copied = sh_palette._unique_rows(points.copy())
+        np.testing.assert_array_equal(unique.view(np.uint32), copied[0].view(np.uint32))
+        np.testing.assert_array_equal(inverse, copied[1])
     assert weights.sum() == len(points)
     np.testing.assert_array_equal(np.bincount(inverse, minlength=len(unique)), weights)
+
+
+@pytest.mark.parametrize("slack", [0.0, 0.05])
+def test_vectors_given_up_give_the_palette_a_copy_gives(
+    slack: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``given_up``: the fit keeps its distinct rows in the vectors' memory (compacted, then
+    put in label order there a few rows a step), and the palette and labels are the ones the
+    caller's vectors, left untouched, give."""
+    rng = np.random.default_rng(31)
+    distinct = rng.normal(0, 0.05, (1500, 9)).astype(np.float32)
+    vectors = distinct[rng.integers(0, 1500, 4000)]
+    kept = vectors.copy()
+    expected = fit_palette(vectors, 256, seed=3, slack=slack)
+    np.testing.assert_array_equal(vectors, kept)
+    monkeypatch.setattr(inplace, "BLOCK_BYTES", 4 * 9 * 7)  # the label order made in steps
+    given = fit_palette(vectors, 256, seed=3, slack=slack, given_up=True)
+    np.testing.assert_array_equal(given[0], expected[0])
+    np.testing.assert_array_equal(given[1], expected[1])
+    assert not np.array_equal(vectors, kept)  # its memory held the fit's rows
 
 
 def test_small_k_gives_the_weighted_mean() -> None:

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from .constants import SH_BANDS_BY_COEFFS, SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
+from .inplace import permute_rows
 
 F32 = npt.NDArray[np.float32]
 Index = npt.NDArray[np.intp] | npt.NDArray[np.bool_]
@@ -264,14 +265,16 @@ class Scene:
         return out + list(self.temporal.values())
 
     def reordered(self, order: npt.NDArray[np.intp]) -> Scene:
-        """The scene with its rows in ``order`` (a permutation), made in its own arrays, one
-        array's copy at a time, when they are all writable (the scene given up by its owner,
-        e.g. a job's part): ``subset`` would hold a second scene beside it. Otherwise a copy."""
+        """The scene with its rows in ``order`` (a permutation), made in its own arrays a block
+        of rows at a time (:func:`~tsog_stream.inplace.permute_rows`) when they are all
+        writable (the scene given up by its owner, e.g. a job's part): ``subset`` would hold a
+        second scene beside it, and a whole array's copy its widest array twice. Otherwise a
+        copy."""
         arrays = self.arrays()
         if len(order) != len(self) or not all(a.flags.writeable for a in arrays):
             return self.subset(order)
         for array in arrays:
-            array[...] = np.take(array, order, axis=0)
+            permute_rows(array, order)
         return self
 
     def at(self, t: float, threshold: float | None = None) -> Gaussians:

@@ -31,18 +31,14 @@ from ..io.files import atomic_write_bytes, refuse_existing, remove_stale_temp_fi
 from ..io.ply import write_ply
 from ..io.readers import detect_format
 from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
+from ..machine import release_freed_memory
 from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
 from ..merge.check import frame_errors
 from ..merge.sequence import MAX_HELD
 from ..model import Gaussians, Scene
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Layer
-from ..segment.engines import (
-    WORKER_MEMORY,
-    check_cluster,
-    default_workers,
-    release_freed_memory,
-)
+from ..segment.engines import WORKER_MEMORY, check_cluster, default_workers
 from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES

@@ -68,18 +68,29 @@ def encode_sh_bands(
     seed: int = 0,
     quality: int = QUALITY_MAX,
     on_palette: FractionDone | None = None,
+    given_up: bool = False,
 ) -> dict[str, bytes]:
     """Files of the SH-band chunk of ``host`` (the Gaussians its chunk is encoded from, in any
     order: they are put in the host chunk's texel order here), meta.json last; ``quality``
     sets the palette's slack as for a whole chunk; ``on_palette`` hears the palette fitting's
-    fraction done."""
+    fraction done. ``given_up``: as :func:`~tsog_stream.codec.chunk.encode_chunk`'s (the
+    host's rows ordered in its own arrays, its bands handed to the palette's fit: a copy of
+    the host and of its bands were each beside it)."""
     if len(host) == 0 or host.gaussians.sh_bands == 0:
         raise InputError("an SH-band chunk needs Gaussians with SH bands beyond DC")
-    ordered = host.gaussians.subset(texel_order(host))
+    order = texel_order(host)
+    ordered = host.reordered(order).gaussians if given_up else host.gaussians.subset(order)
     width, height = image_size(len(ordered))
     slack = Slacks.at(budget_fraction(quality)).bands
     images, shn = encode_sh_palette(
-        ordered, width, height, seed, lambda _msg: None, on_palette=on_palette, slack=slack
+        ordered,
+        width,
+        height,
+        seed,
+        lambda _msg: None,
+        on_palette=on_palette,
+        given_up=given_up,
+        slack=slack,
     )
     meta = {
         "version": C.SOG_VERSION,

@@ -7,12 +7,13 @@ WebP in parallel. Where splat-transform truncates a float to a byte we round (ha
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
 from .. import constants as C
+from ..machine import release_freed_memory
 from ..model import Gaussians
 from ..opacity import logit_to_alpha
 from ..quantize import assign_codebook, build_codebook, short_codebook
@@ -33,6 +34,8 @@ from .webp import ImageEncoder
 U8 = npt.NDArray[np.uint8]
 Progress = Callable[[str], None]
 FractionDone = Callable[[float], None]
+TRANSPOSE_BLOCK_BYTES: Final = 1 << 20
+"""SH bands rearranged into PLY order per step (in place, for a job's part)."""
 
 
 def _floats(values: npt.ArrayLike) -> list[float]:
@@ -81,19 +84,21 @@ def scale_importance(gaussians: Gaussians) -> npt.NDArray[np.float64]:
     return np.broadcast_to(weight[:, None], gaussians.scales.shape)
 
 
-def _sh_rest(gaussians: Gaussians) -> npt.NDArray[np.float32]:
-    """(N, 3K) f_rest vectors in PLY order (channel-major: all R coefficients, then G, then B)."""
-    n, k, _ = gaussians.shN.shape
-    return np.ascontiguousarray(gaussians.shN.transpose(0, 2, 1).reshape(n, 3 * k))
-
-
 def _vectors_for_fit(gaussians: Gaussians, given_up: bool) -> npt.NDArray[np.float32]:
-    """The f_rest vectors the palette fit takes over; the SH bands of Gaussians their owner
-    gave up dropped once read (a fit of 833k SH3 vectors held them beside its own: 143 MiB)."""
-    vectors = _sh_rest(gaussians)
-    if given_up:
-        gaussians.shN = np.zeros((len(gaussians), 0, 3), np.float32)
-    return vectors
+    """(N, 3K) f_rest vectors in PLY order (channel-major: all R coefficients, then G, then
+    B), the vectors the palette is fitted on. The SH bands of Gaussians their owner gave up
+    are rearranged so in their own memory, a block of rows at a time, and handed to the fit
+    (a transposed copy beside them was 86 MiB on a 500k SH3 job); otherwise a copy."""
+    n, k, _ = gaussians.shN.shape
+    bands = gaussians.shN
+    if not given_up or not bands.flags.writeable or not bands.flags.c_contiguous:
+        return np.ascontiguousarray(bands.transpose(0, 2, 1).reshape(n, 3 * k))
+    gaussians.shN = np.zeros((n, 0, 3), np.float32)
+    step = max(1, TRANSPOSE_BLOCK_BYTES // max(1, bands[0].nbytes))
+    for start in range(0, n, step):
+        block = bands[start : start + step]
+        block.reshape(len(block), 3, k)[...] = block.transpose(0, 2, 1).copy()
+    return bands.reshape(n, 3 * k)
 
 
 def encode_sh_palette(
@@ -118,12 +123,15 @@ def encode_sh_palette(
         if on_palette is not None:
             on_palette(fraction)
 
-    centroids, labels = fit_palette(  # handed over: freed once the distinct rows are known
+    if given_up:  # a job's part: what the codebooks freed goes back before the fit's peak
+        release_freed_memory()
+    centroids, labels = fit_palette(
         _vectors_for_fit(gaussians, given_up),
         palette_size(len(gaussians)),
         seed=seed,
         progress=fitted,
         slack=slack,
+        given_up=given_up,
     )
     count = centroids.shape[0]
     codebook = short_codebook(build_codebook(centroids))

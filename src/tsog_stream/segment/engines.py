@@ -10,8 +10,6 @@ docs/design/segmenter.md ("Parallel encoding").
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import multiprocessing
 import os
 import pickle
@@ -27,7 +25,7 @@ from typing import Any, Final, Generic, TypeVar
 
 from ..codec.webp import use_cores
 from ..errors import InputError
-from ..machine import available_memory, usable_cores
+from ..machine import available_memory, tune_malloc, usable_cores
 from .meter import reporting_to
 
 LOCAL_CLUSTER = "local"
@@ -41,8 +39,6 @@ CONNECT_TIMEOUT_S = 10.0
 """How long to try reaching a scheduler before a one-line error."""
 JOB_RETRIES = 2
 """Times Dask runs a job again when the worker running it is lost."""
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
-"""glibc ``mallopt`` parameters (malloc.h)."""
 MALLOC_PLUGIN = "tsog-stream-malloc"
 PROGRESS_TOPIC = "tsog-stream-job-progress"
 """The Dask event topic a job's progress goes to the client on: [token, fraction]."""
@@ -86,44 +82,6 @@ ONE_BLAS_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM
 """The environment a pool worker starts with unless the user set these (what Dask's nanny
 gives its workers): two workers with two BLAS threads each on two cores spin-waited for each
 other, a 1M SH3 scene 30.4 s and 51 CPU-s against 26.8 s and 46 CPU-s."""
-
-
-def tune_malloc() -> bool:
-    """Give glibc's allocator the thresholds it would have grown to by itself (mmap 32 MiB,
-    trim 64 MiB) and one arena for every thread; False where there is no glibc.
-
-    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back sooner),
-    which also pins the mmap threshold at 128 KiB: every large temporary array is then mapped
-    and zeroed afresh, and encoding a window ran 1.6x slower in a Dask worker than in a plain
-    process (14.4 s against 8.9 s for three 40k-Gaussian SH3 frames; 9.1 s after this).
-    One arena: a worker's threads (Dask's event loop receiving a job, the thread running it,
-    the codec's pools) each kept freed memory in an arena of their own that the others could
-    not reuse; the 1M scene's largest job peaked at 469 MiB in a Dask worker, 364 MiB with
-    one arena (a pool worker 382 -> 338), in the same time.
-    """
-    mallopt = _libc_function("mallopt")
-    if mallopt is None:
-        return False
-    settings = ((M_MMAP_THRESHOLD, 32 << 20), (M_TRIM_THRESHOLD, 64 << 20), (M_ARENA_MAX, 1))
-    return all([bool(mallopt(option, value)) for option, value in settings])  # every one set
-
-
-def release_freed_memory() -> bool:
-    """Hand the pages glibc's heap holds free back to the system (``malloc_trim``); False
-    where there is no glibc. A phase's temporaries (the layout's sample encodes, the sampled
-    frames, the layers' renders), once freed, otherwise stay in the process's RSS for the rest
-    of the run under the next phase's peak: segmenting 12 30k-Gaussian SOG frames peaked 26 MiB
-    above a two-frame tiny input's run with this, 42 MiB without (bench_segment)."""
-    trim = _libc_function("malloc_trim")
-    return trim is not None and bool(trim(0))
-
-
-def _libc_function(name: str) -> Any:
-    """The C library's function ``name``, or None where there is no such library or function."""
-    try:
-        return getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
-    except (OSError, AttributeError):
-        return None
 
 
 def _register_malloc_tuning(client: Any) -> None:

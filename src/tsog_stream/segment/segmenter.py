@@ -38,13 +38,14 @@ from ..errors import InputError
 from ..framing import FRAMING_SAMPLE, dense_core, framing_sample, opening_view, vec3
 from ..io.objects import size_of
 from ..io.sequence import FrameSequence, FrameStack, FrameWindow
+from ..machine import release_freed_memory
 from ..model import Gaussians, Scene
 from ..morton import morton_parts
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
 from ..temporal import lifespans, reference_times, time_range
-from .engines import Engine, HandOver, engine, release_freed_memory
+from .engines import Engine, HandOver, engine
 from .layers import (
     MEASURE_TIMES,
     ONE_LAYER_ASKED,
@@ -351,7 +352,8 @@ def encode_job_payload(
         report_progress(fraction if sh_bands else palette_progress(coeffs, fraction))
 
     if sh_bands:
-        return bundle_bytes(encode_sh_bands(scene, seed=seed, quality=quality, on_palette=fitted))
+        bands = encode_sh_bands(scene, seed=seed, quality=quality, on_palette=fitted, given_up=True)
+        return bundle_bytes(bands)
     files = encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted, given_up=True)
     return bundle_bytes(files)
 
