@@ -8,7 +8,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from tsog_stream.inplace import permute_rows
+from tsog_stream.inplace import compact_rows, permute_rows
 
 
 @pytest.mark.parametrize("block_rows", [1, 3, 64, 10_000])
@@ -21,6 +21,17 @@ def test_rows_end_where_take_puts_them(shape: tuple[int, ...], block_rows: int) 
         expected = np.take(array, order, axis=0)
         permute_rows(array, order, block_bytes=block_rows * row_bytes)
         np.testing.assert_array_equal(array, expected)
+
+
+@pytest.mark.parametrize("block_rows", [1, 4, 10_000])
+def test_rows_kept_are_gathered_to_the_front(block_rows: int) -> None:
+    rng = np.random.default_rng(block_rows)
+    array = rng.normal(size=(500, 3, 2)).astype(np.float32)
+    for kept in (np.flatnonzero(rng.random(500) < 0.4), np.arange(500), np.array([499])):
+        expected = np.take(array, kept, axis=0)
+        front = compact_rows(array, kept, block_bytes=block_rows * 24)
+        assert np.shares_memory(front, array) and len(front) == len(kept)
+        np.testing.assert_array_equal(front, expected)
 
 
 def test_integer_rows_and_a_sort_by_labels() -> None:

@@ -1,6 +1,7 @@
-"""Rows of an array put in a new order in its own memory, a block at a time: ``a[...] =
-np.take(a, order, axis=0)`` holds a whole copy of ``a`` beside it for a moment, which was the
-encoder's peak on wide rows (the SH bands of a 500k SH3 job: 86 MiB more, twice)."""
+"""Rows of an array put in a new order, or some of them gathered to its front, in its own
+memory a block at a time: ``a[...] = np.take(a, order, axis=0)`` holds a whole copy of ``a``
+beside it for a moment, which was the encoder's peak on wide rows (the SH bands of a 500k SH3
+job: 86 MiB more, twice)."""
 
 from __future__ import annotations
 
@@ -53,4 +54,18 @@ def permute_rows(
         where[wanted] = np.arange(start, stop)
 
 
-__all__ = ["permute_rows"]
+def compact_rows(
+    array: npt.NDArray[Any], kept: npt.NDArray[np.intp], *, block_bytes: int | None = None
+) -> npt.NDArray[Any]:
+    """``array[kept]`` (``kept`` ascending) moved to the front of ``array`` in place, a block
+    at a time, returned as a view of it: no row moves backwards, so a row is only written
+    over once every block that reads it is done."""
+    row_bytes = max(1, array.nbytes // max(1, len(array)))
+    step = max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // row_bytes)
+    for start in range(0, len(kept), step):
+        block = kept[start : start + step]
+        array[start : start + len(block)] = np.take(array, block, axis=0)
+    return array[: len(kept)]
+
+
+__all__ = ["compact_rows", "permute_rows"]

@@ -28,7 +28,7 @@ from threadpoolctl import threadpool_limits
 
 from .constants import SH_PALETTE_MAX
 from .errors import InputError
-from .inplace import permute_rows
+from .inplace import compact_rows, permute_rows
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -331,7 +331,7 @@ def _gathered(data: F32, first: Ints, in_place: bool) -> F32:
     if not in_place:
         return np.take(data, first, axis=0)
     by_first = np.argsort(first)
-    rows = _compacted(data, first[by_first])
+    rows = compact_rows(data, first[by_first])
     place = np.empty_like(by_first)
     place[by_first] = np.arange(len(by_first))
     permute_rows(rows, place)
@@ -636,7 +636,7 @@ def _merge(
         _fold_movers(
             means, mass, total, (hosts, movers, slot), out=grown, rows=np.arange(len(hosts))
         )
-        out = _compacted(means, kept)
+        out = compact_rows(means, kept)
         out[new_id[hosts]] = grown
     else:
         out = np.take(means, kept, axis=0)
@@ -669,16 +669,6 @@ def _fold_movers(
             np.add.at(weighted, slots[start : start + count] - first, moved[:count])
         weighted /= total[group, None]
         out[rows[first : first + len(group)]] = weighted  # cast to float32 as it is stored
-
-
-def _compacted(rows: F32, kept: Ints) -> F32:
-    """``rows[kept]`` (``kept`` ascending) moved to the front of ``rows`` in place, a block at a
-    time, as a view: a row is only written over once every block that reads it is done."""
-    step = _rows_per_block(4 * rows.shape[1])
-    for start in range(0, len(kept), step):
-        block = kept[start : start + step]
-        rows[start : start + len(block)] = np.take(rows, block, axis=0)
-    return rows[: len(kept)]
 
 
 def _refine(
