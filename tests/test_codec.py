@@ -16,7 +16,7 @@ import pytest
 
 from helpers import check_decoded_at, log_space_error, means_log_step
 from tsog_stream import Scene, SogError, TimelineType, TsogError, inplace
-from tsog_stream.codec import sog_encode, webp
+from tsog_stream.codec import webp
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
 from tsog_stream.codec.positions import decode_means
@@ -89,8 +89,7 @@ def test_a_scene_given_up_is_ordered_in_its_own_arrays_into_the_same_files(
     if not writable:
         scene.temporal["means"].flags.writeable = False
     expected = encode_chunk(_dynamic_scene(), seed=2, quality=80)
-    monkeypatch.setattr(inplace, "BLOCK_BYTES", 7 * 96)
-    monkeypatch.setattr(sog_encode, "TRANSPOSE_BLOCK_BYTES", 5 * 96)
+    monkeypatch.setattr(inplace, "BLOCK_BYTES", 7 * 96)  # rows moved 7 at a time
     assert encode_chunk(scene, seed=2, quality=80, given_up=True) == expected
     order = texel_order(Scene(Gaussians(*(a for a in before[:6]))))
     now = scene.arrays()

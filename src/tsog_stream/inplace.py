@@ -1,7 +1,7 @@
-"""Rows of an array put in a new order, or some of them gathered to its front, in its own
-memory a block at a time: ``a[...] = np.take(a, order, axis=0)`` holds a whole copy of ``a``
-beside it for a moment, which was the encoder's peak on wide rows (the SH bands of a 500k SH3
-job: 86 MiB more, twice)."""
+"""Rows of an array put in a new order, some of them gathered to its front, or each one's
+axes swapped, in its own memory a block at a time: ``a[...] = np.take(a, order, axis=0)``
+holds a whole copy of ``a`` beside it for a moment, which was the encoder's peak on wide rows
+(the SH bands of a 500k SH3 job: 86 MiB more, twice)."""
 
 from __future__ import annotations
 
@@ -28,8 +28,7 @@ def permute_rows(
     each row and the row at each position), taken only when there is more than one block.
     """
     count = len(array)
-    row_bytes = max(1, array.nbytes // max(1, count))
-    step = max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // row_bytes)
+    step = _rows_per_step(array, block_bytes)
     if step >= count:
         array[...] = np.take(array, order, axis=0)
         return
@@ -60,12 +59,29 @@ def compact_rows(
     """``array[kept]`` (``kept`` ascending) moved to the front of ``array`` in place, a block
     at a time, returned as a view of it: no row moves backwards, so a row is only written
     over once every block that reads it is done."""
-    row_bytes = max(1, array.nbytes // max(1, len(array)))
-    step = max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // row_bytes)
+    step = _rows_per_step(array, block_bytes)
     for start in range(0, len(kept), step):
         block = kept[start : start + step]
         array[start : start + len(block)] = np.take(array, block, axis=0)
     return array[: len(kept)]
 
 
-__all__ = ["compact_rows", "permute_rows"]
+def swap_row_axes(array: npt.NDArray[Any], *, block_bytes: int | None = None) -> npt.NDArray[Any]:
+    """Each row's two axes swapped, (N, A, B) -> (N, B, A), in the memory of ``array``
+    (C-contiguous) a block of rows at a time, returned as a view of it: what
+    ``np.ascontiguousarray(array.transpose(0, 2, 1))`` gives, without the copy beside it."""
+    count, first, second = array.shape
+    step = _rows_per_step(array, block_bytes)
+    for start in range(0, count, step):
+        block = array[start : start + step]
+        block.reshape(len(block), second, first)[...] = block.transpose(0, 2, 1).copy()
+    return array.reshape(count, second, first)
+
+
+def _rows_per_step(array: npt.NDArray[Any], block_bytes: int | None) -> int:
+    """Rows of ``array`` a block of ``block_bytes`` (BLOCK_BYTES) holds, at least one."""
+    row_bytes = max(1, array.nbytes // max(1, len(array)))
+    return max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // row_bytes)
+
+
+__all__ = ["compact_rows", "permute_rows", "swap_row_axes"]

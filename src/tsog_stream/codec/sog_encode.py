@@ -7,12 +7,13 @@ WebP in parallel. Where splat-transform truncates a float to a byte we round (ha
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from .. import constants as C
+from ..inplace import swap_row_axes
 from ..machine import release_freed_memory
 from ..model import Gaussians
 from ..opacity import logit_to_alpha
@@ -34,8 +35,6 @@ from .webp import ImageEncoder
 U8 = npt.NDArray[np.uint8]
 Progress = Callable[[str], None]
 FractionDone = Callable[[float], None]
-TRANSPOSE_BLOCK_BYTES: Final = 1 << 20
-"""SH bands rearranged into PLY order per step (in place, for a job's part)."""
 
 
 def _floats(values: npt.ArrayLike) -> list[float]:
@@ -87,18 +86,15 @@ def scale_importance(gaussians: Gaussians) -> npt.NDArray[np.float64]:
 def _vectors_for_fit(gaussians: Gaussians, given_up: bool) -> npt.NDArray[np.float32]:
     """(N, 3K) f_rest vectors in PLY order (channel-major: all R coefficients, then G, then
     B), the vectors the palette is fitted on. The SH bands of Gaussians their owner gave up
-    are rearranged so in their own memory, a block of rows at a time, and handed to the fit
-    (a transposed copy beside them was 86 MiB on a 500k SH3 job); otherwise a copy."""
+    are dropped from them and, when writable, rearranged so in their own memory and handed
+    to the fit (a transposed copy beside them was 86 MiB on a 500k SH3 job); else a copy."""
     n, k, _ = gaussians.shN.shape
     bands = gaussians.shN
-    if not given_up or not bands.flags.writeable or not bands.flags.c_contiguous:
-        return np.ascontiguousarray(bands.transpose(0, 2, 1).reshape(n, 3 * k))
-    gaussians.shN = np.zeros((n, 0, 3), np.float32)
-    step = max(1, TRANSPOSE_BLOCK_BYTES // max(1, bands[0].nbytes))
-    for start in range(0, n, step):
-        block = bands[start : start + step]
-        block.reshape(len(block), 3, k)[...] = block.transpose(0, 2, 1).copy()
-    return bands.reshape(n, 3 * k)
+    if given_up:
+        gaussians.shN = np.zeros((n, 0, 3), np.float32)
+        if bands.flags.writeable and bands.flags.c_contiguous:
+            return swap_row_axes(bands).reshape(n, 3 * k)
+    return np.ascontiguousarray(bands.transpose(0, 2, 1).reshape(n, 3 * k))
 
 
 def encode_sh_palette(
