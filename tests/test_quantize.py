@@ -410,6 +410,34 @@ def test_weights_keep_the_infinity_sentinels_and_ignore_what_is_not_finite() -> 
     assert np.all(np.isfinite(table)) and np.all(np.diff(table) >= 0)
 
 
+def test_weighted_sums_taken_a_block_at_a_time_are_the_sums_of_all_at_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The weighted bins' sums, added a few samples at a time (non-finite ones skipped), are
+    ``np.bincount``'s over all the usable samples, bit for bit; the caller's weights are left
+    as they were (the unusable ones are zeroed in the codebook's own copy)."""
+    samples, weights = _mixture(np.random.default_rng(25))
+    samples[::97] = np.nan
+    weights[::89] = -1.0
+    given = weights.copy()
+    expected = build_codebook(samples, weights)
+    usable = np.isfinite(samples)
+    values, scale = samples[usable], np.where(weights[usable] > 0, weights[usable], 0.0)
+    span = (float(values.min()), float(values.max()))
+    index = ((values - span[0]) * (quantize.WEIGHTED_BINS / (span[1] - span[0]))).astype(np.intp)
+    index = np.minimum(index, quantize.WEIGHTED_BINS - 1)
+    whole = (
+        np.bincount(index, scale, quantize.WEIGHTED_BINS),
+        np.bincount(index, scale * values, quantize.WEIGHTED_BINS),
+    )
+    monkeypatch.setattr(quantize, "BLOCK_VALUES", 777)
+    blocked = quantize._binned(samples, usable, scale, span)
+    for ours, theirs in zip(blocked, whole, strict=True):
+        assert ours.tobytes() == theirs.tobytes()
+    np.testing.assert_array_equal(build_codebook(samples, weights), expected)
+    np.testing.assert_array_equal(weights, given)
+
+
 def test_weights_with_nothing_positive_give_the_unweighted_codebook() -> None:
     samples, _ = _mixture(np.random.default_rng(24))
     np.testing.assert_array_equal(

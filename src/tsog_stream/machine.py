@@ -32,6 +32,16 @@ UNLIMITED: Final = 1 << 60
 
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
 """glibc ``mallopt`` parameters (malloc.h)."""
+MMAP_THRESHOLD: Final = 4 << 20
+"""Allocations from this size on are mapped on their own, and unmapped when freed. A job's
+per-Gaussian temporaries (a 500k window's are 4-60 MiB each) otherwise stayed in the heap
+as holes the next ones did not fit: a 500k SH3 window job peaked 274-291 MiB above the
+process with 32 MiB here, 236-256 with 4 MiB (1 MiB: 231-235, and its 2 MiB working
+blocks mapped afresh each time), its wall time within the runs' spread (11-14 s) and
+0.2-0.4 s more system time for the pages mapped afresh. Dask's default, 128 KiB, mapped
+every block: 1.6x slower."""
+TRIM_THRESHOLD: Final = 64 << 20
+"""Free memory at the top of the heap kept for reuse before it is handed back."""
 
 
 def usable_cores() -> int:
@@ -91,13 +101,15 @@ def _read(path: str) -> str:
 
 
 def tune_malloc() -> bool:
-    """Give glibc's allocator the thresholds it would have grown to by itself (mmap 32 MiB,
-    trim 64 MiB) and one arena for every thread; False where there is no glibc.
+    """Give glibc's allocator fixed thresholds (mmap MMAP_THRESHOLD, trim TRIM_THRESHOLD)
+    and one arena for every thread; False where there is no glibc.
 
     Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back sooner),
     which also pins the mmap threshold at 128 KiB: every large temporary array is then mapped
     and zeroed afresh, and encoding a window ran 1.6x slower in a Dask worker than in a plain
-    process (14.4 s against 8.9 s for three 40k-Gaussian SH3 frames; 9.1 s after this).
+    process (14.4 s against 8.9 s for three 40k-Gaussian SH3 frames; 9.1 s with the
+    thresholds glibc grows to by itself, 32 and 64 MiB; the mmap threshold is 4 MiB since
+    2026-11-29, see MMAP_THRESHOLD).
     One arena: a worker's threads (Dask's event loop receiving a job, the thread running it,
     the codec's pools) each kept freed memory in an arena of their own that the others could
     not reuse; the 1M scene's largest job peaked at 469 MiB in a Dask worker, 364 MiB with
@@ -106,7 +118,11 @@ def tune_malloc() -> bool:
     mallopt = _libc_function("mallopt")
     if mallopt is None:
         return False
-    settings = ((M_MMAP_THRESHOLD, 32 << 20), (M_TRIM_THRESHOLD, 64 << 20), (M_ARENA_MAX, 1))
+    settings = (
+        (M_MMAP_THRESHOLD, MMAP_THRESHOLD),
+        (M_TRIM_THRESHOLD, TRIM_THRESHOLD),
+        (M_ARENA_MAX, 1),
+    )
     return all([bool(mallopt(option, value)) for option, value in settings])  # every one set
 
 

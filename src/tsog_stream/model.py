@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from .constants import SH_BANDS_BY_COEFFS, SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
-from .inplace import permute_rows
+from .inplace import compact_rows, permute_rows
 
 F32 = npt.NDArray[np.float32]
 Index = npt.NDArray[np.intp] | npt.NDArray[np.bool_]
@@ -103,6 +103,14 @@ class Gaussians:
     def sh_bands(self) -> int:
         """Number of SH bands beyond DC (0-3)."""
         return SH_BANDS_BY_COEFFS[self.shN.shape[1]]
+
+    def let_go(self, *names: str) -> None:
+        """Put read-only zeros that hold no memory (a broadcast) in place of the attributes
+        ``names``, keeping their shapes: what an encoder that was handed the rows does once
+        their images are made, so their memory goes before the SH palette's fit."""
+        for name in names:
+            values = getattr(self, name)
+            setattr(self, name, np.broadcast_to(np.zeros((), values.dtype), values.shape))
 
     def subset(self, index: Index) -> Gaussians:
         """The Gaussians selected by an integer or boolean index, in that order."""
@@ -276,6 +284,22 @@ class Scene:
         for array in arrays:
             permute_rows(array, order)
         return self
+
+    def keeping(self, kept: npt.NDArray[np.intp]) -> Scene:
+        """The scene of the rows ``kept`` (ascending), gathered to the front of its own arrays
+        a block of rows at a time (:func:`~tsog_stream.inplace.compact_rows`) when they are
+        all writable (the scene given up by its owner, e.g. a window just read): ``subset``
+        held the window twice. Otherwise a copy."""
+        arrays = self.arrays()
+        if not all(a.flags.writeable and a.flags.c_contiguous for a in arrays):
+            return self.subset(kept)
+        fronts = [compact_rows(array, kept) for array in arrays]
+        timeline = None
+        if self.timeline is not None:
+            was = self.timeline
+            timeline = Timeline(was.type, fronts[6], fronts[7], was.fps, was.scene_length)
+        moving = dict(zip(self.temporal, fronts[6 if timeline is None else 8 :], strict=True))
+        return Scene(Gaussians(*fronts[:6]), timeline, moving)
 
     def at(self, t: float, threshold: float | None = None) -> Gaussians:
         """The static Gaussians visible at time ``t`` (seconds); see :mod:`tsog_stream.temporal`."""

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from typing import Final
+
 import numpy as np
 import numpy.typing as npt
 
@@ -10,6 +13,10 @@ from ..constants import U16_MAX
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
+
+BLOCK_ROWS: Final = 1 << 16
+"""Gaussians whose position and rotation codes are made at a time (a few MiB of float64
+temporaries, not ~10 arrays of every row's)."""
 
 
 def log_transform(v: npt.ArrayLike) -> F64:
@@ -49,13 +56,26 @@ def join_u16(low: npt.NDArray[np.uint8], high: npt.NDArray[np.uint8]) -> npt.NDA
 
 
 def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
-    """(mins, maxs, codes) of positions: mins/maxs in log space, codes (N, 3) rounded."""
-    logs = log_transform(means)
-    if logs.shape[0] == 0:
+    """(mins, maxs, codes) of positions: mins/maxs in log space, codes (N, 3) rounded; a
+    block of rows at a time (every value is its own: the same codes as all at once, without
+    float64 temporaries of every row, 46 MiB on 500k)."""
+    if means.shape[0] == 0:
         zeros = np.zeros(3)
         return zeros, zeros.copy(), np.zeros((0, 3), np.uint16)
-    mins, maxs = down(np.min, logs), down(np.max, logs)
-    return mins, maxs, quantize_u16(logs, mins, maxs)
+    mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
+    for rows in row_blocks(len(means)):
+        logs = log_transform(means[rows])
+        mins, maxs = np.minimum(mins, down(np.min, logs)), np.maximum(maxs, down(np.max, logs))
+    codes = np.empty((len(means), 3), np.uint16)
+    for rows in row_blocks(len(means)):
+        codes[rows] = quantize_u16(log_transform(means[rows]), mins, maxs)
+    return mins, maxs, codes
+
+
+def row_blocks(count: int) -> Iterator[slice]:
+    """Slices of ``count`` rows, BLOCK_ROWS at a time."""
+    for start in range(0, count, BLOCK_ROWS):
+        yield slice(start, min(count, start + BLOCK_ROWS))
 
 
 def decode_means(

@@ -170,12 +170,18 @@ def faint_at(scene: Scene, quality: int) -> npt.NDArray[np.bool_]:
     return none if faint.all() else faint
 
 
-def without_faint(scene: Scene, quality: int) -> Scene:
+def without_faint(scene: Scene, quality: int, *, given_up: bool = False) -> Scene:
     """``scene`` less the Gaussians :func:`faint_at` ``quality`` (itself when there are none):
     what ``tsog encode`` and ``tsog segment`` store. A Gaussian drawn that faintly changes the
-    picture less than its position's error would, and costs as many bytes as any other."""
+    picture less than its position's error would, and costs as many bytes as any other.
+    ``given_up``: the caller is done with ``scene``, so the rows kept are gathered in its own
+    arrays (:meth:`Scene.keeping`) instead of a copy beside them."""
     faint = faint_at(scene, quality)
-    return scene.subset(np.flatnonzero(~faint)) if faint.any() else scene
+    if not faint.any():
+        return scene
+    kept = np.flatnonzero(~faint)
+    del faint
+    return scene.keeping(kept) if given_up else scene.subset(kept)
 
 
 def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:

@@ -846,7 +846,9 @@ def _sequence_parts(
     the Gaussians too faint to store at ``quality``)."""
     written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
-        held = [without_faint(seq.read(first, min(seq.count, first + per_window)).scene, quality)]
+        window = seq.read(first, min(seq.count, first + per_window)).scene
+        held = [without_faint(window, quality, given_up=True)]  # read here: nobody else's
+        del window
         jobs = window_jobs(held[0], w, max_count, layering)
         for part in parts_taking_over(held, jobs, layering.sh_apart):
             yield replace(part, sh_of=_after(part.sh_of, written))
@@ -870,7 +872,7 @@ class WindowJob:
 def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
     """Read a window's frames, cut and encode its chunks one at a time (run in worker
     processes; the window's scene is let go as its last part is cut)."""
-    held = [without_faint(job.frames.read().scene, job.quality)]
+    held = [without_faint(job.frames.read().scene, job.quality, given_up=True)]
     split = job.layering.sh_apart
     jobs = window_jobs(held[0], job.index, job.max_count, job.layering)
     works = [job_work(held[0], chunk, split) for chunk in jobs]
