@@ -261,6 +261,25 @@ def wait_until(check: Callable[[], object], timeout: float, what: str) -> None:
         time.sleep(0.01)
 
 
+_PINNED: list[npt.NDArray[np.float64]] = []
+"""Arrays a worker keeps from one job to the next (see :func:`heap_holes_left`)."""
+
+
+def heap_holes_left(mib: int) -> float:
+    """Run on a worker: ``mib`` arrays of 1 MiB (under the mmap threshold: from the heap)
+    freed below one that is kept, so glibc keeps their pages as holes it does not return by
+    itself; the worker's resident MiB after."""
+    blocks = [np.ones(1 << 17) for _ in range(mib)]
+    _PINNED.append(np.ones(1 << 17))  # the heap's top stays in use: nothing is trimmed
+    del blocks
+    return resident_mib(os.getpid())
+
+
+def resident_here() -> float:
+    """Run on a worker: its resident MiB as a job starts."""
+    return resident_mib(os.getpid())
+
+
 def reporting_job(steps: int) -> int:
     """Run on a worker (pool or Dask): a job that says how far it got, ``steps`` times; its
     process id."""
