@@ -278,10 +278,9 @@ class Scene:
         writable (the scene given up by its owner, e.g. a job's part): ``subset`` would hold a
         second scene beside it, and a whole array's copy its widest array twice. Otherwise a
         copy."""
-        arrays = self.arrays()
-        if len(order) != len(self) or not all(a.flags.writeable for a in arrays):
+        if len(order) != len(self) or not self._writable():
             return self.subset(order)
-        for array in arrays:
+        for array in self.arrays():
             permute_rows(array, order)
         return self
 
@@ -290,16 +289,20 @@ class Scene:
         a block of rows at a time (:func:`~tsog_stream.inplace.compact_rows`) when they are
         all writable (the scene given up by its owner, e.g. a window just read): ``subset``
         held the window twice. Otherwise a copy."""
-        arrays = self.arrays()
-        if not all(a.flags.writeable and a.flags.c_contiguous for a in arrays):
+        if not self._writable():
             return self.subset(kept)
-        fronts = [compact_rows(array, kept) for array in arrays]
+        fronts = [compact_rows(array, kept) for array in self.arrays()]
         timeline = None
         if self.timeline is not None:
             was = self.timeline
             timeline = Timeline(was.type, fronts[6], fronts[7], was.fps, was.scene_length)
         moving = dict(zip(self.temporal, fronts[6 if timeline is None else 8 :], strict=True))
         return Scene(Gaussians(*fronts[:6]), timeline, moving)
+
+    def _writable(self) -> bool:
+        """Whether every array may be written in place (the rows moved within it): not a
+        read-only view of a caller's data, nor an attribute an encoder let go."""
+        return all(array.flags.writeable for array in self.arrays())
 
     def at(self, t: float, threshold: float | None = None) -> Gaussians:
         """The static Gaussians visible at time ``t`` (seconds); see :mod:`tsog_stream.temporal`."""
