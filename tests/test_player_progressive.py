@@ -7,9 +7,11 @@ through the relay."""
 from __future__ import annotations
 
 import asyncio
+import json
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +29,9 @@ HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"
 T = 2.0
 """A time whose base layer is a small share of its bytes (the fireworks at their fullest)."""
 BANDWIDTH_BPS = 100e3
-"""Slow enough that the base stays alone on screen for a while even on a loaded machine (at
-200 kbit/s the next layer sometimes landed within the 250 ms the base shot waits)."""
+"""Slow enough that the base is up well before the rest lands (about 1 s alone on screen)."""
 TWO_FRAMES = "new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
-"""Waits until the page has drawn twice (a fixed 250 ms let the next layer land first on a
-loaded machine; the shot is kept only if the base is still alone after it was taken)."""
+"""Waits until the page has drawn twice."""
 POLL_S = 0.05
 TIMEOUT_S = 60.0
 BACKGROUND = np.array([18, 18, 18])  # the page's clear colour (0.07 grey)
@@ -66,8 +66,15 @@ class ShapedOrigin:
         self.loop.close()
 
 
+@dataclass(frozen=True)
+class LayeredPage:
+    url: str
+    upper_layer_files: frozenset[str]
+    """The chunk files of every layer above the base (the manifest's ``file``)."""
+
+
 @pytest.fixture(scope="module")
-def page_url(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+def layered_page(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[LayeredPage]:
     """The player page (from the server) of the layered clip's manifest behind the relay."""
     root = tmp_path_factory.mktemp("progressive-player")
     loaded = read_splatv(samples / HANABI, duration_s=4.0)
@@ -75,10 +82,12 @@ def page_url(samples: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterato
     segment_scene(loaded.scene, root / "fireworks.tsogs", options, cameras=loaded.cameras)
     with open_stream(root / "fireworks.tsogs") as reader:
         reader.unpack(root / "fireworks")
+    chunks = json.loads((root / "fireworks" / "manifest.json").read_text())["chunks"]
+    upper = frozenset(c["file"] for c in chunks if c.get("layer", 0) > 0)
     shaped = ShapedOrigin(root, LinkShape(BANDWIDTH_BPS, 0.02))
     try:
         manifest = shaped.relay.url("/files/fireworks/manifest.json")
-        yield f"{shaped.direct}/play/?manifest={manifest}&t={T}&paused"
+        yield LayeredPage(f"{shaped.direct}/play/?manifest={manifest}&t={T}&paused", upper)
     finally:
         shaped.stop()
 
@@ -91,15 +100,41 @@ def _shot(page: Any) -> np.ndarray:
     return np.asarray(Image.open(BytesIO(page.screenshot())).convert("RGB")).astype(np.int16)
 
 
-def test_the_base_is_drawn_first_and_layers_are_added_as_they_land(page_url: str) -> None:
+class HeldRequests:
+    """Holds the page's requests for ``files`` until released (the shot of the base alone is
+    taken while the layers above it cannot land, however slow the machine is that moment)."""
+
+    def __init__(self, files: frozenset[str]) -> None:
+        self.files = files
+        self.held: list[Any] = []
+        self.released = False
+
+    def route(self, route: Any) -> None:
+        if not self.released and any(route.request.url.endswith(f) for f in self.files):
+            self.held.append(route)
+        else:
+            route.continue_()
+
+    def release(self) -> None:
+        self.released = True
+        for route in self.held:
+            route.continue_()
+
+
+def test_the_base_is_drawn_first_and_layers_are_added_as_they_land(
+    layered_page: LayeredPage,
+) -> None:
+    assert layered_page.upper_layer_files
     seen: list[tuple[float, int, str]] = []
     with chromium() as browser:
         page = browser.new_page(viewport=VIEWPORT)
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
+        upper = HeldRequests(layered_page.upper_layer_files)
+        page.route("**/chunks/*", upper.route)
         began = time.monotonic()
-        page.goto(page_url)
-        base_shot = None
+        page.goto(layered_page.url)
+        base_shot, base_alone = None, False
         while time.monotonic() - began < TIMEOUT_S:
             state = page.evaluate(
                 """() => { const p = window.tsogPlayer; if (!p?.stream) return null;
@@ -113,9 +148,9 @@ def test_the_base_is_drawn_first_and_layers_are_added_as_they_land(page_url: str
                 if layers == 1 and base_shot is None:
                     page.add_style_tag(content=HIDE_UI)
                     page.evaluate(TWO_FRAMES)  # drawn with the base (and without the UI)
-                    shot = _shot(page)
-                    if page.evaluate("window.tsogPlayer.stream.stats().layers") == 1:
-                        base_shot = shot  # still the base alone once the shot was taken
+                    base_shot = _shot(page)
+                    base_alone = page.evaluate("window.tsogPlayer.stream.stats().layers") == 1
+                    upper.release()
                 if layers == count:
                     break
             time.sleep(POLL_S)
@@ -133,7 +168,8 @@ def test_the_base_is_drawn_first_and_layers_are_added_as_they_land(page_url: str
     assert first_full - seen[0][0] > 0.3  # the base was up well before the rest landed
     assert any(q.startswith("1/3 layers (") and "dB" in q for _, _, q in seen), seen
     assert text == "3/3 layers (full)"
-    assert base_shot is not None, "no settled frame with the base alone"
+    assert upper.held, "the layers above the base were never asked for"
+    assert base_shot is not None and base_alone, "no settled frame with the base alone"
     drawn = (np.abs(base_shot - BACKGROUND).max(axis=2) > 8).mean()
     assert drawn > 0.001  # the base alone is a picture, not the empty background
     assert (np.abs(full_shot - base_shot).max(axis=2) > 8).mean() > 0.0005  # layers added
