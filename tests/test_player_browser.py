@@ -283,14 +283,11 @@ def check_buffered(page: PlayerPage, facts: Facts) -> None:
 
 def test_playing_prefetches_ahead_and_drops_behind(facts: Facts, base: str, open_page: Any) -> None:
     """With nothing kept beyond what t and the horizon want (keepGaussians 0), chunks behind the
-    playhead go; test_a_loop_is_played_from_chunks_kept_loaded covers the default."""
+    playhead go; test_a_loop_is_played_from_chunks_kept_loaded covers the default. Played at
+    1x: at 2x a loaded machine (CI beside other work) decoded the horizon's chunks only once
+    the playhead had reached them."""
     page = open_page(f"{base}/play/centre?t=0&paused")
-    page.js(
-        "tsogPlayer.stream.keepGaussians = 0;"
-        "document.getElementById('speed').value = '2';"
-        "document.getElementById('speed').dispatchEvent(new Event('change'));"
-        "document.getElementById('play').click()"
-    )
+    page.js("tsogPlayer.stream.keepGaussians = 0; document.getElementById('play').click()")
     ahead_seen, held_behind = False, []
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
