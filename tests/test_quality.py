@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tsog_stream import columns
 from tsog_stream.cli.main import main
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
@@ -229,6 +230,13 @@ def test_the_motion_span_bounds_the_faded_root_mean_square(order: int) -> None:
     budgets = Budgets.of(scene, 50)
     assert budgets is not None
     span = budgets.motion_span(order)
+    for rows in (slice(0, 7), slice(595, 600)):  # a block's rows: those rows' values
+        np.testing.assert_array_equal(budgets.motion_span(order, rows), span[rows])
+        for attr, channels in (("means", 3), ("quats", 4), ("sh0", 4)):
+            whole = budgets.change_over_lifespan(attr, channels)
+            np.testing.assert_array_equal(
+                budgets.change_over_lifespan(attr, channels, rows), whole[rows]
+            )
     start, end = lifespans(timeline)
     start, end = np.maximum(start, 0.0), np.minimum(end, 10.0)
     held = budgets.around_reference
@@ -347,6 +355,31 @@ def test_coarsen_equals_its_formula(seed: int) -> None:
                 out = coarsen(codes, np.asarray(value), shared=shared)
                 expected = _coarsen_by_the_formula(codes, np.asarray(value), shared)
                 np.testing.assert_array_equal(out, expected)
+
+
+def test_coarsening_a_block_of_rows_at_a_time_gives_the_codes_of_all_at_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Rows coarsened 7 at a time (the last block short), the tolerances given whole or a
+    block's at a time by a function of the rows, give the codes of every row at once: the
+    grids of every block run through the most frequent code of all rows, not the block's."""
+    rng = np.random.default_rng(5)
+    codes = rng.integers(0, 65536, (1000, 3)).astype(np.uint16)
+    codes[:400] = codes[0]
+    tol = np.exp(rng.normal(0.0, 5.0, (1000, 3)))
+    expected = {shared: _coarsen_by_the_formula(codes, tol, shared) for shared in (False, True)}
+    monkeypatch.setattr(columns, "BLOCK_ROWS", 7)
+    asked: list[slice] = []
+
+    def of_rows(rows: slice) -> np.ndarray:
+        asked.append(rows)
+        return tol[rows]
+
+    for shared in (False, True):
+        np.testing.assert_array_equal(coarsen(codes, tol, shared=shared), expected[shared])
+        np.testing.assert_array_equal(coarsen(codes, of_rows, shared=shared), expected[shared])
+    assert asked[:2] == [slice(0, 7), slice(7, 14)] and asked[142] == slice(994, 1000)
+    assert len(asked) == 2 * 143
 
 
 def test_tolerances_in_codes_follow_each_channels_range() -> None:

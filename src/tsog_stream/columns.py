@@ -1,16 +1,22 @@
 """Reductions over the short axis of (N, C) arrays, done column by column or pairwise: numpy
 reduces an (N, 3) array along either axis a few values at a time (``.min(axis=0)`` on 1M rows:
-26 ms; each column's own ``.min()``: 0.5 ms), and these paths run on every chunk encoded."""
+26 ms; each column's own ``.min()``: 0.5 ms), and these paths run on every chunk encoded. And
+rows a block at a time, for work whose temporaries would otherwise be many times its input."""
 
 from __future__ import annotations
 
 import functools
-from typing import Any
+from collections.abc import Iterator
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
 Array = npt.NDArray[Any]
+
+BLOCK_ROWS: Final = 1 << 16
+"""Rows worked on at a time by row-wise work done in blocks (a few MiB of float64 temporaries,
+not ~10 arrays of every row's)."""
 
 
 def down(pick: Any, values: Array, **options: Any) -> Array:
@@ -26,4 +32,10 @@ def across(pick: np.ufunc, values: Array) -> Array:
     return np.asarray(functools.reduce(pick, values.T))
 
 
-__all__ = ["across", "down"]
+def row_blocks(count: int) -> Iterator[slice]:
+    """Slices of ``count`` rows, BLOCK_ROWS at a time."""
+    for start in range(0, count, BLOCK_ROWS):
+        yield slice(start, min(count, start + BLOCK_ROWS))
+
+
+__all__ = ["BLOCK_ROWS", "across", "down", "row_blocks"]

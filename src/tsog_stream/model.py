@@ -32,6 +32,11 @@ def rows(values: A, index: Index) -> A:
     return cast(A, np.take(values, index, axis=0))
 
 
+def _nothing_like(values: A) -> A:
+    """Read-only zeros of ``values``' shape and dtype that hold no memory (a broadcast)."""
+    return cast("A", np.broadcast_to(np.zeros((), values.dtype), values.shape))
+
+
 def _as_f32(name: str, value: npt.ArrayLike, shape_tail: tuple[int, ...]) -> F32:
     """Coerce ``value`` to a C-contiguous float32 array of shape (N, *shape_tail) or raise."""
     arr = np.ascontiguousarray(value, dtype=np.float32)
@@ -109,8 +114,7 @@ class Gaussians:
         ``names``, keeping their shapes: what an encoder that was handed the rows does once
         their images are made, so their memory goes before the SH palette's fit."""
         for name in names:
-            values = getattr(self, name)
-            setattr(self, name, np.broadcast_to(np.zeros((), values.dtype), values.shape))
+            setattr(self, name, _nothing_like(getattr(self, name)))
 
     def subset(self, index: Index) -> Gaussians:
         """The Gaussians selected by an integer or boolean index, in that order."""
@@ -298,6 +302,16 @@ class Scene:
             timeline = Timeline(was.type, fronts[6], fronts[7], was.fps, was.scene_length)
         moving = dict(zip(self.temporal, fronts[6 if timeline is None else 8 :], strict=True))
         return Scene(Gaussians(*fronts[:6]), timeline, moving)
+
+    def let_go_of_time(self) -> None:
+        """Put read-only zeros that hold no memory in place of the lifespans and the motion
+        coefficients, keeping their shapes: what an encoder that was handed the rows does
+        once their images are made (as :meth:`Gaussians.let_go`)."""
+        if self.timeline is not None:
+            self.timeline.t0 = _nothing_like(self.timeline.t0)
+            self.timeline.t1 = _nothing_like(self.timeline.t1)
+        for attr, coeffs in self.temporal.items():
+            self.temporal[attr] = _nothing_like(coeffs)
 
     def _writable(self) -> bool:
         """Whether every array may be written in place (the rows moved within it): not a

@@ -2,21 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from typing import Final
-
 import numpy as np
 import numpy.typing as npt
 
-from ..columns import down
+from ..columns import down, row_blocks
 from ..constants import U16_MAX
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
-
-BLOCK_ROWS: Final = 1 << 16
-"""Gaussians whose position and rotation codes are made at a time (a few MiB of float64
-temporaries, not ~10 arrays of every row's)."""
 
 
 def log_transform(v: npt.ArrayLike) -> F64:
@@ -70,12 +63,6 @@ def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
     for rows in row_blocks(len(means)):
         codes[rows] = quantize_u16(log_transform(means[rows]), mins, maxs)
     return mins, maxs, codes
-
-
-def row_blocks(count: int) -> Iterator[slice]:
-    """Slices of ``count`` rows, BLOCK_ROWS at a time."""
-    for start in range(0, count, BLOCK_ROWS):
-        yield slice(start, min(count, start + BLOCK_ROWS))
 
 
 def decode_means(

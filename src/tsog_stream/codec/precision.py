@@ -41,13 +41,14 @@ Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's pr
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
-from ..columns import across
+from ..columns import across, row_blocks
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
 from ..framing import dense_core, framing_sample
@@ -184,34 +185,56 @@ def without_faint(scene: Scene, quality: int, *, given_up: bool = False) -> Scen
     return scene.keeping(kept) if given_up else scene.subset(kept)
 
 
-def coarsen(codes: CodesT, tolerance: F64, *, shared: bool = False) -> CodesT:
+Tolerance = F64 | Callable[[slice], F64]
+"""Tolerances in codes broadcast against the codes, or a block of rows' tolerances from the
+rows (where the tolerances of every row are themselves several arrays of every row)."""
+
+
+def coarsen(codes: CodesT, tolerance: Tolerance, *, shared: bool = False) -> CodesT:
     """Each code (16-bit, or 8-bit) rounded to the coarsest grid of power-of-two steps whose
-    rounding error is within its ``tolerance`` (in codes; broadcast against ``codes``); a code
-    that would round out of the code range keeps its value. With ``shared`` the grids are laid
+    rounding error is within its ``tolerance`` (in codes); a code that would round out of the
+    code range keeps its value. With ``shared`` the grids are laid
     through each channel's most frequent code, so a value many Gaussians share (a zero rate of
     turn) stays one value whatever their steps; else through code 0.
 
-    Whole-array integer arithmetic: a code on a grid of one code rounds to itself, so every
+    Whole-block integer arithmetic: a code on a grid of one code rounds to itself, so every
     code goes through the same few passes (gathering the moving ones and scattering them back
-    took twice as long at low quality, where nearly all move)."""
+    took twice as long at low quality, where nearly all move). A block of rows at a time
+    (``columns.row_blocks``): every row's temporaries at once were ~10 arrays of the codes'
+    rows (+68 MiB beside a 400k window's motion)."""
+    anchor = most_frequent(codes).astype(np.int32) if shared else None
+    of_rows = tolerance if callable(tolerance) else _rows_of(tolerance, codes.shape)
+    out = np.empty_like(codes)
+    for rows in row_blocks(len(codes)):
+        out[rows] = _on_grids(codes[rows], of_rows(rows), anchor)
+    return out
+
+
+def _rows_of(tolerance: F64, shape: tuple[int, ...]) -> Callable[[slice], F64]:
+    """A block of rows' tolerances of tolerances broadcast against codes of ``shape``."""
+    every = np.broadcast_to(tolerance, shape)
+    return lambda rows: every[rows]
+
+
+def _on_grids(codes: CodesT, tolerance: F64, anchor: npt.NDArray[np.int32] | None) -> CodesT:
+    """:func:`coarsen` of a block of rows, the grids through ``anchor`` (else code 0)."""
     top = int(np.iinfo(codes.dtype).max)
     tol = np.minimum(np.fmax(tolerance, 0.5), float(top))  # NaN, -inf and < 0.5: 0.5; inf: top
     # floor(log2(2 tol)): 0 for a tolerance under one code
     bits = np.minimum(np.frexp(tol)[1], top.bit_length() - 1)
     if not bits.any():
-        return codes.copy()
-    grid = np.broadcast_to(np.left_shift(np.int32(1), bits, dtype=np.int32), codes.shape)
+        return codes
+    grid = np.left_shift(np.int32(1), bits, dtype=np.int32)
     q = codes.astype(np.int32)  # codes, grids and sums all fit in int32
     rounded = q + (grid >> 1)
-    if shared:
-        anchor = most_frequent(codes).astype(np.int32)
+    if anchor is not None:
         rounded -= anchor
         rounded &= -grid  # floor to the grid
         rounded += anchor
     else:
         rounded &= -grid
     outside = rounded > top
-    if shared:  # a grid through the anchor may round below 0 too
+    if anchor is not None:  # a grid through the anchor may round below 0 too
         outside |= rounded < 0
     return np.where(outside, q, rounded).astype(codes.dtype)
 
@@ -342,10 +365,11 @@ class Budgets:
         """What the base position may move: a third of the budget when the chunk has motion."""
         return self.position / 3 if self.moving else self.position
 
-    def motion_span(self, order: int) -> F64:
-        """(N,) what an error d in a coefficient of order k may be multiplied by, at most, in
-        the motion's share of the error: d x this bounds the change it makes over the
-        lifespan (the largest, or the root mean square where the lifespan holds t_ref).
+    def motion_span(self, order: int, rows: slice = slice(None)) -> F64:
+        """(N,) (or of ``rows``) what an error d in a coefficient of order k may be multiplied
+        by, at most, in the motion's share of the error: d x this bounds the change it makes
+        over the lifespan (the largest, or the root mean square where the lifespan holds
+        t_ref).
 
         The root mean square over |t - t_ref| <= reach is at most reach^k / sqrt(2k + 1).
         A type-2 Gaussian is drawn at exp(-(t - c)² / 2s²) of its opacity, and an error
@@ -353,23 +377,24 @@ class Budgets:
         t_ref = c, the mean over a part of length L of that weight times (t - c)^2k is at
         most Gamma(k + 1/2) s^(2k+1) / L (the integral over all t), so a long-lived
         Gaussian's motion may be coarser where it fades."""
-        far = self.reach**order
-        scale, length = self.fading[:, 0], self.fading[:, 1]
+        far = self.reach[rows] ** order
+        scale, length = self.fading[rows, 0], self.fading[rows, 1]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             weighted = np.sqrt(math.gamma(order + 0.5) * scale ** (2 * order + 1) / length)
-        return np.where(self.around_reference, np.fmin(far / rms_room(order), weighted), far)
+        around = self.around_reference[rows]
+        return np.where(around, np.fmin(far / rms_room(order), weighted), far)
 
-    def change_over_lifespan(self, attr: str, channels: int) -> F64:
-        """(N, channels) how far the motion of ``attr`` may move it over the lifespan, in the
-        units its coefficients are stored in (docs/spec.md §6): means a third of the position
-        budget times ``motion_stretch``; quats the rotation budget as quaternion components
-        (as the base's bytes); scales and sh0 colours their slacks; opacity (logit; sh0's A
-        channel) four times the alpha slack (d alpha / d logit <= 1/4)."""
-        n = len(self.position)
+    def change_over_lifespan(self, attr: str, channels: int, rows: slice = slice(None)) -> F64:
+        """(N, channels) (or of ``rows``) how far the motion of ``attr`` may move it over the
+        lifespan, in the units its coefficients are stored in (docs/spec.md §6): means a third
+        of the position budget times ``motion_stretch``; quats the rotation budget as
+        quaternion components (as the base's bytes); scales and sh0 colours their slacks;
+        opacity (logit; sh0's A channel) four times the alpha slack (d alpha / d logit <= 1/4)."""
+        n = len(self.position[rows])
         if attr == "means":
-            per_gaussian = self.position / 3 * self.motion_stretch
+            per_gaussian = self.position[rows] / 3 * self.motion_stretch
         elif attr == "quats":
-            per_gaussian = self.rotation / TURN_PER_COMPONENT
+            per_gaussian = self.rotation[rows] / TURN_PER_COMPONENT
         else:
             opacity = LOGIT_PER_ALPHA * self.slacks.alpha
             slack = {"scales": self.slacks.scale, "sh0": self.slacks.colour, "opacity": opacity}
@@ -539,14 +564,18 @@ def coarsen_motion(
     bytes at quality 0-50 on the .splatv captures for no PSNR; leaving out g spent 4-6 % more
     on the .splatv captures and the FreeTimeGS donuts at equal PSNR (docs/design/
     chunk-codec.md)."""
-    share = budgets.change_over_lifespan(attr, codes.shape[1])
-    share /= orders
     shared = attr != "means"  # rates of turn, scale, colour, opacity: mostly one value (zero)
-    span = budgets.motion_span(order)
-    still = ~(span > 0)  # no time to move in: any coefficient will do
-    share /= np.where(still, 1.0, span)[:, None]
-    share[still] = np.inf
-    return coarsen(codes, to_codes(share, mins, maxs), shared=shared)
+
+    def tolerance(rows: slice) -> F64:  # a block's at a time: ~40 MiB of float64 at 400k
+        share = budgets.change_over_lifespan(attr, codes.shape[1], rows)
+        share /= orders
+        span = budgets.motion_span(order, rows)
+        still = ~(span > 0)  # no time to move in: any coefficient will do
+        share /= np.where(still, 1.0, span)[:, None]
+        share[still] = np.inf
+        return to_codes(share, mins, maxs)
+
+    return coarsen(codes, tolerance, shared=shared)
 
 
 __all__ = [

@@ -13,6 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .. import constants as C
+from ..columns import row_blocks
 from ..inplace import swap_row_axes
 from ..machine import release_freed_memory
 from ..model import Gaussians
@@ -20,7 +21,7 @@ from ..opacity import logit_to_alpha
 from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
 from .layout import texels, to_image
-from .positions import encode_means, row_blocks, split_u16
+from .positions import encode_means, split_u16
 from .precision import (
     Budgets,
     Slacks,
