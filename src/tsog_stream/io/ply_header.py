@@ -278,29 +278,57 @@ def _read_binary(
     name: str,
 ) -> PlyBody:
     """Walk the fixed-size elements by byte offset; decoded ones are zero-copy views."""
-    body = PlyBody({})
-    offset, total = header.size, len(data)
-    for element in fixed:
+    located = locate_binary(header, fixed, wanted, len(data), name=name)
+    body = PlyBody({}, located.notes)
+    for element, offset in located.offsets.values():
         dtype = element_dtype(element, header.format)
-        size = element.count * dtype.itemsize
+        body.records[element.name] = np.frombuffer(data, dtype, element.count, offset)
+    return body
+
+
+@dataclass(frozen=True, slots=True)
+class Located:
+    """Each wanted element (by name: the last of that name) and the byte offset where its rows
+    start; notes on the rest."""
+
+    offsets: dict[str, tuple[PlyElement, int]]
+    notes: list[str]
+
+
+def locate_binary(
+    header: PlyHeader,
+    fixed: list[PlyElement],
+    wanted: Collection[str],
+    total: int,
+    *,
+    name: str = "<bytes>",
+) -> Located:
+    """The byte offset of each wanted element among the fixed-size ones of a binary file of
+    ``total`` bytes: a PlyError where the file is shorter than they declare, a note for each
+    skipped element and for trailing bytes."""
+    located = Located({}, [])
+    offset = header.size
+    for element in fixed:
+        row = element_dtype(element, header.format).itemsize
+        size = element.count * row
         if offset + size > total:
             raise PlyError(
-                f"the header declares {element.count} {element.name!r} rows of {dtype.itemsize} "
+                f"the header declares {element.count} {element.name!r} rows of {row} "
                 f"bytes: expected {size} bytes at offset {offset}, found {max(total - offset, 0)}",
                 where=name,
             )
         if element.name in wanted:
-            body.records[element.name] = np.frombuffer(data, dtype, element.count, offset)
+            located.offsets[element.name] = (element, offset)
         else:
-            body.notes.append(f"skipped element {element.name!r} ({element.count} rows)")
+            located.notes.append(f"skipped element {element.name!r} ({element.count} rows)")
         offset += size
     if offset < total and len(fixed) == len(header.elements) and fixed:
         last = fixed[-1]
-        body.notes.append(
+        located.notes.append(
             f"ignored {total - offset} trailing bytes after the declared {last.count} "
             f"{last.name!r} rows"
         )
-    return body
+    return located
 
 
 def _read_ascii(
