@@ -91,16 +91,43 @@ def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents
     vertex = header.element("vertex")
     if vertex is None:
         raise PlyError("the header declares no 'vertex' element", where=name)
-    k = _sh_coefficients(vertex.names, name)
+    layout = _VertexLayout.of(vertex.names, name)
     body = read_elements(data, header, ("vertex",), name=name)
     records = body.records["vertex"]
-    rest = sh_column_order(k)
-    groups = (POSITION, SCALES, ROTATION, (OPACITY,), F_DC, rest)
-    columns = gather_column_groups(records, groups)  # each its own array
+    columns = gather_column_groups(records, layout.groups)  # each its own array
     notes = body.notes
-    notes.extend(nonfinite_notes(columns, (*REQUIRED, *rest)))
-    extra = unmapped_columns(records, {*REQUIRED, *rest, *NORMALS}, notes)
-    return PlyContents(_gaussians_of(columns, k), extra, notes, header)
+    notes.extend(nonfinite_notes(columns, layout.names))
+    extra = unmapped_columns(records, layout.mapped, notes)
+    return PlyContents(layout.gaussians(columns), extra, notes, header)
+
+
+@dataclass(frozen=True)
+class _VertexLayout:
+    """Which vertex properties make which Gaussian attribute: the groups of columns gathered
+    (POSITION, SCALES, ROTATION, OPACITY, F_DC, then f_rest in :func:`sh_column_order`)."""
+
+    k: int
+    groups: tuple[Sequence[str], ...]
+
+    @classmethod
+    def of(cls, names: Sequence[str], where: str) -> _VertexLayout:
+        """The layout of a vertex element's properties (a PlyError if one is missing)."""
+        k = _sh_coefficients(names, where)
+        return cls(k, (POSITION, SCALES, ROTATION, (OPACITY,), F_DC, sh_column_order(k)))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every gathered column, in order."""
+        return tuple(n for group in self.groups for n in group)
+
+    @property
+    def mapped(self) -> set[str]:
+        """Properties that are not extras: the gathered ones and the normals."""
+        return {*self.names, *NORMALS}
+
+    def gaussians(self, columns: Sequence[F32]) -> Gaussians:
+        """Gaussians of the gathered columns, taken as they are (:func:`_gaussians_of`)."""
+        return _gaussians_of(columns, self.k)
 
 
 def read_ply(path: Readable) -> PlyContents:
@@ -136,31 +163,27 @@ def _read_by_blocks(file: BinaryIO, header: PlyHeader, name: str) -> PlyContents
     bytes never held whole."""
     vertex = header.element("vertex")
     assert vertex is not None
-    k = _sh_coefficients(vertex.names, name)
+    layout = _VertexLayout.of(vertex.names, name)
     located = locate_binary(header, list(header.elements), ("vertex",), _size(file), name=name)
-    rest = sh_column_order(k)
-    groups = (POSITION, SCALES, ROTATION, (OPACITY,), F_DC, rest)
-    dtype = element_dtype(vertex, header.format)
-    mapped = {*REQUIRED, *rest, *NORMALS}
+    dtype = element_dtype(vertex, header.format)  # counts checked above: now allocate
     extra = {
         n: np.empty(vertex.count, dtype[n].newbyteorder("="))
         for n in vertex.names
-        if n not in mapped
+        if n not in layout.mapped
     }
-    columns = [np.empty((vertex.count, len(names)), np.float32) for names in groups]
+    columns = [np.empty((vertex.count, len(names)), np.float32) for names in layout.groups]
     step = max(1, GATHER_BLOCK_BYTES // max(1, dtype.itemsize))
     file.seek(located.offsets["vertex"][1])
     for start in range(0, vertex.count, step):
         rows = min(step, vertex.count - start)
         block = np.frombuffer(_read_exactly(file, rows * dtype.itemsize, name), dtype)
-        _gather_rows(block, groups, columns, start)
+        _gather_rows(block, layout.groups, columns, start)
         for n, out in extra.items():
             out[start : start + rows] = block[n]
     notes = located.notes
-    notes.extend(nonfinite_notes(columns, (*REQUIRED, *rest)))
-    if extra:
-        notes.append(f"unknown properties kept as extras: {', '.join(extra)}")
-    return PlyContents(_gaussians_of(columns, k), extra, notes, header)
+    notes.extend(nonfinite_notes(columns, layout.names))
+    notes.extend(_extras_note(list(extra)))
+    return PlyContents(layout.gaussians(columns), extra, notes, header)
 
 
 def _read(file: BinaryIO, limit: int, name: str) -> bytes:
@@ -301,9 +324,13 @@ def unmapped_columns(
     """Native-order copies of the columns not in ``mapped`` (copies: they must not pin the
     input buffer), noted by name."""
     names = [n for n in records.dtype.names or () if n not in mapped]
-    if names:
-        notes.append(f"unknown properties kept as extras: {', '.join(names)}")
+    notes.extend(_extras_note(names))
     return {n: np.array(records[n], dtype=records.dtype[n].newbyteorder("=")) for n in names}
+
+
+def _extras_note(names: Sequence[str]) -> list[str]:
+    """The note naming the unknown properties kept as extras (none without them)."""
+    return [f"unknown properties kept as extras: {', '.join(names)}"] if names else []
 
 
 def standard_names(k: int) -> list[str]:
