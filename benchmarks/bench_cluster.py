@@ -238,11 +238,15 @@ def table(runs: list[Run], gaussians: int, fixed: dict[str, float], job_mib: flo
             f"{gaussians / r.wall_s / 1e3:.0f}k | {r.cpu_percent:.0f} % | {peak} | {held} |"
         )
     by = {(r.engine, r.workers): r.wall_s for r in runs}
+    work = {(r.engine, r.workers): r.wall_s * r.cpu_percent for r in runs}  # CPU-seconds x 100
     same = len({r.digest for r in runs}) == 1
     rows += [
         "",
         f"Scaling from 1 to 2 workers: pool {by['pool', 1] / by['pool', 2]:.2f}x, Dask "
-        f"{by['dask', 1] / by['dask', 2]:.2f}x; Dask against the pool at 2 workers: "
+        f"{by['dask', 1] / by['dask', 2]:.2f}x; the CPU time the same work took with 2 workers "
+        f"against 1 (what the second worker costs beyond its core): pool "
+        f"{work['pool', 2] / work['pool', 1]:.2f}x, Dask {work['dask', 2] / work['dask', 1]:.2f}x; "
+        f"Dask against the pool at 2 workers: "
         f"{by['dask', 2] / by['pool', 2]:.2f}x the time. Containers byte-identical: "
         f"{'yes' if same else 'NO'}. Above a tiny input's: a worker's peak less its engine's "
         f"worker peak on {TINY_FRAMES} frames of {TINY_GAUSSIANS} Gaussians, against the "
