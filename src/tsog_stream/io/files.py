@@ -188,7 +188,13 @@ def read_head(path: Readable, limit: int) -> bytes:
     if is_object_url(path):
         return object_at(path).read_head(limit)
     with open_regular(path) as f:
-        try:
-            return f.read(limit)
-        except OSError as exc:
-            raise SourceError(f"cannot read: {exc.strerror}", where=str(path)) from exc
+        return read_from(f, limit, str(path))
+
+
+def read_from(file: BinaryIO, limit: int, where: str) -> bytes:
+    """At most ``limit`` next bytes of an open file (all the rest for -1), or a SourceError
+    that names ``where``."""
+    try:
+        return file.read(limit)
+    except OSError as exc:
+        raise SourceError(f"cannot read: {exc.strerror}", where=where) from exc

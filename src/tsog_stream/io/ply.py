@@ -33,9 +33,9 @@ import numpy as np
 import numpy.typing as npt
 
 from ..constants import GENERATOR
-from ..errors import InputError, PlyError, SourceError
+from ..errors import InputError, PlyError
 from ..model import F32, Gaussians
-from .files import Readable, atomic_write_bytes, open_regular, read_bytes
+from .files import Readable, atomic_write_bytes, open_regular, read_bytes, read_from
 from .ply_header import (
     MAGICS,
     MAX_HEADER_BYTES,
@@ -136,7 +136,7 @@ def read_ply(path: Readable) -> PlyContents:
     500k SH3 frame's read to 2.06x its arrays); any other kind is read whole and parsed."""
     name = str(path)
     with open_regular(path) as file:
-        header = parse_header(_read(file, MAX_HEADER_BYTES, name), name=name)
+        header = parse_header(read_from(file, MAX_HEADER_BYTES, name), name=name)
         if _by_blocks(header) and file.seekable():
             return _read_by_blocks(file, header, name)
     return parse_ply(read_bytes(path), name=name)
@@ -144,15 +144,13 @@ def read_ply(path: Readable) -> PlyContents:
 
 def _by_blocks(header: PlyHeader) -> bool:
     """Whether a file of this header can be read a block of rows at a time: binary, every
-    element of fixed size, a vertex element with the required properties, not compressed."""
+    element of fixed size, a vertex element, not compressed."""
     from . import compressed_ply  # noqa: PLC0415 -- compressed_ply imports this module
 
-    vertex = header.element("vertex")
     return (
         header.format is not PlyFormat.ASCII
         and all(element.is_fixed for element in header.elements)
-        and vertex is not None
-        and all(n in vertex.names for n in REQUIRED)
+        and header.element("vertex") is not None
         and not compressed_ply.is_compressed_ply(header)
     )
 
@@ -186,14 +184,6 @@ def _read_by_blocks(file: BinaryIO, header: PlyHeader, name: str) -> PlyContents
     return PlyContents(layout.gaussians(columns), extra, notes, header)
 
 
-def _read(file: BinaryIO, limit: int, name: str) -> bytes:
-    """At most ``limit`` bytes from ``file``, or a SourceError."""
-    try:
-        return file.read(limit)
-    except OSError as exc:
-        raise SourceError(f"cannot read: {exc.strerror}", where=name) from exc
-
-
 def _size(file: BinaryIO) -> int:
     """The bytes of a seekable file."""
     return file.seek(0, os.SEEK_END)
@@ -202,9 +192,9 @@ def _size(file: BinaryIO) -> int:
 def _read_exactly(file: BinaryIO, size: int, name: str) -> bytes:
     """The next ``size`` bytes of ``file``; a PlyError where it ends first (it was cut short
     while being read)."""
-    piece = _read(file, size, name)
+    piece = read_from(file, size, name)
     while len(piece) < size:
-        more = _read(file, size - len(piece), name)
+        more = read_from(file, size - len(piece), name)
         if not more:
             raise PlyError(f"the file ended {size - len(piece)} bytes early", where=name)
         piece += more
