@@ -4,12 +4,17 @@
 // controls and an overlay. See docs/design/player.md.
 import * as pc from 'playcanvas';
 import { ChunkStream } from './stream.js';
+import { MAX_MANIFEST_BYTES, checkManifest, readCapped } from './check.js';
+import { fadeWhenIdle } from './idle.js';
 import { CameraControls } from './controls.js';
 import { UP_CHOICES, capturePose, pivotDistance, sceneUp, upRotation } from './views.js';
 
 const $ = (id) => document.getElementById(id);
 
 const DEFAULT_FRAME_S = 1 / 30; // a frame step when the scene has no frame rate
+/** The longest frame counted in full (the engine clamps to 0.1 s by default): playback follows
+ * the wall clock when a software GPU draws 10 frames a second, not a longer gap (a hidden tab). */
+const MAX_FRAME_S = 0.5;
 const SETTLE_MS = 250; // frames drawn after a change, before the splats' own state (loading, sorting) takes over
 
 /** The page's configuration (written by the server) and its query: t, paused, the camera
@@ -45,6 +50,16 @@ function chunkUrlFor(config) {
     return (c) => new URL(c.file, config.manifest).href;
 }
 
+/** The manifest's JSON, read up to MAX_MANIFEST_BYTES. */
+async function readManifest(response, url) {
+    const bytes = await readCapped(response, MAX_MANIFEST_BYTES, `${url}: more than ${MAX_MANIFEST_BYTES} bytes, not a manifest`);
+    try {
+        return JSON.parse(new TextDecoder().decode(bytes));
+    } catch {
+        throw new Error(`${url} is not a TSOG stream manifest (not JSON)`);
+    }
+}
+
 /** Show an error in the middle of the page (and keep it for tests). */
 function fail(message) {
     const box = $('error');
@@ -57,6 +72,7 @@ function fail(message) {
 function createApp(manifest, view) {
     const canvas = $('view');
     const app = new pc.Application(canvas, { graphicsDeviceOptions: { antialias: false } });
+    app.maxDeltaTime = MAX_FRAME_S;
     app.setCanvasFillMode(pc.FILLMODE_FILL_WINDOW);
     app.setCanvasResolution(pc.RESOLUTION_AUTO);
     window.addEventListener('resize', () => app.resizeCanvas());
@@ -104,14 +120,21 @@ function showPose(controls, camera, pose, views) {
     controls.setPose(pose.position, pose.rotation, pivotDistance(pc, pose, views.core, views.turn));
 }
 
+/** True for a static scene, a stream of one moment: no timeline, or no time between its
+ * start and end (the page then shows no time controls and never plays). */
+function isStill(scene) {
+    return scene.timeline_type == null || scene.end_s <= scene.start_s;
+}
+
 /** Playback state: time, speed, loop, and what the controls show. */
 class Playback {
     constructor(manifest, config) {
         this.start = manifest.scene.start_s;
         this.end = manifest.scene.end_s;
+        this.still = isStill(manifest.scene);
         this.frame = manifest.scene.fps ? 1 / manifest.scene.fps : DEFAULT_FRAME_S;
         this.t = config.t === null ? this.start : this.clamp(config.t);
-        this.playing = !config.paused;
+        this.playing = !config.paused && !this.still;
         this.speed = 1;
         this.loop = true;
         this.buffering = false;
@@ -119,6 +142,11 @@ class Playback {
 
     clamp(t) {
         return Math.min(Math.max(t, this.start), this.end);
+    }
+
+    /** Play or pause (a still scene stays as it is). */
+    toggle() {
+        this.playing = !this.playing && !this.still;
     }
 
     /** Advance by dt seconds of wall time unless paused or waiting for chunks. */
@@ -146,6 +174,7 @@ class Playback {
     }
 
     get state() {
+        if (this.still) return 'still';
         if (this.buffering) return 'buffering';
         return this.playing ? 'playing' : 'paused';
     }
@@ -156,6 +185,17 @@ function clock(seconds) {
     if (Math.abs(seconds) < 60) return `${seconds.toFixed(2)} s`;
     const m = Math.floor(seconds / 60);
     return `${m}:${(seconds - 60 * m).toFixed(2).padStart(5, '0')}`;
+}
+
+/** The duration label: marked, with the reason in its tooltip, when the length was assumed. */
+function showDuration(end, assumed) {
+    const label = $('duration');
+    label.textContent = assumed ? `${clock(end)} (assumed)` : clock(end);
+    label.classList.toggle('assumed', assumed);
+    if (assumed) {
+        label.title = 'assumed: the source format does not carry its length; '
+            + 'tsog segment --duration-s SECONDS sets it';
+    } else label.removeAttribute('title');
 }
 
 /** Fill the capture-camera preset list (hidden when the scene has none). */
@@ -184,12 +224,13 @@ function linkFor(playback, controls, preset, camera) {
 }
 
 /** Wire the buttons, the scrub bar and the keyboard to playback and camera. */
-function bindControls(playback, controls, views, camera) {
+function bindControls(playback, controls, views, camera, manifest) {
     const scrub = $('scrub');
     scrub.min = String(playback.start);
     scrub.max = String(playback.end);
     scrub.step = String(Math.max((playback.end - playback.start) / 1000, 1e-4));
-    $('duration').textContent = clock(playback.end);
+    showDuration(playback.end, manifest.scene.duration_assumed === true);
+    document.body.classList.toggle('still', playback.still);
     const preset = { index: null, moved: 0 };
     const choose = (value) => {
         const index = value === '' ? null : Number(value);
@@ -204,7 +245,7 @@ function bindControls(playback, controls, views, camera) {
         $('camera').value = value;
     };
     fillPresets(views);
-    $('play').addEventListener('click', () => { playback.playing = !playback.playing; });
+    $('play').addEventListener('click', () => playback.toggle());
     $('back').addEventListener('click', () => playback.step(-1));
     $('forward').addEventListener('click', () => playback.step(1));
     scrub.addEventListener('input', () => { playback.t = Number.parseFloat(scrub.value); });
@@ -249,7 +290,7 @@ function bindKeys(playback, controls, choose) {
         const field = e.target instanceof HTMLElement && e.target.matches('input[type=url], input[type=text], select');
         if (field || e.ctrlKey || e.metaKey || e.altKey) return;
         const actions = {
-            Space: () => { playback.playing = !playback.playing; },
+            Space: () => playback.toggle(),
             ArrowLeft: () => (e.shiftKey ? playback.skip(-1) : playback.step(-1)),
             ArrowRight: () => (e.shiftKey ? playback.skip(1) : playback.step(1)),
             Comma: () => playback.step(-1),
@@ -362,12 +403,12 @@ async function main() {
     });
     if (response.status === 404) throw new Error(`scene not found: ${manifestUrl} (HTTP 404)`);
     if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${manifestUrl}`);
-    const manifest = await response.json();
-    if (manifest.format !== 'tsogs') throw new Error(`${manifestUrl} is not a TSOG stream manifest`);
+    const manifest = checkManifest(await readManifest(response, manifestUrl));
     const { app, camera, controls, scene, views } = createApp(manifest, config.view);
     const stream = new ChunkStream(pc, app, scene, manifest, chunkUrlFor(config), fetchLog);
     const playback = new Playback(manifest, config);
-    const { preset } = bindControls(playback, controls, views, camera);
+    const { preset } = bindControls(playback, controls, views, camera, manifest);
+    const fade = fadeWhenIdle(document.body, $('controls'));
     if (config.view.camera !== null && views.presets[config.view.camera]) {
         preset.index = config.view.camera;
         $('camera').value = String(config.view.camera);
@@ -379,7 +420,8 @@ async function main() {
     app.on('update', (dt) => {
         playback.advance(dt);
         stream.update(playback.t, playback.playing, playback.loop);
-        playback.buffering = !stream.covered(playback.t);
+        playback.buffering = !stream.playable(playback.t, playback.playing);
+        fade(playback.playing);
         controls.update(dt);
         drawing.check(playback.t);
         fps = dt > 0 ? 0.9 * fps + 0.1 / dt : fps;

@@ -7,8 +7,14 @@
 // with; a frame shows the most layers whose chunks for t have all arrived. A base chunk whose
 // SH bands are a chunk of their own (sh_of) is drawn with DC colour, then redrawn with its
 // bands once they land: the page rebuilds its SOG with the bands' images (addBands).
-import { HORIZON_S, REPLAN_S, Throughput, chooseLayers, layersShown, startupAllowance } from './adapt.js';
+// Nothing is taken off the screen before what replaces it can be drawn: while the chunks for
+// t are still arriving, the last picture stays (show), and once playback had to wait it goes
+// on only when the base of the whole horizon has arrived (playable). The layers kept follow
+// the rate the page makes chunks ready (pace.js), not the link's alone.
+import { HORIZON_S, REPLAN_S, chooseLayers, layersShown, startupAllowance } from './adapt.js';
+import { readCapped } from './check.js';
 import { SceneIndex } from './manifest.js';
+import { ReadyRate } from './pace.js';
 import { readZip, writeZip } from './zip.js';
 import { chunkUniforms, createTextures, isWholeFrame, modifierGlsl, readLayout, timeUniforms } from './tsog.js';
 
@@ -18,6 +24,8 @@ const MAX_LOADING = 4;
 const MIN_HORIZON_S = 1.0;
 /** Bytes fetched ahead of t at most (in time order), so a horizon of large chunks stays bounded. */
 const AHEAD_BYTES = 64 * 1024 * 1024;
+/** Seconds playback waits at most for the chunks ahead once it had to stop (playable). */
+const MAX_STALL_S = 10;
 /** Gaussians of loaded chunks kept when t no longer needs them (the nearest ahead of t first),
  * so a short looping clip or a scrub back is not fetched and decoded again: with one chunk per
  * frame, every loop refetched the whole clip. About what a laptop GPU draws at once. */
@@ -59,8 +67,11 @@ export class ChunkStream {
         this.bytes = 0;
         this.error = null;
         this.bufferedFor = null; // {version, ranges}: buffered() recomputed when chunks change
-        this.throughput = new Throughput();
+        this.throughput = new ReadyRate();
         this.opened = this.throughput.clock();
+        this.stalled = true; // playback waits for the chunks ahead (see playable), at first too
+        this.stalledAt = null;
+        this.aheadBase = []; // the base chunks of the horizon the plan loads, for playable
         // adaptation: when the first picture came, when playback started, the layers fetched
         this.adapt = { firstAt: null, startedAt: null, deadline: null, level: 0, replannedAt: 0 };
         this.shownLayers = 0;
@@ -148,6 +159,7 @@ export class ChunkStream {
             }
         }
         this.wanted = [...new Set([...needed, ...ahead].map((c) => c.id))];
+        this.aheadBase = ahead.filter((c) => (c.layer ?? 0) === 0);
         this.shown = new Set(this.index.chunksFor(t, 1).map((c) => c.id));
         for (const id of this.wanted) {
             if (!this.chunks.has(id)) this.chunks.set(id, { info: this.index.manifest.chunks[id], state: 'queued' });
@@ -155,14 +167,14 @@ export class ChunkStream {
         this.dropUnwanted(t, loop);
     }
 
-    /** Drop what t and the horizon do not want, except chunks loaded or loading within
-     * keepGaussians, kept nearest first (looping, nearest ahead of t; else nearest in time):
-     * a load is aborted only when over that budget. */
+    /** Drop what t and the horizon do not want, except the chunks on screen and chunks loaded
+     * or loading within keepGaussians, kept nearest first (looping, nearest ahead of t; else
+     * nearest in time): a load is aborted only when over that budget. */
     dropUnwanted(t, loop) {
         const wanted = new Set(this.wanted);
         const spare = [];
         for (const [id, c] of this.chunks) {
-            if (wanted.has(id)) continue;
+            if (wanted.has(id) || c.entity?.enabled) continue; // the picture on screen stays
             if (c.state === 'ready' || c.state === 'loading') spare.push(c);
             else this.forget(c);
         }
@@ -202,27 +214,34 @@ export class ChunkStream {
                     c.state = 'failed';
                     this.error = `chunk ${c.info.id}: ${err.message ?? err}`;
                     console.error(this.error);
-                });
+                }).finally(() => this.loadWanted()); // the next at once, not a frame later
             }
         }
     }
 
-    /** Fetch, check and decode one chunk, then attach it to an entity with its time shader. */
+    /** Fetch, check and decode one chunk, then attach it to an entity with its time shader.
+     * The rate counts the whole of it (on a fast link the page's decoding is the limit). */
     async load(c) {
-        const pc = this.pc;
         c.state = 'loading';
         c.abort = new AbortController();
+        this.throughput.started();
+        let made = 0;
+        try {
+            await this.fetchAndDecode(c);
+            made = c.state === 'ready' ? c.info.length : 0;
+        } finally {
+            this.throughput.finished(made);
+        }
+    }
+
+    /** The steps of load: fetch, length and SHA-256 checks, unzip, textures, engine asset. */
+    async fetchAndDecode(c) {
+        const pc = this.pc;
         const url = this.chunkUrl(c.info);
         this.fetchLog.push(url);
-        this.throughput.started();
-        let buffer = new ArrayBuffer(0);
-        try {
-            const response = await fetch(url, { signal: c.abort.signal });
-            if (!response.ok) throw new Error(`HTTP ${response.status}`);
-            buffer = await response.arrayBuffer();
-        } finally {
-            this.throughput.finished(buffer.byteLength);
-        }
+        const response = await fetch(url, { signal: c.abort.signal });
+        if (!response.ok) throw new Error(`HTTP ${response.status}`);
+        const buffer = await readCapped(response, c.info.length, `more than the manifest's ${c.info.length} bytes`);
         this.bytes += buffer.byteLength;
         if (buffer.byteLength !== c.info.length) {
             throw new Error(`${buffer.byteLength} bytes, the manifest says ${c.info.length}`);
@@ -316,9 +335,15 @@ export class ChunkStream {
     }
 
     /** Enable exactly the chunks of chunks_for(t) with the most layers that have all arrived
-     * (the base's, while it is still arriving) and give them t (only when it changed). */
+     * and give them t (only when it changed). While t's base is still arriving, the picture on
+     * screen stays as it is (the base's chunks that are in are shown only when nothing is). */
     show(t) {
         this.shownLayers = layersShown(this.index, t, (id) => this.arrived(id));
+        const onScreen = [...this.chunks].filter(([, c]) => c.state === 'ready' && c.entity?.enabled);
+        if (this.shownLayers === 0 && onScreen.length > 0) {
+            this.shown = new Set(onScreen.map(([id]) => id));
+            return;
+        }
         this.shown = new Set(this.index.chunksFor(t, Math.max(this.shownLayers, 1)).map((c) => c.id));
         for (const [id, c] of this.chunks) {
             if (c.state !== 'ready' || !c.entity) continue; // SH bands are drawn with their host
@@ -380,6 +405,25 @@ export class ChunkStream {
             adapt.startedAt = now;
             adapt.replannedAt = now;
         }
+        return true;
+    }
+
+    /** True when playback may advance from t: t can be drawn (covered) and, once it had to
+     * wait (and at the start), the horizon's base has arrived or it waited MAX_STALL_S: a
+     * playhead that caught up with the loads waits for a stretch it can play through, not for
+     * the next chunk alone (one frame, a wait, one frame: a stutter at a fraction of 1x). */
+    playable(t, playing) {
+        const now = this.throughput.clock();
+        if (!this.covered(t)) {
+            this.stalled = true;
+            return false;
+        }
+        if (!this.stalled || !playing) return true;
+        this.stalledAt ??= now;
+        const filled = this.aheadBase.every((c) => this.arrived(c.id));
+        if (!filled && now - this.stalledAt < MAX_STALL_S) return false;
+        this.stalled = false;
+        this.stalledAt = null;
         return true;
     }
 
