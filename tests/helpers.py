@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import http.client
+import importlib
+import logging
 import os
 import signal
 import socket
@@ -286,3 +288,35 @@ def reporting_job(steps: int) -> int:
     for step in range(1, steps + 1):
         report_progress(step / steps)
     return os.getpid()
+
+
+@contextmanager
+def loopback_s3(bucket: str) -> Iterator[Any]:
+    """A moto S3 server on loopback holding an empty ``bucket``, the environment pointing
+    s3fs at it for the duration; yields an ``s3fs.S3FileSystem`` (moto and s3fs are dev and
+    [s3] extras that scripts/setup installs)."""
+    moto_server = importlib.import_module("moto.server")
+    s3fs = importlib.import_module("s3fs")
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)
+    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    env = {
+        "AWS_ACCESS_KEY_ID": "loopback",
+        "AWS_SECRET_ACCESS_KEY": "loopback",
+        "AWS_DEFAULT_REGION": "us-east-1",
+        "AWS_ENDPOINT_URL": f"http://{host}:{port}",
+    }
+    try:
+        with pytest.MonkeyPatch.context() as mp:
+            for key, value in env.items():
+                mp.setenv(key, value)
+            s3fs.S3FileSystem.clear_instance_cache()
+            fs = s3fs.S3FileSystem()
+            fs.call_s3("create_bucket", Bucket=bucket)
+            try:
+                yield fs
+            finally:
+                s3fs.S3FileSystem.clear_instance_cache()
+    finally:
+        server.stop()

@@ -4,6 +4,7 @@ connection, with nothing lost or reordered."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -287,7 +288,77 @@ def test_only_plain_heads_are_lean(raw: bytes, lean_head: bool) -> None:
         (b"\x16\x03\x01\x00", False),
         (b"GET /files/a HTTP/1.0\r\n", False),
         (b"GET /" + b"a" * 9000, False),
+        (b"GET /files/a HTTP/1.1\r", True),  # its LF may come in the next packet
+        (b"GET /files/a HTTP/1.1\r\nHost: h\r\nRange: bytes=0-1\r\nIf-", True),
+        (b"GET /files/a HTTP/1.1\nHo", False),  # a bare LF
+        (b"GET /files/a HTTP/1.1\r\nHost: h\n", False),
+        (b"GET /files/a HTTP/1.1\rHo", False),  # a bare CR
+        (b"GET /files/a\x00", False),
+        (b"GET /files/a HTTP/1.1\r\nHost: h\x7f", False),
+        (b"GET /files/a HTTP/1.1\r\nHost: \xc3\xa9", False),
+        (b"GET /files/a HTTP/1.1\r\nHost: h\r\n\tfolded", False),  # obs-fold
+        (b"GET /files/a HTTP/1.1\r\nX-Other: 1\r\n", False),  # a field it never takes
+        (b"GET /files/a HTTP/1.1\r\nHost h\r\n", False),  # no colon
+        (b"GET /files/a HTTP/1.1\r\n" + b"Accept: a\r\n" * 25, False),  # more than a head
     ],
 )
 def test_other_requests_go_to_the_full_handler_at_once(start: bytes, maybe: bool) -> None:
     assert may_be_lean(start) is maybe
+
+
+HOSTILE_HEADS = {
+    "bare LF": b"GET /files/data.bin HTTP/1.1\nHost: h\n\n",
+    "bare LF, lean fields": b"GET /files/data.bin HTTP/1.1\nHost: h\nRange: bytes=0-1\n\n",
+    "bare CR": b"GET /files/data.bin HTTP/1.1\rHost: h\r\r",
+    "bare CR, cut short": b"GET /files/data.bin HTTP/1.1\rHost: h",
+    "CRLF and LF mixed": b"GET /files/data.bin HTTP/1.1\r\nHost: h\nRange: bytes=0-1\r\n\r\n",
+    "CRLF and LF mixed, LF CRLF end": b"GET /files/data.bin HTTP/1.1\r\nHost: h\n\r\n",
+    "NUL in a field": b"GET /files/data.bin HTTP/1.1\r\nHost: h\x00x\r\n\r\n",
+    "NUL in the target, cut short": b"GET /files/da\x00ta.bin HTTP/1.1\r\nHost: h\r\n",
+    "control byte, cut short": b"GET /files/data.bin HTTP/1.1\r\nHost: h\x01",
+    "obs-fold": b"GET /files/data.bin HTTP/1.1\r\nHost: h\r\n folded\r\n\r\n",
+    "obs-fold, cut short": b"GET /files/data.bin HTTP/1.1\r\nHost: h\r\n\tfolded",
+    "a field over the limit, never ending": (
+        b"GET /files/data.bin HTTP/1.1\r\nHost: h\r\nRange: bytes=0-" + b"0" * 9000
+    ),
+    "too many fields, never ending": (
+        b"GET /files/data.bin HTTP/1.1\r\nHost: h\r\n" + b"X-n: y\r\n" * 200
+    ),
+}
+"""Heads no server may take as they are, whole or cut short (the client then waits): RFC
+9112 §2.2 allows reading a bare LF as a line end, but both paths refuse it, as every other
+shape here, with 400 (server/lean.py, ``_NEVER_LEAN``)."""
+ANSWER_BOUND_S = 3.0
+"""A hostile head is answered and its connection closed within this (the keep-alive time the
+servers under test would otherwise wait is 15 s)."""
+
+
+@pytest.mark.parametrize("path", ["lean", "full"])
+@pytest.mark.parametrize("shape", sorted(HOSTILE_HEADS))
+def test_a_malformed_head_gets_400_at_once_and_a_closed_connection(
+    both: tuple[ThreadedServer, ThreadedServer], shape: str, path: str
+) -> None:
+    server = both[0] if path == "lean" else both[1]
+    status, seconds = answer_then_close(server.port, HOSTILE_HEADS[shape])
+    assert status == 400 and seconds < ANSWER_BOUND_S, (shape, path, status, seconds)
+
+
+def answer_then_close(port: int, raw: bytes) -> tuple[int, float]:
+    """Send ``raw`` on a new connection; the status answered and the seconds until the server
+    closed the connection (a socket timeout past ANSWER_BOUND_S fails the test)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=ANSWER_BOUND_S * 2) as sock:
+        start = time.monotonic()
+        with contextlib.suppress(OSError):  # refused before all was sent: still answered
+            sock.sendall(raw)
+        data = b""
+        try:
+            while block := sock.recv(65536):
+                data += block
+        except ConnectionResetError:
+            pass  # closed with unread bytes of ours in its buffer: still closed
+        except TimeoutError:
+            pass  # never closed: the bound below fails
+        seconds = time.monotonic() - start
+    status_line = data.split(b"\r\n", 1)[0].split()
+    assert len(status_line) >= 2, f"no answer, closed after {seconds:.2f} s"
+    return int(status_line[1]), seconds

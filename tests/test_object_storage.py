@@ -8,18 +8,25 @@ MinIO or a cloud region. Every result is compared byte for byte with the local r
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import json
-import logging
 import os
 import random
+import re
+import socket
+import time
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import fsspec
 import pytest
+from fsspec import AbstractFileSystem
 
-from helpers import ThreadedServer, fetch
+from helpers import ThreadedServer, fetch, loopback_s3
+from peers import Peer, random_bytes, silent
+from tsog_stream import server as server_module
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.container.header import PREFIX_SIZE
@@ -43,7 +50,6 @@ from tsog_stream.schemas.manifest import Manifest
 from tsog_stream.segment.segmenter import SegmentOptions, segment_sequence
 from tsog_stream.server import make_app
 
-moto_server = pytest.importorskip("moto.server")  # dev extra: installed by scripts/setup
 s3fs = pytest.importorskip("s3fs")  # extra tsog-stream[s3]
 
 DATA = Path(__file__).parent / "data" / "real" / "4d"
@@ -56,29 +62,10 @@ BUCKET = "studio"
 @pytest.fixture(scope="module")
 def s3() -> Iterator[Any]:
     """A bucket on a loopback S3 server; the environment points s3fs at it."""
-    logging.getLogger("werkzeug").setLevel(logging.ERROR)
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    env = {
-        "AWS_ACCESS_KEY_ID": "loopback",
-        "AWS_SECRET_ACCESS_KEY": "loopback",
-        "AWS_DEFAULT_REGION": "us-east-1",
-        "AWS_ENDPOINT_URL": f"http://{host}:{port}",
-    }
-    with pytest.MonkeyPatch.context() as mp:
-        for key, value in env.items():
-            mp.setenv(key, value)
-        s3fs.S3FileSystem.clear_instance_cache()
-        fs = s3fs.S3FileSystem()
-        fs.call_s3("create_bucket", Bucket=BUCKET)
+    with loopback_s3(BUCKET) as fs:
         for frame in CLIP:
             fs.pipe_file(f"{BUCKET}/frames/{frame.name}", frame.read_bytes())
-        try:
-            yield fs
-        finally:
-            s3fs.S3FileSystem.clear_instance_cache()
-            server.stop()
+        yield fs
 
 
 def _cli(*args: str) -> int:
@@ -376,3 +363,119 @@ def test_cluster_workers_read_their_own_frames_from_the_bucket(
     assert reads and len(reads) == here - seq.count  # the samples only: no window read here
     s3.invalidate_cache()
     assert s3.cat_file(f"{BUCKET}/long.tsogs") == alone.read_bytes()
+
+
+class _FailingStore(AbstractFileSystem):  # type: ignore[misc]
+    """A store whose every call fails with ``error`` (an S3 403, a stalled backend ...)."""
+
+    error: Exception = PermissionError("403 AccessDenied")
+
+    def _fail(self, *args: Any, **kwargs: Any) -> Any:
+        raise self.error
+
+    info = ls = cat_file = _open = du = glob = pipe_file = put_file = rm_file = _fail
+    exists = isdir = isfile = _fail
+
+
+class _DeniedStore(_FailingStore):
+    protocol = "denied"
+
+
+class _StalledStore(_FailingStore):
+    protocol = "stalled"
+    error = TimeoutError("read timed out after 60 s")
+
+
+def _closed_port() -> int:
+    """A loopback port nothing listens on (bound, then closed)."""
+    with socket.create_server(("127.0.0.1", 0)) as sock:
+        return int(sock.getsockname()[1])
+
+
+def _no_lookup(host: str, *args: Any, **kwargs: Any) -> Any:
+    """getaddrinfo for a test of names that do not resolve: no lookup leaves the machine."""
+    raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+
+STORE_FAILURES = {
+    "ftp, connection refused": ("ftp://127.0.0.1:{closed}/x.tsogs", "ConnectionRefusedError"),
+    "ftp, a server that says nothing": ("ftp://127.0.0.1:{silent}/x.tsogs", "timed out"),
+    "ftp, a server that sends noise": ("ftp://127.0.0.1:{noise}/x.tsogs", "cannot connect: "),
+    "ftp, a name that does not resolve": ("ftp://no-such-host.invalid/x.tsogs", "gaierror"),
+    "webhdfs (HTTP through fsspec), refused": ("webhdfs://127.0.0.1:{closed}/d/x.tsogs", "refused"),
+    "s3, endpoint refused": ("s3://bucket/x.tsogs", "Could not connect to the endpoint"),
+    "memory, nothing there": ("memory://nothing/x.tsogs", "no such|no bucket 'nothing'"),
+    "file, nothing there": ("file:///nonexistent-55/x.tsogs", "(?i)no such (file|folder)"),
+    "an unknown protocol": ("nosuchproto://x/y.tsogs", "Protocol not known: nosuchproto"),
+    "a backend not installed": ("gs://bucket/x.tsogs", "gs:// is not available here"),
+    "a protocol missing its settings": ("dbfs://x/y.tsogs", "not a storage URL fsspec can open"),
+    "a port out of range": ("ftp://127.0.0.1:99999/x.tsogs", "Port out of range"),
+    "access denied": ("denied://bucket/x.tsogs", "access denied|no access"),
+    "a store that times out": ("stalled://bucket/x.tsogs", "timed out|no access"),
+}
+"""Failures at the object-store boundary: (URL, what the one error line says)."""
+
+
+def _store_argv(command: str, url: str, tmp_path: Path) -> list[str]:
+    out = str(tmp_path / "out.ply")
+    return {
+        "info": ["info", url],
+        "frame": ["frame", url, "--t", "0", "-o", out],
+        "verify": ["verify", url],
+        "serve": ["serve", url, "--port", "0", "--workers", "1"],
+        "segment": ["segment", url, "-o", str(tmp_path / "o.tsogs")],
+        "segment -o": ["segment", str(FRAMES), "-o", url, "-q"],
+    }[command]
+
+
+STORE_COMMANDS = ["info", "frame", "verify", "serve", "segment", "segment -o"]
+STORE_CASES = [
+    (failure, command)
+    for failure in STORE_FAILURES
+    for command in STORE_COMMANDS
+    if (failure, command) != ("file, nothing there", "segment -o")  # a missing folder is made
+]
+
+
+@pytest.mark.parametrize(("failure", "command"), STORE_CASES)
+def test_a_store_that_fails_is_one_line_for_every_command(
+    failure: str,
+    command: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Every way a store can fail (refused, silent, noise, no such name, unknown or missing
+    protocol, denied, timed out) is one line naming the URL, for every command reaching it."""
+    url, expected = STORE_FAILURES[failure]
+    if failure == "a backend not installed" and importlib.util.find_spec("gcsfs"):
+        pytest.skip("gcsfs is installed here")
+    fsspec.register_implementation("denied", _DeniedStore, clobber=True)
+    fsspec.register_implementation("stalled", _StalledStore, clobber=True)
+    monkeypatch.setitem(fsspec.config.conf, "ftp", {"timeout": 1.0})
+    monkeypatch.setenv("AWS_ENDPOINT_URL", f"http://127.0.0.1:{_closed_port()}")
+    monkeypatch.setenv("AWS_MAX_ATTEMPTS", "1")
+    for key in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):
+        monkeypatch.setenv(key, "loopback")
+    if "resolve" in failure:
+        monkeypatch.setattr(socket, "getaddrinfo", _no_lookup)
+    for name in ("run_server", "run_workers"):  # a test that wrongly served would never end
+        monkeypatch.setattr(server_module, name, _never_serve)
+    s3fs.S3FileSystem.clear_instance_cache()
+    with Peer(silent, lifetime_s=20) as quiet, Peer(random_bytes, lifetime_s=20) as noisy:
+        url = url.format(closed=_closed_port(), silent=quiet.port, noise=noisy.port)
+        began = time.monotonic()
+        code = main(_store_argv(command, url, tmp_path))
+        took = time.monotonic() - began
+    s3fs.S3FileSystem.clear_instance_cache()
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("tsog: error: ") and url.split("://")[1] in lines[-1], err
+    assert len([line for line in lines if "error" in line]) == 1, err
+    assert re.search(expected, lines[-1]), (expected, err)
+    assert took < 20 and not (tmp_path / "o.tsogs").exists() and not (tmp_path / "out.ply").exists()
+
+
+def _never_serve(*args: Any, **kwargs: Any) -> None:
+    raise AssertionError("the server started on a store that fails")

@@ -624,7 +624,7 @@ def test_cold_scene_is_opened_once_off_the_event_loop(
     calls: list[str] = []
     real = catalog_module._read_scene
 
-    def slow_read(path: Path, packed: bool) -> tuple[object, bytes]:
+    def slow_read(path: Path, packed: bool) -> tuple[object, bytes, int]:
         calls.append(threading.current_thread().name)
         time.sleep(1.0)  # a big index: every request arrives while it is parsed
         return real(path, packed)

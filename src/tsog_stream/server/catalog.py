@@ -21,17 +21,19 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, BinaryIO, NamedTuple, TypeVar, cast
 
-from ..constants import is_container
+from ..constants import is_container, thumbnail_path
 from ..container.header import HEADER_SIZE, Header
 from ..container.index import MAX_INDEX_BYTES
 from ..container.sources import ByteSource, FileSource, read_index
 from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import InputError, SourceError, TsogError
 from ..schemas.manifest import ChunkEntry, dump_manifest
+from .shown import gaussians_per_frame
 
 CONTAINER_SUFFIX = ".tsogs"
 CONTAINER_TYPE = "application/vnd.tsog-stream"
 SOG_TYPE = "application/x-sog"
+PNG_TYPE = "image/png"
 _HASH_BLOCK = 1 << 20
 MAX_CACHED = 4096
 """Files remembered per cache (ETags, opened scenes): only the current version of each."""
@@ -94,6 +96,9 @@ class SceneEntry:
     manifest_json: bytes
     mtime: float
     size: int
+    gaussians_per_frame: int
+    """The most Gaussians shown at one time (:func:`.shown.gaussians_per_frame`), computed
+    once when the scene is opened."""
 
 
 def open_beneath(root: Path, path: Path) -> BinaryIO:
@@ -231,8 +236,9 @@ class Catalog:
         self._pending: dict[tuple[str, Path, FileVersion], asyncio.Future[Any]] = {}
 
     def check_only(self, rel: str) -> None:
-        """In single-file mode, anything but that file is not found."""
-        if self.only is not None and rel != self.only:
+        """In single-file mode, anything but that file (and, for a container, the thumbnail
+        beside it, which the scene list shows) is not found."""
+        if self.only is not None and rel != self.only and rel != _thumbnail_of(self.only):
             raise NotFoundError("no such file", where=rel[:80])
 
     async def file(self, rel: str) -> Representation:
@@ -321,14 +327,16 @@ class Catalog:
         """Open a container or read an unpacked manifest, in a worker thread so that parsing a
         large index never stalls the event loop (NotFoundError when unreadable)."""
         try:
-            index, manifest_json = await asyncio.to_thread(_read_scene, path, packed)
+            index, manifest_json, per_frame = await asyncio.to_thread(_read_scene, path, packed)
         except TsogError as exc:
             raise unreadable(exc, f"not a readable scene: {exc.message}", scene_id) from exc
         except OSError as exc:  # vanished or unreadable since the stat
             raise unreadable(exc, "not a readable scene", scene_id) from exc
         if not packed:
             size = len(manifest_json) + index.manifest.payload_bytes
-        return SceneEntry(scene_id, path, packed, index, manifest_json, mtime_ns / 1e9, size)
+        return SceneEntry(
+            scene_id, path, packed, index, manifest_json, mtime_ns / 1e9, size, per_frame
+        )
 
     def relative(self, path: Path) -> str:
         """The root-relative form of a resolved path under the root."""
@@ -379,17 +387,20 @@ class Catalog:
         return Representation(path, 0, version.size, etag, mtime, SOG_TYPE, self.root)
 
 
-def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes]:
-    """The index and manifest JSON of a container or an unpacked layout (blocking: run it in a
-    thread). An unpacked manifest over MAX_INDEX_BYTES is refused before it is read."""
+def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes, int]:
+    """The index, manifest JSON and Gaussians per frame of a container or an unpacked layout
+    (blocking: run it in a thread). An unpacked manifest over MAX_INDEX_BYTES is refused
+    before it is read."""
     if packed:
         index = asyncio.run(read_index(FileSource(path)))
-        return index, dump_manifest(index.manifest)
-    with open(path, "rb") as f:
-        manifest_json = f.read(MAX_INDEX_BYTES + 1)
-    if len(manifest_json) > MAX_INDEX_BYTES:
-        raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=str(path))
-    return unpacked_index(manifest_json, where=str(path)), manifest_json
+        manifest_json = dump_manifest(index.manifest)
+    else:
+        with open(path, "rb") as f:
+            manifest_json = f.read(MAX_INDEX_BYTES + 1)
+        if len(manifest_json) > MAX_INDEX_BYTES:
+            raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=str(path))
+        index = unpacked_index(manifest_json, where=str(path))
+    return index, manifest_json, gaussians_per_frame(index.manifest)
 
 
 def _named(scene: SceneEntry, scene_id: str) -> SceneEntry:
@@ -412,7 +423,17 @@ def remember(cache: dict[_K, _V], path: _K, value: _V) -> None:
         del cache[next(iter(cache))]
 
 
+def _thumbnail_of(name: str) -> str | None:
+    """The thumbnail file of a container name (None for any other file)."""
+    return thumbnail_path(name) if name.endswith(CONTAINER_SUFFIX) else None
+
+
 def guess_type(path: Path) -> str:
     """A media type from the extension (octet-stream when unknown)."""
-    known = {".json": "application/json", ".sog": SOG_TYPE, ".ply": "application/octet-stream"}
+    known = {
+        ".json": "application/json",
+        ".sog": SOG_TYPE,
+        ".png": PNG_TYPE,
+        ".ply": "application/octet-stream",
+    }
     return known.get(path.suffix.lower(), "application/octet-stream")

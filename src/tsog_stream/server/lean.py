@@ -95,6 +95,13 @@ _FILE = re.compile(rf"/files/((?:{_SEGMENT}/)*{_SEGMENT})")
 _CHUNK = re.compile(rf"/v1/scenes/((?:{_SEGMENT}/)*{_SEGMENT})/chunks/([0-9]{{1,9}})\.sog")
 _VERSION = re.compile(r"v=([0-9a-f]{64})")
 _CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")
+_NEVER_LEAN = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\xff]|\r[^\n]|(?<!\r)\n|\n[ \t]")
+"""Bytes no lean head holds, seen before the head ends: a control byte or non-ASCII, a bare
+CR, a bare LF, an obs-fold continuation line. RFC 9112 §2.2 lets a recipient take a bare LF
+as a line end (MAY) and makes a bare CR invalid or a space; we take neither leniency: the head
+goes at once to aiohttp's parser, which refuses both (400, connection closed), so the lean and
+full paths agree and no proxy in front can read one message where we read another (request
+smuggling, RFC 9112 §11.2)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,11 +142,23 @@ def parse_head(raw: bytes) -> Head | None:
 
 def may_be_lean(start: bytes) -> bool:
     """Whether a request whose first bytes are ``start`` may still be one for the lean path
-    (so the full handler answers garbage, TLS and other methods at once, as it would)."""
+    (so the full handler answers garbage, TLS, other methods and malformed heads at once, as
+    it would, instead of the lean path waiting for a ``CRLF CRLF`` that may never come)."""
     if len(start) > MAX_HEAD or not (start.startswith(b"GET ") or b"GET ".startswith(start)):
         return False
-    line, crlf, _ = start.partition(b"\r\n")
-    return not crlf or line.endswith(b" HTTP/1.1")
+    if _NEVER_LEAN.search(start):
+        return False
+    line, *fields = start.split(b"\r\n")
+    if fields and not line.endswith(b" HTTP/1.1"):
+        return False
+    ended = fields[:-1]  # the field lines already ended (the last may still be coming)
+    return len(ended) <= len(LEAN_FIELDS) and all(_lean_name(f) for f in ended)
+
+
+def _lean_name(line: bytes) -> bool:
+    """Whether a field line names one of :data:`LEAN_FIELDS`."""
+    name, colon, _ = line.partition(b":")
+    return bool(colon) and name.decode("ascii").lower() in LEAN_FIELDS
 
 
 @dataclass(frozen=True, slots=True)

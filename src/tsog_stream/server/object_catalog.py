@@ -41,6 +41,7 @@ from .catalog import (
     remember,
     servable,
 )
+from .shown import gaussians_per_frame
 
 REVALIDATE_S = 2.0
 """Seconds an object's version is trusted before the store is asked again."""
@@ -167,10 +168,9 @@ class ObjectCatalog(Catalog):
                 size = len(manifest_json) + index.manifest.payload_bytes
         except TsogError as exc:
             raise NotFoundError(f"not a readable scene: {exc.message}", where=scene_id) from exc
-        path = Path(rel)
-        return SceneEntry(
-            scene_id, path, packed, index, manifest_json, version.mtime_ns / 1e9, size
-        )
+        per_frame = await asyncio.to_thread(gaussians_per_frame, index.manifest)
+        mtime = version.mtime_ns / 1e9
+        return SceneEntry(scene_id, Path(rel), packed, index, manifest_json, mtime, size, per_frame)
 
     def relative(self, path: Path) -> str:
         """Names are already relative to the base."""

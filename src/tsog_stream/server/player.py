@@ -141,22 +141,31 @@ async def index(request: web.Request) -> web.StreamResponse:
 
 
 def _scene_item(item: dict[str, Any]) -> str:
-    """One scene of the index: its thumbnail (when tsog segment drew one), name, duration,
-    Gaussian count and size."""
+    """One scene of the index: its thumbnail (when tsog segment drew one), name, duration
+    (marked when assumed), the Gaussians one frame shows and size."""
     picture = (
         f'<img src="{html.escape(item["thumbnail"])}" alt="" loading="lazy">'
         if item["thumbnail"]
         else '<span class="no-thumbnail"></span>'
     )
-    facts = (
-        f"{item['duration_s']:.2f} s &middot; {item['gaussians']:,} Gaussians &middot; "
-        f"{item['bytes'] / 1e6:.1f} MB"
-    )
+    facts = f"{_duration(item)} &middot; {_gaussians(item)} &middot; {item['bytes'] / 1e6:.1f} MB"
     return (
         f'<li><a href="/play/{quote(item["id"])}">{picture}'
         f'<span class="name">{html.escape(item["id"])}</span>'
         f'<span class="facts">{facts}</span></a></li>\n'
     )
+
+
+def _duration(item: dict[str, Any]) -> str:
+    """The scene's length, "(assumed)" when the input did not say it."""
+    assumed = " (assumed)" if item["duration_assumed"] else ""
+    return f"{item['duration_s']:.2f} s{assumed}"
+
+
+def _gaussians(item: dict[str, Any]) -> str:
+    """The Gaussians shown at one time, "per frame" when the scene holds more over time."""
+    per_frame = item["gaussians_per_frame"]
+    return f"{per_frame:,} Gaussians" + (" per frame" if per_frame < item["gaussians"] else "")
 
 
 def _manifest_url(url: str) -> str:

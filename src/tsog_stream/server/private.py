@@ -21,6 +21,7 @@ from urllib.parse import parse_qsl, urlencode, urlsplit
 from aiohttp import web
 from aiohttp.abc import AbstractAccessLogger
 
+from ..constants import THUMBNAIL_SUFFIX
 from ..errors import InputError
 from ..signing import MIN_SECRET_BYTES, check_signed, decoded_path, redact_url, signed_params
 
@@ -48,11 +49,14 @@ class Privacy:
             raise InputError(f"the URL secret must be at least {MIN_SECRET_BYTES} bytes")
 
     def is_private(self, rel: str) -> bool:
-        """Whether the root-relative path ``rel`` (or a folder above it) is private."""
+        """Whether the root-relative path ``rel`` (or a folder above it) is private; a
+        thumbnail is private when the container or manifest it shows is."""
         if not self.patterns:
             return False
         path = PurePosixPath(rel)
         candidates = [path.as_posix()] + [p.as_posix() for p in path.parents if p.name]
+        if rel.endswith(THUMBNAIL_SUFFIX):
+            candidates.append(rel.removesuffix(THUMBNAIL_SUFFIX))
         return any(fnmatchcase(c, p) for c in candidates for p in self.patterns)
 
     def admit(self, request: web.Request, rels: Iterable[str]) -> None:

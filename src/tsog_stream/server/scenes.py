@@ -77,7 +77,8 @@ def thumbnail_rel(catalog: Catalog, scene: SceneEntry) -> str:
 
 
 def _scene_json(scene: SceneEntry, has_thumbnail: bool = False) -> dict[str, Any]:
-    """One item of the scene list."""
+    """One item of the scene list (docs/http.md): ``gaussians`` counts every Gaussian of the
+    source, ``gaussians_per_frame`` the most shown at one time."""
     q = quote(scene.id)
     info = scene.index.manifest.scene
     return {
@@ -90,8 +91,10 @@ def _scene_json(scene: SceneEntry, has_thumbnail: bool = False) -> dict[str, Any
         "start_s": info.start_s,
         "end_s": info.end_s,
         "duration_s": info.end_s - info.start_s,
+        "duration_assumed": bool(getattr(info, "duration_assumed", False)),
         "chunks": len(scene.index.manifest.chunks),
         "gaussians": info.gaussians,
+        "gaussians_per_frame": scene.gaussians_per_frame,
         "cameras": len(scene.index.manifest.cameras),
         "thumbnail": f"/v1/scenes/{q}/thumbnail" if has_thumbnail else None,
     }
