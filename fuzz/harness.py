@@ -28,8 +28,12 @@ sys.path.insert(0, str(ROOT))
 with atheris.instrument_imports(include=["tsog_stream"]):
     import tsog_stream.client
     import tsog_stream.codec.chunk
+    import tsog_stream.io.cameras
     import tsog_stream.io.ply
     import tsog_stream.io.splatv
+    import tsog_stream.render.camera
+    import tsog_stream.render.project
+    import tsog_stream.render.raster
     import tsog_stream.schemas.validate
     import tsog_stream.server.conditional
     import tsog_stream.server.ranges  # noqa: F401

@@ -42,7 +42,10 @@ from tsog_stream.io.cameras import (
 )
 from tsog_stream.io.ply import parse_ply, ply_bytes
 from tsog_stream.io.splatv import MAGIC, RECORD, parse_splatv
-from tsog_stream.model import TimelineType
+from tsog_stream.model import Gaussians, TimelineType
+from tsog_stream.render import render
+from tsog_stream.render.camera import from_capture, stretched
+from tsog_stream.schemas.cameras import CaptureCamera
 from tsog_stream.schemas.manifest import check_layout, dump_manifest, parse_manifest
 from tsog_stream.schemas.validate import parse_meta
 from tsog_stream.server.conditional import evaluate, if_range_allows
@@ -187,6 +190,51 @@ def fuzz_colmap_text(data: bytes) -> object:
     return [pose.camera(intrinsics, where=where) for pose in poses]
 
 
+def fuzz_splatv_cameras(data: bytes) -> object:
+    """The cameras a .splatv header carries (its records read too: they are few)."""
+    return parse_splatv(data, name="fuzz.splatv").cameras
+
+
+CAMERA_READERS: Final = (fuzz_cameras_json, fuzz_colmap_bin, fuzz_colmap_text, fuzz_splatv_cameras)
+"""What the first byte of a ``cameras_render`` input picks (modulo their count)."""
+RENDER_BUDGET: Final = 32 * 32
+"""Pixels the ``cameras_render`` target draws a camera with (whatever size it declares)."""
+MAX_CAMERAS_DRAWN: Final = 4
+RENDER_WIDTH: Final = 16
+"""A width given alone: the height follows the camera's shape, held to 1:8."""
+
+
+def fuzz_cameras_render(data: bytes) -> object:
+    """Camera files reaching the renderer: the first byte picks the reader (cameras.json,
+    COLMAP binary, COLMAP text, .splatv header); each camera parsed then draws a tiny scene at
+    its own size held to a small pixel budget, stretched 3DGS-style, and 16 pixels wide."""
+    if not data:
+        return None
+    read = CAMERA_READERS[data[0] % len(CAMERA_READERS)]
+    cameras: list[CaptureCamera] = read(data[1:])  # type: ignore[assignment]
+    for camera in cameras[:MAX_CAMERAS_DRAWN]:
+        drawn = (
+            (from_capture(camera, None, budget=RENDER_BUDGET), RENDER_BUDGET),
+            (stretched(camera, None, None, budget=RENDER_BUDGET), RENDER_BUDGET),
+            (from_capture(camera, RENDER_WIDTH), RENDER_WIDTH * RENDER_WIDTH * 8),
+        )
+        for view, most in drawn:
+            if view.width * view.height > most:
+                raise LieError(f"{view.width}x{view.height} drawn for a {most}-pixel budget")
+            image = render(_render_scene(), view, backend="numpy")
+            if image.shape != (view.height, view.width, 3):
+                raise LieError(f"a {image.shape} image for a {view.width}x{view.height} camera")
+    return cameras
+
+
+@cache
+def _render_scene() -> Gaussians:
+    """A few dozen Gaussians in front of the seeds' cameras (at z = 2, looking along +z)."""
+    scene = static_gaussians(48, sh_bands=1, seed=3)
+    means = scene.means - scene.means.mean(axis=0) + np.array([0.5, -1.0, 6.0], np.float32)
+    return dataclasses.replace(scene, means=means.astype(np.float32))
+
+
 def fuzz_range(data: bytes) -> object:
     """A Range header (first 8 bytes: the representation length); must never raise at all."""
     length = int.from_bytes(data[:8], "little") >> (data[0] % 64 if data else 0)
@@ -227,6 +275,7 @@ TARGETS: Final[dict[str, Target]] = {
     "cameras_json": fuzz_cameras_json,
     "colmap_bin": fuzz_colmap_bin,
     "colmap_text": fuzz_colmap_text,
+    "cameras_render": fuzz_cameras_render,
 }
 EXTENSIONS: Final[dict[str, str]] = {
     ".ply": "ply",
@@ -243,6 +292,7 @@ EXTENSIONS: Final[dict[str, str]] = {
     ".cameras": "cameras_json",
     ".colmapbin": "colmap_bin",
     ".colmaptxt": "colmap_text",
+    ".camrender": "cameras_render",
 }
 """Which target reads a corpus file, by its extension."""
 
@@ -345,6 +395,8 @@ def valid_seeds(target: str) -> dict[str, bytes]:
         return {"model.colmapbin": _colmap_bin_seed()}
     if target == "colmap_text":
         return {"model.colmaptxt": COLMAP_TEXT_SEED}
+    if target == "cameras_render":
+        return _cameras_render_seeds()
     raise KeyError(target)
 
 
@@ -380,6 +432,51 @@ def _colmap_bin_seed() -> bytes:
         imgs += struct.pack("<i7di", image_id, *q, 0.5, -1.0, 2.0, cam) + name + b"\0"
         imgs += struct.pack("<Q", 2) + struct.pack("<ddq", 1.0, 2.0, -1) * 2
     return len(cams).to_bytes(4, "little") + cams + imgs
+
+
+HOSTILE_CAMERA_SHAPES: Final[dict[str, dict[str, object]]] = {
+    "tall-200x65536": {"width": 200, "height": 65536},
+    "line-1x65536": {"width": 1, "height": 65536},
+    "wide-65536x1": {"width": 65536, "height": 1},
+    "huge-65536x65536": {"width": 65536, "height": 65536},
+    "dot-1x1": {"width": 1, "height": 1},
+    "focal-1e-30": {"fx": 1e-30, "fy": 1e-30},
+    "focal-1e30": {"fx": 1e30, "fy": 1e30},
+    "focal-mixed": {"fx": 1e-30, "fy": 1e30},
+    "principal-point-1e300": {"cx": 1e300, "cy": -1e300},
+}
+"""Camera shapes a file may declare that the renderer must bound (valid per the schema)."""
+
+
+def hostile_camera_entry(name: str) -> dict[str, object]:
+    """:data:`CAMERA_ENTRIES`' camera with the shape ``name`` of HOSTILE_CAMERA_SHAPES."""
+    return {**CAMERA_ENTRIES[0], **HOSTILE_CAMERA_SHAPES[name]}
+
+
+def _splatv_with_cameras(entries: list[dict[str, object]]) -> bytes:
+    """:func:`_splatv_seed`'s records under a header carrying ``entries`` as its cameras."""
+    seed = _splatv_seed()
+    length = struct.unpack_from("<I", seed, 4)[0]
+    chunks = json.loads(seed[8 : 8 + length])
+    chunks[0]["cameras"] = entries
+    header = json.dumps(chunks).encode()
+    return struct.pack("<II", MAGIC, len(header)) + header + seed[8 + length :]
+
+
+def _cameras_render_seeds() -> dict[str, bytes]:
+    """Each reader's valid seed behind its selector byte, and the hostile shapes as a
+    cameras.json and as a .splatv header."""
+    seeds = {
+        "json.camrender": b"\0" + json.dumps(CAMERA_ENTRIES).encode(),
+        "colmapbin.camrender": b"\1" + _colmap_bin_seed(),
+        "colmaptxt.camrender": b"\2" + COLMAP_TEXT_SEED,
+        "splatv.camrender": b"\3" + _splatv_with_cameras(CAMERA_ENTRIES),
+    }
+    for name in HOSTILE_CAMERA_SHAPES:
+        entry = hostile_camera_entry(name)
+        seeds[f"json-{name}.camrender"] = b"\0" + json.dumps([entry]).encode()
+        seeds[f"splatv-{name}.camrender"] = b"\3" + _splatv_with_cameras([entry])
+    return seeds
 
 
 RANGE_SEEDS: Final = (

@@ -54,18 +54,53 @@ def ply(count: int | str, body: bytes = b"", fmt: str = "binary_little_endian", 
     return head.encode("latin-1") + body
 
 
-def ply_cases() -> dict[str, Case]:
-    """Broken PLY files."""
-    row = np.arange(len(PLY_PROPS), dtype="<f4").tobytes()
-    compressed = (
-        "ply\nformat binary_little_endian 1.0\nelement chunk 0\n"
+def compressed_ply(chunks: int, body: bytes, fmt: str = "binary_little_endian") -> bytes:
+    """A PlayCanvas compressed PLY header of ``chunks`` chunk rows and one vertex, then ``body``."""
+    return (
+        f"ply\nformat {fmt} 1.0\nelement chunk {chunks}\n"
         + "".join(f"property float {e}_{a}\n" for e in ("min", "max") for a in ("x", "y", "z"))
         + "".join(f"property float {e}_scale_{a}\n" for e in ("min", "max") for a in "xyz")
         + "element vertex 1\n"
         + "".join(f"property uint packed_{p}\n" for p in ("position", "rotation", "scale", "color"))
         + "end_header\n"
-    ).encode() + bytes(16)
+    ).encode() + body
+
+
+def gaussian_rows(count: int, dtype: str) -> bytes:
+    """``count`` rows of PLY_PROPS with values a trainer writes (seeded), as ``dtype``."""
+    rng = np.random.default_rng(55)
+    columns = [
+        rng.normal(0.0, 2.0, (count, 3)),  # x y z
+        rng.normal(0.0, 1.0, (count, 3)),  # f_dc
+        rng.normal(0.0, 3.0, (count, 1)),  # opacity
+        rng.normal(-5.0, 1.5, (count, 3)),  # log scales
+        rng.normal(0.0, 0.6, (count, 4)),  # rotation
+    ]
+    return np.concatenate(columns, axis=1).astype(dtype).tobytes()
+
+
+def ply_cases() -> dict[str, Case]:
+    """Broken PLY files."""
+    row = np.arange(len(PLY_PROPS), dtype="<f4").tobytes()
+    compressed = compressed_ply(0, bytes(16))
+    bounds = np.array([[-1.37, -1.52, -0.93, 1.41, 1.18, 1.66, -7.3, -6.9, -7.1, -3.2, -2.8, -3.3]])
     return {
+        "ply-big-endian-header-little-data.ply": (
+            "PlyError",
+            "binary_big_endian header over little-endian rows (was numpy warnings, then an "
+            "output check blamed on the output)",
+            ply(24, gaussian_rows(24, "<f4"), fmt="binary_big_endian"),
+        ),
+        "ply-little-endian-header-big-data.ply": (
+            "PlyError",
+            "binary_little_endian header over big-endian rows",
+            ply(24, gaussian_rows(24, ">f4")),
+        ),
+        "ply-compressed-big-endian-header.ply": (
+            "PlyError",
+            "compressed PLY whose big-endian header is over little-endian chunk bounds",
+            compressed_ply(1, bounds.astype("<f4").tobytes() + bytes(16), fmt="binary_big_endian"),
+        ),
         "ply-count-exceeds-body.ply": (
             "PlyError",
             "declares 10^9 vertices, holds 2 rows",
@@ -236,15 +271,31 @@ def meta_cases() -> dict[str, Case]:
     }
 
 
-def webp_header(kind: bytes, width: int, height: int) -> bytes:
+def webp_header(kind: bytes, width: int, height: int, flags: int = 0) -> bytes:
     """A WebP whose first chunk declares ``width`` x ``height`` and holds nothing else."""
     if kind == b"VP8X":
-        payload = bytes(4) + (width - 1).to_bytes(3, "little") + (height - 1).to_bytes(3, "little")
+        size = (width - 1).to_bytes(3, "little") + (height - 1).to_bytes(3, "little")
+        payload = bytes([flags, 0, 0, 0]) + size
+    elif kind == b"VP8 ":  # a key frame's tag, start code, 14-bit sides
+        size = width.to_bytes(2, "little") + height.to_bytes(2, "little")
+        payload = b"\x10\x02\x00\x9d\x01\x2a" + size
     else:  # VP8L
         bits = (width - 1) | (height - 1) << 14
         payload = b"\x2f" + bits.to_bytes(4, "little") + bytes(5)
-    chunk = kind + len(payload).to_bytes(4, "little") + payload
-    return b"RIFF" + (4 + len(chunk)).to_bytes(4, "little") + b"WEBP" + chunk
+    return riff(kind + len(payload).to_bytes(4, "little") + payload)
+
+
+def riff(chunks: bytes, size: int | None = None) -> bytes:
+    """A WebP file of ``chunks``, its RIFF size field ``size`` (default: the true one)."""
+    size = 4 + len(chunks) if size is None else size
+    return b"RIFF" + size.to_bytes(4, "little") + b"WEBP" + chunks
+
+
+def canvas_around(image: bytes, width: int, height: int, flags: int = 0) -> bytes:
+    """``image`` (a whole WebP file) behind a VP8X chunk declaring a ``width`` x ``height``
+    canvas (with ``flags``)."""
+    vp8x = webp_header(b"VP8X", width, height, flags)[12:]
+    return riff(vp8x + image[12:])
 
 
 def sog_files(count: int = 16) -> dict[str, bytes]:
@@ -261,6 +312,90 @@ def zip_with(entries: list[tuple[str, bytes]], method: int = zipfile.ZIP_STORED)
         for name, data in entries:
             archive.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), data)
     return out.getvalue()
+
+
+def deflated_zip(entries: list[tuple[str, bytes]]) -> bytes:
+    """A deterministic zip of ``entries``, every one deflated."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w") as archive:
+        for name, data in entries:
+            info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            archive.writestr(info, data)
+    return out.getvalue()
+
+
+def bomb_cases() -> dict[str, Case]:
+    """.sog chunks whose members inflate past what their meta.json allows, and WebP images
+    whose headers declare more (or otherwise) than they hold."""
+    files = sog_files()
+    image = files["quats.webp"]
+    big = meta_bytes(meta(60000))
+    with_member = {**files, "means_l.webp": image + bytes(8 << 20)}
+    ratio = {**files, "meta.json": big, "means_l.webp": image + bytes(1 << 20)}
+    padded_meta = {**files, "meta.json": files["meta.json"] + b" " * (8 << 20)}
+    other_size = encode_webp(np.full((8, 8, 4), 128, np.uint8))
+
+    def one(name: str, data: bytes) -> bytes:
+        return bundle_bytes({**files, name: data})
+
+    return {
+        "sog-member-inflates-8mib.sog": (
+            "SogError",
+            "means_l.webp inflates to 8 MiB for 16 Gaussians",
+            deflated_zip(sorted(with_member.items())),
+        ),
+        "sog-meta-inflates-8mib.sog": (
+            "SogError",
+            "meta.json inflates to 8 MiB (padded with spaces)",
+            deflated_zip(sorted(padded_meta.items())),
+        ),
+        "sog-member-deflate-ratio-1000.sog": (
+            "SogError",
+            "means_l.webp inflates 1 MiB from 1 KiB, within 60000 Gaussians' budget",
+            deflated_zip(sorted(ratio.items())),
+        ),
+        "sog-webp-vp8x-canvas-4096-image-4.sog": (
+            "SogError",
+            "VP8X canvas of 4096x4096 around a 4x4 image",
+            one("means_l.webp", canvas_around(image, 4096, 4096)),
+        ),
+        "sog-webp-vp8x-no-image.sog": (
+            "SogError",
+            "VP8X canvas of 16383x16383 and no image (was a Pillow traceback in tsog info)",
+            one("means_l.webp", webp_header(b"VP8X", 16383, 16383)),
+        ),
+        "sog-webp-vp8x-animated.sog": (
+            "SogError",
+            "VP8X with the animation flag",
+            one("means_l.webp", canvas_around(image, 4, 4, flags=0x02)),
+        ),
+        "sog-webp-vp8-16383px.sog": (
+            "MetaError",
+            "lossy VP8 header declaring 16383x16383 for 16 Gaussians",
+            one("means_l.webp", webp_header(b"VP8 ", 16383, 16383)),
+        ),
+        "sog-webp-riff-size-1gib.sog": (
+            "SogError",
+            "RIFF size says 1 GiB",
+            one("sh0.webp", riff(image[12:], size=1 << 30)),
+        ),
+        "sog-webp-riff-size-short.sog": (
+            "SogError",
+            "RIFF size ends 16 bytes before the image does",
+            one("sh0.webp", riff(image[12:] + bytes(16), size=len(image) - 8)),
+        ),
+        "sog-webp-chunk-past-end.sog": (
+            "SogError",
+            "VP8L chunk size past the end of the file",
+            one("sh0.webp", riff(image[12:16] + (1 << 20).to_bytes(4, "little") + image[20:])),
+        ),
+        "sog-webp-sizes-differ.sog": (
+            "MetaError",
+            "quats.webp is 8x8, the other images 4x4",
+            one("quats.webp", other_size),
+        ),
+    }
 
 
 def sog_cases() -> dict[str, Case]:
@@ -458,12 +593,25 @@ def container_cases() -> dict[str, Case]:
     }
 
 
+def cameras_cases() -> dict[str, Case]:
+    """Broken 3DGS cameras.json files."""
+    return {
+        "cameras-4097-empty-objects.cameras": (
+            "FormatError",
+            "4097 empty objects: refused at the 4097th, before the rest is parsed",
+            b"[" + b"{}," * 4096 + b"{}]",
+        ),
+    }
+
+
 MAKERS: tuple[Callable[[], dict[str, Case]], ...] = (
     ply_cases,
     splatv_cases,
     meta_cases,
     sog_cases,
+    bomb_cases,
     container_cases,
+    cameras_cases,
 )
 
 

@@ -12,30 +12,33 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import write_ply_frames
+from conftest import missing_optional
+from helpers import ThreadedServer, write_ply_frames
 from tsog_stream import framing
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.constants import MAX_CAMERAS
-from tsog_stream.errors import FormatError, InputError
+from tsog_stream.errors import FormatError, InputError, printable
 from tsog_stream.framing import (
     FRAMING_NAME,
     coverage,
     default_view,
     dense_core,
     look_at,
+    looks_at_core,
     opening_view,
     scene_up,
     world_to_camera,
 )
 from tsog_stream.io.cameras import find_cameras, read_cameras
-from tsog_stream.io.ply import write_ply
+from tsog_stream.io.ply import read_ply, write_ply
 from tsog_stream.io.readers import load_scene
 from tsog_stream.model import Gaussians, Scene, Timeline, TimelineType
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
-from tsog_stream.schemas.cameras import CaptureCamera
+from tsog_stream.schemas.cameras import CaptureCamera, HeaderCamera
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import make_app
 
 HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"
 
@@ -333,7 +336,8 @@ def test_the_framing_fits_the_dense_core_not_the_floaters() -> None:
         "capture camera 0 sees 99% of the scene",
     )
     view, why = opening_view(gaussians, [away, seeing])
-    assert view.name == FRAMING_NAME and why == "capture camera 0 sees only 0% of the scene"
+    assert view.name == FRAMING_NAME
+    assert why == "capture camera 0 sees only 0% of the scene and is not aimed at its dense core"
     with pytest.raises(InputError, match="without a visible Gaussian"):
         dense_core(Gaussians.empty(0))
     assert default_view(Gaussians.empty(0), []) is None
@@ -508,3 +512,182 @@ def test_a_real_capture_renders_from_its_own_camera_by_default(
             images[name] = np.asarray(image)
     assert np.array_equal(images["container"], reference)
     assert psnr(images["raw"], reference) > 35  # the raw file at full precision, q90 stored
+
+
+# --- a 360-degree capture opens from its camera; a header's camera looking past does not -----
+
+GUITAR = "3dgs/pc_guitar.compressed.ply"
+"""A real static capture (90,854 Gaussians, a guitar standing in the scene's y-down world)."""
+MACABURGUERA = {
+    "macaburguera_coffee10.splatv": "own",
+    "macaburguera_coffeeshort2.splatv": "own",
+    "macaburguera_spinach_4.splatv": "own",
+    "macaburguera_yellow_clip2.splatv": "framing",
+}
+"""How each real capture opens: its header camera (one converter's, the same in all) sees
+most of the first three; it looks past yellow_clip2's core, a corner."""
+
+
+def ring_around_core(
+    gaussians: Gaussians, count: int = 12, radii: float = 1.0
+) -> list[CaptureCamera]:
+    """``count`` 1280x720 cameras (50-degree vertical view) on a circle of ``radii`` core
+    radii around the dense core, a little above it (y down), each looking at its centre: a
+    360-degree capture whose cameras stand inside the scene."""
+    centre, core_radius = dense_core(gaussians)
+    radius = radii * core_radius
+    focal = 360 / math.tan(math.radians(25))
+    cameras = []
+    for k in range(count):
+        phi = 2 * math.pi * k / count
+        eye = centre + radius * np.array([math.cos(phi), -0.2, math.sin(phi)])
+        c2w = look_at(eye, centre, [0, -1, 0])[:3, :3].T
+        cameras.append(
+            CaptureCamera(
+                name=f"ring_{k:02d}.jpg",
+                width=1280,
+                height=720,
+                fx=focal,
+                fy=focal,
+                position=tuple(eye.tolist()),
+                rotation=tuple(tuple(r) for r in c2w.tolist()),
+            )
+        )
+    return cameras
+
+
+def write_cameras_json(path: Path, cameras: list[CaptureCamera]) -> None:
+    """A 3DGS cameras.json of ``cameras`` (img_name, no principal point)."""
+    entries = [
+        {"id": k, "img_name": c.name, **c.model_dump(exclude={"name", "cx", "cy"})}
+        for k, c in enumerate(cameras)
+    ]
+    path.write_text(json.dumps(entries))
+
+
+def test_a_360_capture_opens_from_its_first_camera(samples: Path, tmp_path: Path) -> None:
+    """The first camera of a ring inside a real scene sees under half of it, yet looks at its
+    dense core: the scene opens there, in the library, tsog segment and tsog render alike. The
+    same camera as a format header's is not trusted so far."""
+    gaussians = read_ply(samples / GUITAR).gaussians
+    cameras = ring_around_core(gaussians, radii=0.8)
+    seen = coverage(gaussians, cameras[0])
+    assert 0.2 < seen < framing.MIN_COVERAGE
+    assert looks_at_core(cameras[0], dense_core(gaussians))
+    view, why = opening_view(gaussians, cameras)
+    assert view == cameras[0]
+    assert why == f"capture camera 0 looks at the dense core (sees {seen:.0%} of the scene)"
+    header = [HeaderCamera.of(c) for c in cameras]
+    view, why = opening_view(gaussians, header)
+    assert (
+        view.name == FRAMING_NAME and why == f"capture camera 0 sees only {seen:.0%} of the scene"
+    )
+    # A camera on the ring looking along it, not at the core, is still refused.
+    aside = cameras[0].model_copy(update={"rotation": cameras[3].rotation})
+    assert coverage(gaussians, aside) < framing.MIN_COVERAGE
+    assert opening_view(gaussians, [aside])[0].name == FRAMING_NAME
+    # tsog segment stores that view; tsog render's default is capture camera 0's picture.
+    folder = tmp_path / "capture"
+    folder.mkdir()
+    ply = folder / "guitar.compressed.ply"
+    ply.write_bytes((samples / GUITAR).read_bytes())
+    write_cameras_json(folder / "cameras.json", cameras)
+    container = tmp_path / "guitar.tsogs"
+    assert main(["segment", str(ply), "-o", str(container), "-q"]) == 0
+    with open_stream(container) as reader:
+        assert reader.index.manifest.view == read_cameras(folder / "cameras.json").cameras[0]
+    images = {}
+    for name, argv in {
+        "default": [str(ply)],
+        "camera0": [str(ply), "--camera", "0"],
+        "container": [str(container)],
+    }.items():
+        out = tmp_path / f"{name}.png"
+        assert main(["render", *argv, "--width", "160", "-o", str(out), "-q"]) == 0
+        with Image.open(out) as png:
+            images[name] = np.asarray(png)
+    assert images["default"].shape == (90, 160, 3)
+    assert np.array_equal(images["default"], images["camera0"])
+    assert psnr(images["container"], images["camera0"]) > 30
+
+
+@pytest.mark.parametrize("name", sorted(MACABURGUERA))
+def test_the_header_camera_opens_only_the_captures_it_shows(
+    name: str, optional_samples: Path
+) -> None:
+    """Every macaburguera .splatv carries one converter's camera: it opens the captures it
+    sees most of, and yellow_clip2 (where it shows a corner) opens on a framing, as a header
+    camera and as a capture camera alike (it looks past the dense core)."""
+    path = optional_samples / "4d/splatv" / name
+    if not path.is_file():
+        missing_optional(f"4d/splatv/{name}")
+    loaded = load_scene(path)
+    (camera,) = loaded.cameras
+    assert isinstance(camera, HeaderCamera)
+    first = loaded.scene.at(0.0)
+    view, why = opening_view(first, loaded.cameras)
+    if MACABURGUERA[name] == "own":
+        assert view is camera and why.startswith("capture camera 0 sees ")
+        return
+    assert view.name == FRAMING_NAME and why.startswith("capture camera 0 sees only ")
+    assert not looks_at_core(camera, dense_core(first))
+    trusted = CaptureCamera.model_validate(camera.model_dump())
+    assert opening_view(first, [trusted])[0].name == FRAMING_NAME
+
+
+# --- camera names from files and servers reach the terminal escaped ---------------------------
+
+HOSTILE_NAMES = {
+    "CSI colour": "\x1b[31mred\x1b[0m",
+    "OSC 8 hyperlink": "\x1b]8;;http://127.0.0.1/\x07link\x1b]8;;\x07",
+    "carriage return": "img\rFAKE",
+    "bell": "img\x07",
+    "bidi override": "img\u202egnp.exe",
+    "C1 CSI": "img\u009b31m",
+}
+
+
+def assert_printable(text: str) -> None:
+    """Nothing a terminal would act on: every character printable, or a line break."""
+    raw = sorted({ascii(c) for c in text if not (c.isprintable() or c == "\n")})
+    assert not raw, f"raw control characters reached the terminal: {raw}"
+
+
+@pytest.mark.parametrize("kind", sorted(HOSTILE_NAMES))
+def test_camera_names_reach_the_terminal_escaped(
+    kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A hostile image name in a cameras.json, a COLMAP images.bin and a container's stored
+    cameras (local and served) through every command that prints camera names."""
+    hostile = HOSTILE_NAMES[kind]
+    cameras = [c.model_copy(update={"name": f"{hostile}{k}"}) for k, c in enumerate(ring_cameras())]
+    shown = printable(f"{hostile}0")
+    single = tmp_path / "single"
+    single.mkdir()
+    ply = single / "scene.ply"
+    write_ply(ply, blob_with_floaters())
+    write_cameras_json(single / "cameras.json", cameras)
+    frames = tmp_path / "frames"
+    write_ply_frames(frames, (blob_with_floaters(seed=k) for k in range(2)))
+    write_colmap_binary(frames / "sparse" / "0", cameras)
+    container = tmp_path / "served" / "scene.tsogs"
+    container.parent.mkdir()
+    runs = [
+        ["info", str(ply)],
+        ["render", str(ply), "--width", "32", "-o", str(tmp_path / "a.png")],
+        ["render", str(ply), "--camera", "0", "--width", "32", "-o", str(tmp_path / "b.png")],
+        ["segment", str(frames), "-o", str(container), "--temporal", "off"],
+        ["info", str(container)],
+        ["render", str(container), "--width", "32", "-o", str(tmp_path / "c.png")],
+    ]
+    server = ThreadedServer(make_app(container.parent))
+    url = f"http://127.0.0.1:{server.port}/files/scene.tsogs"
+    runs += [["info", url], ["render", url, "--width", "32", "-o", str(tmp_path / "d.png")]]
+    try:
+        for argv in runs:
+            assert main([*argv, "-q"]) == 0, argv
+            out, err = capsys.readouterr()
+            assert_printable(out + err)
+            assert shown in out, (argv, out)
+    finally:
+        server.stop()

@@ -11,26 +11,35 @@ later is covered without touching this file.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import subprocess
 import sys
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from cli_probe import PRELOADED
+from conftest import SAMPLES
 from tsog_stream import TimelineType, open_stream
 from tsog_stream.cli.main import build_parser
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.codec.webp import encode_webp
+from tsog_stream.io.ply import write_ply
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.synthetic import small_scene
+from tsog_stream.synthetic import small_scene, static_gaussians
 
 PROBE = Path(__file__).with_name("cli_probe.py")
+INVALID_CORPUS = Path(__file__).with_name("data") / "invalid"
 MiB = 1 << 20
 RSS_BUDGET = 256 * MiB
 """Peak resident memory a command may add to an interpreter with every module loaded. The
@@ -256,3 +265,272 @@ def test_the_probe_sees_memory_numpy_allocates(files: dict[str, Path], tmp_path:
     (outcome,) = probe([{"argv": line, "cwd": str(tmp_path), "timeout_s": RUN_TIMEOUT_S}])
     assert outcome.code == 0, outcome.stderr
     assert outcome.rss_growth > RSS_BUDGET, outcome.rss_growth // MiB
+
+
+# --- the memory test: every file input of at most 10 MB stays under 1 GiB --------------------
+
+MEMORY_LIMIT = 1 << 30
+"""Peak resident memory a command may reach on any file input of at most MAX_INPUT_BYTES."""
+MAX_INPUT_BYTES = 10 * MiB
+EXIT_CODES = {0, 1, 2, 3, 4, 5, 6}
+"""Every exit status a command documents (cli/main.py: 1 error, 2 usage; tsog verify: 3-6)."""
+SCENE_RUNS: dict[str, list[str]] = {
+    "info": ["{input}"],
+    "decode": ["{input}", "{out}/o.ply"],
+    "frame": ["{input}", "--t", "0", "-o", "{out}/f.ply"],
+    "encode": ["{input}", "{out}/o.sog"],
+    "segment": ["{input}", "-o", "{out}/s.tsogs"],
+    "render": ["{input}", "-o", "{out}/r.png", "--width", "32", "--height", "24"],
+    "eval": ["{input}", "{input}", "--width", "32", "--height", "24"],
+}
+"""Every command that reads a scene input (PLY, SOG, .splatv, a chunk folder, a sequence)."""
+STREAM_RUNS: dict[str, list[str]] = {
+    "info": ["{input}"],
+    "verify": ["{input}"],
+    "frame": ["{input}", "--t", "0", "-o", "{out}/f.ply"],
+    "extract": ["{input}", "0", "-o", "{out}/c.sog"],
+    "render": ["{input}", "-o", "{out}/r.png", "--width", "32", "--height", "24"],
+}
+"""Every command that reads a .tsogs container."""
+CAMERA_RUNS: dict[str, list[str]] = {
+    "info": ["{input}"],
+    "encode": ["{input}", "{out}/o.sog"],
+    "render": ["{input}", "-o", "{out}/r.png", "--width", "32", "--height", "24"],
+}
+"""Commands that read the cameras.json or COLMAP model beside a scene input."""
+LIGHT = ("info", "decode", "verify")
+"""What every real input goes through; the heavier commands take one input of each kind."""
+BOMB_BYTES = 512 * MiB
+"""What a generated bomb inflates to: half of the memory limit."""
+
+
+def deflated_zeros(size: int) -> tuple[bytes, int]:
+    """A raw deflate stream of ``size`` zero bytes (a multiple of 8 MiB) and their CRC-32:
+    one 8 MiB segment compressed and flushed to a byte boundary with its history reset,
+    repeated (each segment decodes alone), then a final empty block; quick to make."""
+    block = 8 * MiB
+    compressor = zlib.compressobj(9, zlib.DEFLATED, -15)
+    segment = compressor.compress(bytes(block)) + compressor.flush(zlib.Z_FULL_FLUSH)
+    ending = zlib.compressobj(9, zlib.DEFLATED, -15).flush()
+    crc, zeros = 0, bytes(MiB)
+    for _ in range(size // MiB):
+        crc = zlib.crc32(zeros, crc)
+    return segment * (size // block) + ending, crc
+
+
+def with_bomb_member(files: dict[str, bytes], name: str, size: int) -> bytes:
+    """The bundled chunk of ``files`` with member ``name`` replaced by ``size`` deflated zero
+    bytes, its sizes and CRC-32 told truthfully: stored first, then its local and central
+    records say deflated."""
+    raw, crc = deflated_zeros(size)
+    archive = bytearray(bundle_bytes({**files, name: raw}))
+    with zipfile.ZipFile(io.BytesIO(bytes(archive))) as reading:
+        local = reading.getinfo(name).header_offset
+    central = archive.rfind(b"PK\x05\x06")  # end of central directory: where it starts
+    central = int.from_bytes(archive[central + 16 : central + 20], "little")
+    while archive[central + 46 : central + 46 + len(name)] != name.encode():
+        central += 46 + sum(
+            int.from_bytes(archive[central + at : central + at + 2], "little")
+            for at in (28, 30, 32)
+        )
+    for record, method, crc_at, size_at in ((local, 8, 14, 22), (central, 10, 16, 24)):
+        archive[record + method : record + method + 2] = zipfile.ZIP_DEFLATED.to_bytes(2, "little")
+        archive[record + crc_at : record + crc_at + 4] = crc.to_bytes(4, "little")
+        archive[record + size_at : record + size_at + 4] = size.to_bytes(4, "little")
+    return bytes(archive)
+
+
+def with_other_byte_order(data: bytes) -> bytes:
+    """A binary PLY whose header names the byte order its rows are not in."""
+    little, big = b"format binary_little_endian ", b"format binary_big_endian "
+    return data.replace(little, big, 1) if little in data[:4096] else data.replace(big, little, 1)
+
+
+def beside_a_scene(folder: Path, cameras: dict[str, bytes]) -> Path:
+    """A small PLY in ``folder`` with camera files beside it (name -> bytes); its path."""
+    for name, data in cameras.items():
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_bytes(data)
+    write_ply(folder / "scene.ply", static_gaussians(64, seed=1))
+    return folder / "scene.ply"
+
+
+def generated_bombs(root: Path, chunk: Path, count_bomb: Path) -> dict[str, Path]:
+    """One file input (at most 10 MB) of each class of issue 55 that costs gigabytes when a
+    reader trusts it."""
+    files = read_bundle(chunk.read_bytes())
+    root.mkdir()
+    made = {
+        "named image inflating 512 MiB": (
+            "named.sog",
+            with_bomb_member(files, "means_l.webp", BOMB_BYTES),
+        ),
+        "meta.json inflating 512 MiB": (
+            "meta.sog",
+            with_bomb_member(files, "meta.json", BOMB_BYTES),
+        ),
+        "unnamed member inflating 512 MiB": (
+            "unnamed.sog",
+            with_bomb_member({**files, "padding.bin": b""}, "padding.bin", BOMB_BYTES),
+        ),
+        "PLY rows in the other byte order": (
+            "swapped.ply",
+            with_other_byte_order((SAMPLES / "3dgs" / "v3dg_donut_fused.ply").read_bytes()),
+        ),
+    }
+    bombs = {what: root / name for what, (name, _) in made.items()}
+    for name, data in made.values():
+        (root / name).write_bytes(data)
+    bombs["count of 36 M Gaussians"] = count_bomb
+    room = MAX_INPUT_BYTES - 64 * 1024  # for the scene beside them
+    empty_objects = b"[" + b"{}," * (room // 3 - 1) + b"{}]"
+    (root / "json").mkdir()
+    bombs["cameras.json of 10 MB of empty objects"] = beside_a_scene(
+        root / "json", {"cameras.json": empty_objects}
+    )
+    lines = "".join(f"{i} PINHOLE 64 48 50 50 32 24\n" for i in range(room // 34))
+    images = b"1 1 0 0 0 0 0 0 1 a.png\n\n"
+    (root / "colmap").mkdir()
+    bombs["COLMAP cameras.txt of 10 MB"] = beside_a_scene(
+        root / "colmap", {"sparse/0/cameras.txt": lines.encode(), "sparse/0/images.txt": images}
+    )
+    return bombs
+
+
+def input_bytes(path: Path) -> int:
+    """Bytes of a file input, or of every file under a folder input."""
+    if path.is_dir():
+        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    return path.stat().st_size
+
+
+def corpus_inputs(root: Path) -> dict[str, tuple[Path, dict[str, list[str]]]]:
+    """Each file of tests/data/invalid/ as the input of every command that opens its kind
+    (a meta.json in a chunk folder; a cameras.json beside a scene); the index and manifest
+    files are parts of a container, opened through the .tsogs files."""
+    inputs: dict[str, tuple[Path, dict[str, list[str]]]] = {}
+    for path in sorted(INVALID_CORPUS.iterdir()):
+        if path.suffix in (".ply", ".sog", ".splatv"):
+            inputs[path.name] = (path, SCENE_RUNS)
+        elif path.suffix == ".tsogs":
+            inputs[path.name] = (path, STREAM_RUNS)
+        elif path.suffix == ".json":
+            (root / path.stem).mkdir(parents=True)
+            (root / path.stem / "meta.json").write_bytes(path.read_bytes())
+            inputs[path.name] = (root / path.stem, SCENE_RUNS)
+        elif path.suffix == ".cameras":
+            (root / path.stem).mkdir(parents=True)
+            scene = beside_a_scene(root / path.stem, {"cameras.json": path.read_bytes()})
+            inputs[path.name] = (scene, CAMERA_RUNS)
+    return inputs
+
+
+def real_inputs(stream: Path) -> dict[str, tuple[Path, dict[str, list[str]]]]:
+    """Every real input of tests/data/real/ through the commands that read it whole, one of
+    each kind (and a stream the segmenter wrote) through every command that opens it."""
+    inputs: dict[str, tuple[Path, dict[str, list[str]]]] = {}
+    light = {command: SCENE_RUNS[command] for command in LIGHT if command in SCENE_RUNS}
+    for path in sorted(SAMPLES.rglob("*")):
+        if path.suffix in (".ply", ".sog", ".splatv") or (path / "meta.json").is_file():
+            inputs[path.name] = (path, light)
+    for largest in (  # the most Gaussians of each reader: the most memory in every command
+        "3dgs/v3dg_donut_fused.ply",
+        "3dgs/pc_guitar.compressed.ply",
+        "4d/splatv/tztechno_hanabi2_synthetic.splatv",
+    ):
+        inputs[largest] = (SAMPLES / largest, SCENE_RUNS)
+    inputs["a stream"] = (stream, STREAM_RUNS)
+    return inputs
+
+
+@pytest.mark.slow
+def test_every_file_input_of_at_most_10_mb_stays_under_1_gib_in_every_command(
+    files: dict[str, Path], tmp_path: Path
+) -> None:
+    """Issue 55's promise, measured: every hostile file of the corpus, a generated bomb of
+    each class (each inflating or parsing to gigabytes when trusted) and the real inputs,
+    each at most 10 MB, through every command that opens its kind, in a process of its own:
+    an exit status the commands document, no traceback, and a peak resident memory (the
+    interpreter's own included) under 1 GiB."""
+    bombs = generated_bombs(tmp_path / "bombs", files["chunk"], files["hostile:bomb.sog"])
+    inputs = {
+        **corpus_inputs(tmp_path / "corpus"),
+        **{what: (path, SCENE_RUNS) for what, path in bombs.items()},
+        **real_inputs(files["stream"]),
+    }
+    inputs["cameras.json of 10 MB of empty objects"] = (
+        bombs["cameras.json of 10 MB of empty objects"],
+        CAMERA_RUNS,
+    )
+    colmap = "COLMAP cameras.txt of 10 MB"  # 300k cameras parsed in Python: one command
+    inputs[colmap] = (bombs[colmap], {"info": CAMERA_RUNS["info"]})
+    runs: list[dict[str, Any]] = []
+    whats: list[tuple[str, str]] = []
+    for what, (path, commands) in inputs.items():
+        beside = path.name == "scene.ply"  # its folder holds the camera files read
+        assert input_bytes(path.parent if beside else path) <= MAX_INPUT_BYTES, what
+        for command, argv in commands.items():
+            out = tmp_path / "out" / f"{len(runs)}"
+            out.mkdir(parents=True)
+            line = [command, *(a.format(input=path, out=out) for a in argv), "-q"]
+            runs.append({"argv": line, "cwd": str(out), "timeout_s": RUN_TIMEOUT_S})
+            whats.append((what, command))
+    base = interpreter_rss()
+    for run, outcome in zip(whats, probe(runs), strict=True):
+        assert not outcome.timed_out and outcome.code in EXIT_CODES, (run, outcome)
+        assert "Warning" not in outcome.stderr, (run, outcome.stderr)  # numpy's, Pillow's
+        assert_ended_cleanly(outcome, run, accepted_ok=True, budget=MEMORY_LIMIT - base)
+    assert len(runs) > 500
+
+
+def interpreter_rss() -> int:
+    """Peak resident memory of an interpreter with every module the probe preloads: what
+    each probed command's growth is measured beyond."""
+    script = "import importlib, resource, sys\n"
+    script += "for name in sys.argv[1:]: importlib.import_module(name)\n"
+    script += "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
+    done = subprocess.run(
+        [sys.executable, "-c", script, *PRELOADED],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
+    return int(done.stdout) * 1024
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="a chunk may declare 64 Gaussians per byte of its images (codec/chunk.py "
+    "_check_plausible_count): 355 KB of honest-format SOG declares 16.7 M, decoded at 2.4 GB",
+)
+def test_a_small_chunk_declaring_the_whole_read_budget_stays_under_1_gib(tmp_path: Path) -> None:
+    """The count class of the promise above, known open: five 4096x4096 images, constant
+    but for a 128x128 block of noise (70 KB each), and a meta.json declaring one Gaussian per
+    texel pass every bound a reader has today."""
+    noise = np.random.default_rng(0).integers(0, 256, (128, 128, 4), dtype=np.uint8)
+    image = np.full((4096, 4096, 4), 128, np.uint8)
+    image[:128, :128] = noise
+    webp = encode_webp(image)
+    names = ("means_l.webp", "means_u.webp", "scales.webp", "quats.webp", "sh0.webp")
+    codebook = [i / 16 - 8 for i in range(256)]
+    meta = {
+        "version": 2,
+        "count": 4096 * 4096,
+        "means": {"mins": [-1.0] * 3, "maxs": [1.0] * 3, "files": list(names[:2])},
+        "scales": {"codebook": codebook, "files": [names[2]]},
+        "quats": {"files": [names[3]]},
+        "sh0": {"codebook": codebook, "files": [names[4]]},
+    }
+    path = tmp_path / "count.sog"
+    path.write_bytes(
+        bundle_bytes({**dict.fromkeys(names, webp), "meta.json": json.dumps(meta).encode()})
+    )
+    assert input_bytes(path) <= MAX_INPUT_BYTES
+    (outcome,) = probe(
+        [{"argv": ["info", str(path), "-q"], "cwd": str(tmp_path), "timeout_s": 120}]
+    )
+    assert outcome.code in EXIT_CODES and "Traceback" not in outcome.stderr
+    assert outcome.rss_growth + interpreter_rss() < MEMORY_LIMIT, outcome.rss_growth // MiB

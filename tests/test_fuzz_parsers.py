@@ -4,7 +4,8 @@ Inputs are mutations of small valid files (bit flips, byte overwrites, insertion
 truncation: random bytes alone would all die at the magic) and, for the HTTP header parsers,
 structured random text. The same targets run under atheris in ``scripts/fuzz``. Hostile but
 tiny inputs (a 100-byte PLY body declaring 10^9 vertices, a 60000x60000 WebP in a zip, a zstd frame
-declaring 4 GiB) must be refused with a small tracemalloc peak (numpy allocations are traced).
+declaring 4 GiB) must be refused with a small tracemalloc peak (numpy allocations are traced);
+cameras declaring 200x65536 pixels or a focal length of 1e-30 are drawn within the same peak.
 """
 
 from __future__ import annotations
@@ -102,12 +103,14 @@ test_chunk_member = fuzz_test("chunk", SLOW_FUZZ)
 test_cameras_json = fuzz_test("cameras_json", FUZZ)
 test_colmap_bin = fuzz_test("colmap_bin", FUZZ)
 test_colmap_text = fuzz_test("colmap_text", FUZZ)
+test_cameras_render = fuzz_test("cameras_render", FUZZ)
 
 
 @FUZZ
 @given(data=st.binary(max_size=200))
 def test_random_bytes_never_crash_any_target(data: bytes) -> None:
-    for name in ("ply", "splatv", "meta", "manifest", "index", "sog", "container", "colmap_bin"):
+    names = ("ply", "splatv", "meta", "manifest", "index", "sog", "container", "colmap_bin")
+    for name in (*names, "cameras_render"):
         check(name, data)
 
 
@@ -209,7 +212,15 @@ def hostile_cases() -> dict[str, tuple[str, bytes, type[TsogError] | None]]:
     splatv = struct.pack("<II", 0x674B, len(splat)) + splat + bytes(64)
     raw = corpus.manifest()
     zst = corpus.container_cases()["index-frame-declares-4gib.zst"][2]
-    return {
+    cameras = {
+        f"{reader} camera {shape}, drawn": ("cameras_render", seed, None)
+        for shape in targets.HOSTILE_CAMERA_SHAPES
+        for reader, seed in (
+            ("cameras.json", targets.valid_seeds("cameras_render")[f"json-{shape}.camrender"]),
+            (".splatv header", targets.valid_seeds("cameras_render")[f"splatv-{shape}.camrender"]),
+        )
+    }
+    return cameras | {
         "small PLY declaring 10^9 vertices": ("ply", ply_small, PlyError),
         "ASCII PLY declaring 10^12 vertices": ("ply", ascii_ply, PlyError),
         "zip holding a 60000x60000 WebP": ("sog", bundle_bytes(big), SogError),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import re
 import tracemalloc
@@ -15,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from conftest import SAMPLES, optional_data_dir
 from tsog_stream.errors import (
     InputError,
     PlyError,
@@ -407,9 +409,12 @@ def test_write_failing_mid_write_leaves_nothing(
 def test_write_rejects_bad_input_before_touching_disk(tmp_path: Path) -> None:
     with pytest.raises(InputError):
         write_ply(tmp_path / "a.ply", make_gaussians(3, 0), {"t": np.zeros(2)})
+    (tmp_path / "a-file").write_bytes(b"")
     with pytest.raises(SourceError):
-        write_ply(tmp_path / "missing" / "a.ply", make_gaussians(3, 0))
-    assert os.listdir(tmp_path) == []
+        write_ply(tmp_path / "a-file" / "a.ply", make_gaussians(3, 0))
+    assert os.listdir(tmp_path) == ["a-file"]
+    write_ply(tmp_path / "made" / "a.ply", make_gaussians(3, 0))  # missing folders are made
+    assert os.listdir(tmp_path / "made") == ["a.ply"]
 
 
 def test_reading_holds_the_gaussians_and_a_few_blocks(tmp_path: Path) -> None:
@@ -494,3 +499,138 @@ def test_a_file_that_ends_while_read_is_a_ply_error() -> None:
     """A file cut short between its size being taken and its rows read: a PlyError."""
     with pytest.raises(PlyError, match="ended 2 bytes early"):
         ply._read_exactly(io.BytesIO(b"abc"), 5, "cut.ply")
+
+
+# --- absurd values: a header naming the wrong byte order, as a class -----------------------
+
+OTHER_ORDER = {
+    b"binary_little_endian": b"binary_big_endian",
+    b"binary_big_endian": b"binary_little_endian",
+}
+
+
+def real_plys() -> list[Path]:
+    """Every real PLY the repository carries and, when present, the optional set's."""
+    optional = optional_data_dir()
+    found = sorted(SAMPLES.rglob("*.ply"))
+    return found + (sorted(optional.rglob("*.ply")) if optional is not None else [])
+
+
+def with_other_byte_order(data: bytes) -> bytes:
+    """``data`` with its header's binary format line naming the other byte order."""
+    for named, other in OTHER_ORDER.items():
+        line = b"format " + named + b" "
+        if line in data[:4096]:
+            return data.replace(line, b"format " + other + b" ", 1)
+    raise AssertionError("not a binary PLY")
+
+
+@pytest.mark.parametrize("path", real_plys(), ids=lambda p: p.name)
+def test_every_real_ply_reads_without_absurd_values(path: Path) -> None:
+    """The bounds leave every real capture alone: read by blocks and parsed whole, nothing is
+    clamped and the Gaussians are the same."""
+    read = read_ply(path)
+    parsed = parse_ply(path.read_bytes(), name=str(path))
+    assert not any("absurd" in note for note in read.notes + parsed.notes)
+    assert_same(read.gaussians, parsed.gaussians)
+
+
+@pytest.mark.parametrize("path", real_plys(), ids=lambda p: p.name)
+def test_every_real_ply_with_the_other_byte_order_is_refused_naming_a_property(
+    path: Path, tmp_path: Path
+) -> None:
+    """The issue's file, as a class: each real capture (plain or compressed, either byte
+    order) whose header names the other byte order is refused at the input, by the reader by
+    blocks and the parse of bytes alike, naming a property and the format, with no numpy
+    warning (the suite turns warnings into errors)."""
+    swapped = with_other_byte_order(path.read_bytes())
+    fmt = re.search(rb"format (\w+)", swapped)
+    assert fmt is not None
+    pattern = (
+        rf"PLY property '\w+' holds absurd values: \d+ of \d+ beyond \+-\S+, the bound of a "
+        rf"(position|log scale|rotation|opacity logit|colour): is the header's format "
+        rf"\({fmt[1].decode()}\) right\?"
+    )
+    file = tmp_path / path.name
+    file.write_bytes(swapped)
+    with pytest.raises(PlyError, match=pattern):
+        read_ply(file)
+    with pytest.raises(PlyError, match=pattern):
+        parse_ply(swapped, name=str(file))
+
+
+KINDS = {
+    "x": ("position", 1e9),
+    "scale_1": ("log scale", 40.0),
+    "rot_2": ("rotation", 1e4),
+    "opacity": ("opacity logit", 100.0),
+    "f_dc_0": ("colour", 1e3),
+    "f_rest_7": ("colour", 1e3),
+}
+"""A property of each kind, with the kind and bound the reader applies."""
+
+
+def column_of(g: Gaussians, name: str) -> npt.NDArray[np.float32]:
+    """The values of PLY property ``name`` in ``g`` (f_rest channel-major, as files store it)."""
+    if name in ("x", "y", "z"):
+        return g.means[:, "xyz".index(name)]
+    if name == "opacity":
+        return g.opacities
+    head, _, index = name.rpartition("_")
+    if head == "f_rest":
+        k = g.shN.shape[1]
+        return g.shN[:, int(index) % k, int(index) // k]
+    return {"scale": g.scales, "rot": g.quats, "f_dc": g.sh0}[head][:, int(index)]
+
+
+def ply_with_values(fmt: str, name: str, values: Mapping[int, float]) -> bytes:
+    """A 200-row SH1 PLY whose property ``name`` holds ``values`` (row -> value)."""
+    cols = standard_columns(make_gaussians(200, 1, seed=3))
+    column = np.array(cols[name], np.float64)
+    column[list(values)] = list(values.values())
+    return build_ply(fmt, [("vertex", floats({**cols, name: column}))])
+
+
+@pytest.mark.parametrize("fmt", ["binary_little_endian", "binary_big_endian", "ascii"])
+@pytest.mark.parametrize("name", list(KINDS))
+def test_a_few_absurd_values_are_clamped_and_noted(fmt: str, name: str, tmp_path: Path) -> None:
+    """Two rows of 200 (1 %) beyond the bound of their kind, of either sign: kept, clamped to
+    the bound and counted in a note, by blocks and whole alike; a NaN beside them is kept."""
+    bound = KINDS[name][1]
+    data = ply_with_values(fmt, name, {5: 3e30, 9: -3e30, 11: math.nan})
+    (tmp_path / "a.ply").write_bytes(data)
+    for contents in (parse_ply(data), read_ply(tmp_path / "a.ply")):
+        assert contents.notes[0] == f"clamped 2 absurd values to their kind's bound ({name}: 2)"
+        assert contents.notes[1] == f"kept 1 non-finite values as read ({name}: 1)"
+        values = column_of(contents.gaussians, name)
+        assert values[5] == np.float32(bound) and values[9] == -np.float32(bound)
+        assert math.isnan(values[11])
+
+
+@pytest.mark.parametrize("fmt", ["binary_little_endian", "binary_big_endian", "ascii"])
+@pytest.mark.parametrize("name", list(KINDS))
+def test_more_absurd_values_refuse_the_file_naming_the_property(
+    fmt: str, name: str, tmp_path: Path
+) -> None:
+    """Three rows of 200 (over 1 %): refused, the property and its kind named; a binary
+    file's format is put in doubt, an ASCII file's is not."""
+    kind, bound = KINDS[name]
+    data = ply_with_values(fmt, name, {5: 3e30, 9: -3e30, 150: 1.5 * bound})
+    (tmp_path / "a.ply").write_bytes(data)
+    message = f"PLY property '{name}' holds absurd values: 3 of 200 beyond +-{bound:g}, "
+    message += f"the bound of a {kind}"
+    if fmt != "ascii":
+        message += f": is the header's format ({fmt}) right?"
+    with pytest.raises(PlyError) as parsed:
+        parse_ply(data, name="a.ply")
+    with pytest.raises(PlyError) as read:
+        read_ply(tmp_path / "a.ply")
+    assert parsed.value.message == read.value.message == message
+
+
+def test_values_at_the_bound_are_kept_as_they_are() -> None:
+    """The bound itself is plausible: nothing clamped, nothing noted."""
+    for name, (_, bound) in KINDS.items():
+        contents = parse_ply(ply_with_values("binary_little_endian", name, {1: bound, 2: -bound}))
+        assert contents.notes == []
+        assert list(column_of(contents.gaussians, name)[1:3]) == [bound, -bound]

@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import re
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -14,9 +16,15 @@ import numpy.typing as npt
 import pytest
 from PIL import Image
 
+from conftest import SAMPLES
+from helpers import ThreadedServer
+from tsog_stream.cli.main import main
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import FormatError, InputError, SourceError
-from tsog_stream.model import Gaussians
+from tsog_stream.framing import world_to_camera
+from tsog_stream.io.cameras import parse_cameras_json, read_cameras
+from tsog_stream.io.ply import write_ply
+from tsog_stream.model import Gaussians, Scene
 from tsog_stream.render import (
     Backend,
     Camera,
@@ -31,8 +39,20 @@ from tsog_stream.render import (
     scene_orbit,
     to_uint8,
 )
+from tsog_stream.render.camera import (
+    DEFAULT_PIXELS,
+    FOCAL_PER_SIDE,
+    MAX_ASPECT,
+    RENDER_MAX_PIXELS,
+    from_capture,
+    stretched,
+)
+from tsog_stream.render.evaluate import RenderStyle, opening_camera, scene_source
 from tsog_stream.render.plot import Series, line_chart
 from tsog_stream.render.sh import SH_C1, sh_basis, sh_colors
+from tsog_stream.segment import segmenter
+from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.server import make_app
 
 project_module = importlib.import_module("tsog_stream.render.project")  # shadowed by project()
 SIZE = 63  # odd: the principal point cx = 31.5 lands on pixel index 31
@@ -410,3 +430,223 @@ def test_warming_loads_the_kernel_a_picture_then_uses() -> None:
         [sys.executable, "-c", code], check=False, capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
+
+
+# --- cameras of any shape a file may declare: bounded before the renderer allocates ----------
+
+IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+SANE_ENTRY: dict[str, object] = {
+    "id": 0,
+    "img_name": "hostile",
+    "width": 640,
+    "height": 480,
+    "position": [0.0, 0.0, -4.0],
+    "rotation": IDENTITY,
+    "fx": 500.0,
+    "fy": 500.0,
+}
+"""A camera 4 units in front of the origin, looking at it along +z."""
+HOSTILE_SHAPES: dict[str, dict[str, object]] = {
+    "200x65536": {"width": 200, "height": 65536},
+    "1x65536": {"width": 1, "height": 65536},
+    "65536x1": {"width": 65536, "height": 1},
+    "65536x65536": {"width": 65536, "height": 65536},
+    "1x1": {"width": 1, "height": 1},
+    "focal 1e-30": {"fx": 1e-30, "fy": 1e-30},
+    "focal 1e30": {"fx": 1e30, "fy": 1e30},
+    "fx 1e-30, fy 1e30": {"fx": 1e-30, "fy": 1e30},
+    "principal point 1e300": {"cx": 1e300, "cy": -1e300},
+}
+"""Shapes the camera schema accepts (sides up to 65536, any finite positive focal length)."""
+REFUSED_SHAPES: dict[str, tuple[dict[str, object], str]] = {
+    "width 0": ({"width": 0}, "[0].width"),
+    "height -5": ({"height": -5}, "[0].height"),
+    "width 65537": ({"width": 65537}, "[0].width"),
+    "focal NaN": ({"fx": math.nan}, "[0].fx"),
+    "focal inf": ({"fy": math.inf}, "[0].fy"),
+    "focal 0": ({"fx": 0.0}, "[0].fx"),
+    "focal -1": ({"fy": -1.0}, "[0].fy"),
+}
+"""Shapes refused where the file is read: one line naming the field."""
+
+
+def hostile_cameras_json(path: Path, shape: str) -> Path:
+    """A cameras.json holding one camera of HOSTILE_SHAPES[shape] (157 bytes or so)."""
+    path.write_text(json.dumps([{**SANE_ENTRY, **HOSTILE_SHAPES[shape]}]))
+    return path
+
+
+def small_blob() -> Gaussians:
+    """A few hundred Gaussians around the origin."""
+    rng = np.random.default_rng(4)
+    n = 300
+    means = rng.normal(0.0, 0.4, (n, 3))
+    rgb = rng.uniform(0.2, 0.9, (n, 3))
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    return Gaussians.from_arrays(
+        means, np.full((n, 3), -3.0), quats, np.full(n, 2.0), (rgb - 0.5) / SH_C0
+    )
+
+
+def assert_bounded(camera: Camera, budget: int) -> None:
+    """Within the pixel budget and 1:8..8:1, with a field of view of 1.1 to 175 degrees."""
+    w, h = camera.width, camera.height
+    assert 1 <= w * h <= budget and max(w, h) <= MAX_ASPECT * min(w, h), (w, h)
+    lo, hi = FOCAL_PER_SIDE
+    assert lo * w <= camera.fx <= hi * w and lo * h <= camera.fy <= hi * h
+    assert 0 <= camera.cx <= w and 0 <= camera.cy <= h
+
+
+@pytest.mark.parametrize("shape", sorted(HOSTILE_SHAPES))
+def test_any_camera_a_file_declares_draws_a_bounded_image(shape: str, tmp_path: Path) -> None:
+    """The library: the default view is at most 1280x720's pixels, a size given in part at
+    most RENDER_MAX_PIXELS, and what is drawn has exactly the camera's size."""
+    (capture,) = read_cameras(hostile_cameras_json(tmp_path / "cameras.json", shape)).cameras
+    source = scene_source(Scene(small_blob()), cameras=[capture])
+    camera = opening_camera(source, 0, None, None)
+    assert_bounded(camera, DEFAULT_PIXELS)
+    image = RenderStyle().image(source.at(0.0), camera)
+    assert image.shape == (camera.height, camera.width, 3)
+    for partly in (
+        from_capture(capture, None),
+        from_capture(capture, 16384),
+        from_capture(capture, None, 16384),
+        stretched(capture, None, None),
+        stretched(capture, 16384, None),
+        opening_camera(source, 0, 16384, None),
+        load_cameras_json(tmp_path / "cameras.json", height=16384)[0],
+    ):
+        assert_bounded(partly, RENDER_MAX_PIXELS)
+
+
+def test_a_tall_camera_keeps_its_width_and_field_of_view_within_the_limits() -> None:
+    """200x65536 is narrowed to 1:8 (the vertical field of view kept), then the 640-wide
+    default shrunk to 1280x720's pixel count; a 178-degree view is held to 175."""
+    entry = {**SANE_ENTRY, **HOSTILE_SHAPES["200x65536"]}
+    for focal, fy in ((50000.0, 50000.0 * 2712 / 65536), (500.0, FOCAL_PER_SIDE[0] * 2712)):
+        raw = json.dumps([{**entry, "fx": focal, "fy": focal}]).encode()
+        capture = parse_cameras_json(raw, where="c")[0]
+        source = scene_source(Scene(small_blob()), cameras=[capture])
+        camera = opening_camera(source, 0, None, None)
+        assert (camera.width, camera.height) == (339, 2712)
+        assert camera.fy == pytest.approx(fy)
+    sane = parse_cameras_json(json.dumps([SANE_ENTRY]).encode(), where="c")[0]
+    assert from_capture(sane, 640, 480) == Camera(
+        640, 480, 500.0, 500.0, 320.0, 240.0, world_to_camera(sane), "hostile"
+    )
+
+
+@pytest.mark.parametrize(
+    ("size", "message"),
+    [
+        ((4097, 4096), "4097x4096 is 16781312 pixels, more than the 16777216 an image may have"),
+        ((16384, 16), "16384x16 is more than 8 times as wide as tall or as tall as wide"),
+        ((1, 9), "1x9 is more than 8 times as wide as tall or as tall as wide"),
+    ],
+)
+def test_explicit_sizes_beyond_the_limits_are_refused(size: tuple[int, int], message: str) -> None:
+    with pytest.raises(InputError) as raised:
+        Camera(*size, 100.0, 100.0, 0.0, 0.0, np.eye(4))
+    assert str(raised.value) == message
+    source = scene_source(Scene(small_blob()))
+    with pytest.raises(InputError) as raised:
+        opening_camera(source, None, *size)
+    assert str(raised.value) == f"--width/--height: {message}"
+    with pytest.raises(InputError, match=r"focal lengths must be 0\.02 to 50 times"):
+        Camera(64, 64, 1e-30, 100.0, 32.0, 32.0, np.eye(4))
+    with pytest.raises(InputError, match="principal point must be finite"):
+        Camera(64, 64, 64.0, 64.0, math.nan, 32.0, np.eye(4))
+
+
+def _colmap_text_model(folder: Path, shape: str) -> Path:
+    """cameras.txt and images.txt of one PINHOLE camera of HOSTILE_SHAPES[shape]."""
+    entry = {**SANE_ENTRY, **HOSTILE_SHAPES[shape]}
+    w, h, fx, fy = entry["width"], entry["height"], entry["fx"], entry["fy"]
+    cx, cy = entry.get("cx", 1.0), entry.get("cy", 1.0)
+    folder.mkdir()
+    (folder / "cameras.txt").write_text(f"1 PINHOLE {w} {h} {fx!r} {fy!r} {cx!r} {cy!r}\n")
+    (folder / "images.txt").write_text("1 1 0 0 0 0 0 4 1 hostile.png\n\n")
+    return folder
+
+
+def _splatv_with_camera(samples: Path, out: Path, shape: str) -> Path:
+    """The synthetic .splatv sample with its header camera replaced by HOSTILE_SHAPES[shape]."""
+    data = (samples / "4d/splatv/tztechno_hanabi2_synthetic.splatv").read_bytes()
+    length = struct.unpack_from("<I", data, 4)[0]
+    header = json.loads(data[8 : 8 + length])
+    header[0]["cameras"] = [{**SANE_ENTRY, **HOSTILE_SHAPES[shape]}]
+    raw = json.dumps(header).encode()
+    out.write_bytes(data[:4] + struct.pack("<I", len(raw)) + raw + data[8 + length :])
+    return out
+
+
+def _container_opening_on(tmp_path: Path, shape: str, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A small container whose stored opening view is a camera of HOSTILE_SHAPES[shape] (as
+    a hostile writer would store it: the segmenter is made to keep it)."""
+    capture = parse_cameras_json(
+        json.dumps([{**SANE_ENTRY, **HOSTILE_SHAPES[shape]}]).encode(), where="c"
+    )[0]
+    monkeypatch.setattr(segmenter, "opening_view", lambda _g, cams, _core: (cams[0], "kept"))
+    path = tmp_path / "hostile.tsogs"
+    segment_scene(Scene(small_blob()), path, SegmentOptions(), cameras=[capture])
+    return path
+
+
+ORIGINS = ["cameras.json", "COLMAP text", ".splatv header", ".tsogs view", ".tsogs view over HTTP"]
+
+
+@pytest.mark.parametrize("origin", ORIGINS)
+@pytest.mark.parametrize("shape", sorted(HOSTILE_SHAPES))
+def test_tsog_render_draws_any_camera_within_the_pixel_budget(
+    origin: str,
+    shape: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """tsog render from a hostile camera of every origin: exit 0, an image at most
+    1280x720's pixel count and 1:8..8:1, the size it reports."""
+    ply = tmp_path / "scene.ply"
+    write_ply(ply, small_blob())
+    if origin == "cameras.json":
+        argv = [str(ply), "--cameras", str(hostile_cameras_json(tmp_path / "c.json", shape))]
+    elif origin == "COLMAP text":
+        argv = [str(ply), "--cameras", str(_colmap_text_model(tmp_path / "sparse", shape))]
+    elif origin == ".splatv header":
+        argv = [str(_splatv_with_camera(SAMPLES, tmp_path / "h.splatv", shape))]
+    else:
+        argv = [str(_container_opening_on(tmp_path, shape, monkeypatch))]
+    if not origin.startswith(".tsogs"):
+        argv += ["--camera", "0"]
+    out = tmp_path / "out" / "view.png"
+    out.parent.mkdir()
+    server = ThreadedServer(make_app(tmp_path)) if origin.endswith("HTTP") else None
+    try:
+        if server is not None:
+            argv = [f"http://127.0.0.1:{server.port}/files/hostile.tsogs"]
+        assert main(["render", *argv, "-o", str(out), "-q"]) == 0
+    finally:
+        if server is not None:
+            server.stop()
+    with Image.open(out) as png:
+        w, h = png.size
+    assert w * h <= DEFAULT_PIXELS and max(w, h) <= MAX_ASPECT * min(w, h)
+    said = capsys.readouterr().out
+    assert said.startswith(f"{out}: {w}x{h}, t = 0 s, ")
+
+
+@pytest.mark.parametrize("shape", sorted(REFUSED_SHAPES))
+def test_cameras_with_no_sane_reading_are_refused_in_one_line(
+    shape: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    changes, field = REFUSED_SHAPES[shape]
+    ply, cameras = tmp_path / "scene.ply", tmp_path / "cameras.json"
+    write_ply(ply, small_blob())
+    cameras.write_text(json.dumps([{**SANE_ENTRY, **changes}]))
+    out = tmp_path / "view.png"
+    assert main(["render", str(ply), "--cameras", str(cameras), "-o", str(out), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"tsog: error: {cameras}: field '{field}': ") and err.count("\n") == 1
+    assert not out.exists()
+    with pytest.raises(FormatError, match=re.escape(f"'{field}'")):
+        read_cameras(cameras)

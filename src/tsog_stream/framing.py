@@ -18,7 +18,7 @@ import numpy.typing as npt
 from .errors import InputError
 from .model import Gaussians
 from .opacity import logit_to_alpha
-from .schemas.cameras import CaptureCamera
+from .schemas.cameras import CaptureCamera, HeaderCamera
 
 F64 = npt.NDArray[np.float64]
 DEFAULT_UP: tuple[float, float, float] = (0.0, -1.0, 0.0)
@@ -34,7 +34,15 @@ FRAMING_SIZE = (1280, 720)
 """Image size recorded for a framing camera (only the aspect and focal length matter)."""
 MARGIN = 1.1
 MIN_COVERAGE = 0.5
-"""A capture camera that sees less of the scene than this (opacity-weighted) is not its view."""
+"""A header camera that sees less of the scene than this (opacity-weighted) is not its view;
+nor is a capture camera, unless it looks at the dense core (:func:`looks_at_core`)."""
+CORE_IN_MIDDLE = 0.25
+"""A camera looks at the dense core when the core's centre projects at most this share of
+the image's width and height from its middle (inside the middle half of each side)..."""
+CORE_DISTANCE = (0.1, 10.0)
+"""...and lies in front of it between these many core radii: a 360-degree capture's cameras
+stand about one radius out (a ring there sees 40 % of a real scene), while from ten radii the
+core fills less than a sixth of a 50-degree view."""
 FRAMING_NAME = "framing"
 """The ``name`` of a framing camera (capture cameras carry their image names)."""
 FRAMING_SAMPLE = 1 << 20
@@ -173,30 +181,63 @@ def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
     means, weights = weighted_centres(gaussians)
     if len(means) == 0:
         return 0.0
-    w2c = world_to_camera(camera)
-    points = means @ w2c[:3, :3].T + w2c[:3, 3]
-    depth = points[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cx, cy = camera.principal_point
-        x = camera.fx * points[:, 0] / depth + cx
-        y = camera.fy * points[:, 1] / depth + cy
+    x, y, depth = _pixels(camera, means)
     seen = (depth > 0) & (x >= 0) & (x < camera.width) & (y >= 0) & (y < camera.height)
     return float((weights * seen).sum() / weights.sum())
+
+
+def _pixels(camera: CaptureCamera, points: F64) -> tuple[F64, F64, F64]:
+    """Where world ``points`` (N, 3) land in ``camera``'s image (x, y in pixels) and their
+    depth along its view (behind it: depth <= 0, x and y meaningless)."""
+    w2c = world_to_camera(camera)
+    local = points @ w2c[:3, :3].T + w2c[:3, 3]
+    depth = local[:, 2]
+    cx, cy = camera.principal_point
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        x = camera.fx * local[:, 0] / depth + cx
+        y = camera.fy * local[:, 1] / depth + cy
+    return x, y, depth
+
+
+def looks_at_core(camera: CaptureCamera, core: Core) -> bool:
+    """True when the dense core's centre lies in front of ``camera`` at a sane distance
+    (:data:`CORE_DISTANCE`) and projects near the middle of its image
+    (:data:`CORE_IN_MIDDLE`): a capture camera aimed at the subject, however much of a
+    360-degree scene lies behind it."""
+    centre, radius = core
+    x, y, depth = (float(v[0]) for v in _pixels(camera, np.asarray(centre).reshape(1, 3)))
+    near, far = CORE_DISTANCE
+    if not near * radius <= depth <= far * radius:
+        return False
+    return (
+        abs(x / camera.width - 0.5) <= CORE_IN_MIDDLE
+        and abs(y / camera.height - 0.5) <= CORE_IN_MIDDLE
+    )
 
 
 def opening_view(
     gaussians: Gaussians, cameras: Sequence[CaptureCamera], core: Core | None = None
 ) -> tuple[CaptureCamera, str]:
-    """Where a viewer opens the scene, and why: the first capture camera when it sees at least
-    :data:`MIN_COVERAGE` of the scene, else a framing of the dense core (up from the cameras,
-    or :data:`DEFAULT_UP`). A file may carry a camera of another scene: every macaburguera
-    ``.splatv`` holds the same one, which sees 33 % of ``yellow_clip2``."""
+    """Where a viewer opens the scene, and why: the first camera when it sees at least
+    :data:`MIN_COVERAGE` of the scene, or when it is a capture camera (not a format's
+    :class:`HeaderCamera`) that looks at the dense core (:func:`looks_at_core`: a 360-degree
+    capture's camera sees under half); else a framing of the core (up from the cameras, or
+    :data:`DEFAULT_UP`). A header may carry a camera of another scene: every macaburguera
+    ``.splatv`` holds the same one, which sees under half of ``yellow_clip2`` and looks past
+    its core."""
     if not cameras:
         return framing_camera(gaussians, scene_up(cameras), core), "no capture cameras"
-    seen = coverage(gaussians, cameras[0])
+    first = cameras[0]
+    seen = coverage(gaussians, first)
     if seen >= MIN_COVERAGE:
-        return cameras[0], f"capture camera 0 sees {seen:.0%} of the scene"
+        return first, f"capture camera 0 sees {seen:.0%} of the scene"
+    core = core if core is not None else dense_core(gaussians)
     why = f"capture camera 0 sees only {seen:.0%} of the scene"
+    if not isinstance(first, HeaderCamera):
+        if looks_at_core(first, core):
+            aimed = f"capture camera 0 looks at the dense core (sees {seen:.0%} of the scene)"
+            return first, aimed
+        why += " and is not aimed at its dense core"
     return framing_camera(gaussians, scene_up(cameras), core), why
 
 

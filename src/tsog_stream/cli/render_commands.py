@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..constants import EVAL_MAX_TIMES, MAX_CAMERAS, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
-from ..errors import InputError
+from ..errors import InputError, printable
 from ..framing import FRAMING_NAME
-from ..io.files import refuse_existing
+from ..io.files import check_output
 from .common import (
     Integer,
     Subparsers,
@@ -24,6 +24,7 @@ from .common import (
     add_common,
     add_input,
     input_bytes,
+    local_file,
     print_reader_notes,
     read_options,
 )
@@ -43,7 +44,8 @@ RENDER_EPILOG = """examples:
 By default the image is what the web player shows first: the scene's first capture camera
 (carried by the input, found beside it as cameras.json or a COLMAP model, stored in its
 container, or given with --cameras), else a framing of its dense core that floaters do not
-widen; 640 pixels wide, the camera's aspect ratio unless --height is given. --view N picks
+widen; 640 pixels wide, the camera's aspect ratio (held to 1:8..8:1) unless --height is
+given, at most 1280x720's pixel count; sizes given are at most 4096x4096's. --view N picks
 orbit view N of --views M around the scene at t (or, with --cameras, that file's camera N
 scaled to --width/--height). Images are 8-bit RGB PNG."""
 
@@ -74,7 +76,7 @@ def _add_views(p: argparse.ArgumentParser, views_help: str, cameras_help: str | 
         help="image height in pixels (orbits: default 480)",
     )
     if cameras_help is not None:
-        p.add_argument("--cameras", type=Path, metavar="PATH", help=cameras_help)
+        p.add_argument("--cameras", type=local_file, metavar="PATH", help=cameras_help)
     p.add_argument(
         "--background",
         default="0,0,0",
@@ -114,7 +116,7 @@ def add_render_commands(sub: Subparsers) -> None:
         "stretched to --width x --height",
     )
     _add_views(p, "orbit cameras around the scene (default 8); with --cameras: all", None)
-    p.add_argument("-o", "--output", type=Path, required=True, help="the PNG to write")
+    p.add_argument("-o", "--output", type=local_file, required=True, help="the PNG to write")
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     add_common(p)
 
@@ -135,7 +137,7 @@ def add_render_commands(sub: Subparsers) -> None:
         "render from these cameras instead of orbits: a 3DGS cameras.json, a COLMAP model or "
         "a .splatv's cameras",
     )
-    p.add_argument("--plot", type=Path, help="also draw PSNR over time to this PNG")
+    p.add_argument("--plot", type=local_file, help="also draw PSNR over time to this PNG")
     p.add_argument("-f", "--force", action="store_true", help="replace the PLOT if it exists")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     g = p.add_argument_group("reading options (each applies to the inputs of the formats named)")
@@ -200,7 +202,7 @@ def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
     from ..render import save_png  # noqa: PLC0415 - loads the renderer
     from ..render.evaluate import opening_camera, render_view  # noqa: PLC0415
 
-    refuse_existing(args.output, overwrite=args.force)
+    check_output(args.output, overwrite=args.force)
     orbit = args.view is not None or args.views is not None
     if orbit and args.camera is not None:
         raise InputError("--camera picks a capture camera; --view/--views pick orbit views")
@@ -232,7 +234,9 @@ def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
 
 
 def _camera_label(index: int | None, name: str) -> str:
-    """'capture camera 2 (00003)', or what the opening view is."""
+    """'capture camera 2 (00003)', or what the opening view is; the name (a file's or a
+    server's) escaped for the terminal."""
+    name = printable(name)
     if index is not None:
         return f"capture camera {index} ({name})" if name else f"capture camera {index}"
     if name == FRAMING_NAME:
@@ -265,7 +269,7 @@ def cmd_eval(args: argparse.Namespace, progress: Progress) -> int:
     from ..render.evaluate import evaluate  # noqa: PLC0415 - loads the renderer
 
     if args.plot is not None:
-        refuse_existing(args.plot, overwrite=args.force)
+        check_output(args.plot, overwrite=args.force)
     setup, style = _setup(args, default_views=4)
     with contextlib.ExitStack() as stack:
         reference, candidate = _open_pair(args, stack, progress)

@@ -40,7 +40,8 @@ from .tsog_images import (
     quantize_timeline,
     timeline_images,
 )
-from .webp import ImageDecoder, ImageEncoder, webp_size
+from .webp import ImageDecoder, ImageEncoder
+from .webp_header import webp_size
 
 Progress = Callable[[str], None]
 U8 = npt.NDArray[np.uint8]

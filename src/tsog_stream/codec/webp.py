@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import os
+import struct
 import threading
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -19,9 +20,10 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from ..constants import MAX_IMAGE_PIXELS, WEBP_MAX_SIDE
+from ..constants import MAX_IMAGE_PIXELS
 from ..errors import SogError
 from ..machine import usable_cores
+from .webp_header import Size, webp_size
 
 _pillow_webp: Any
 try:  # the libwebp decoder Pillow's WebP plugin reads through (see _libwebp_rgba)
@@ -30,7 +32,6 @@ except ImportError:  # pragma: no cover - a Pillow built without WebP fails on a
     _pillow_webp = None
 
 U8 = npt.NDArray[np.uint8]
-Size = tuple[int, int]
 T = TypeVar("T")
 
 WEBP_METHOD = 3
@@ -42,7 +43,19 @@ WEBP_QUALITY = 50
 MAX_DECODED_PIXELS = MAX_IMAGE_PIXELS
 """Our own decompression-bomb limit: no WebP can legally hold more."""
 Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS  # Pillow warns above this and refuses above twice it
-VP8L_SIGNATURE = 0x2F
+PILLOW_ERRORS = (
+    OSError,
+    ValueError,
+    SyntaxError,
+    EOFError,
+    RuntimeError,
+    TypeError,
+    struct.error,
+    Image.DecompressionBombError,
+    Image.DecompressionBombWarning,
+)
+"""What Pillow and its libwebp decoder raise on a damaged or hostile image: each becomes a
+SogError naming the image."""
 
 
 def encode_webp(image: U8) -> bytes:
@@ -52,33 +65,6 @@ def encode_webp(image: U8) -> bytes:
         out, "WEBP", lossless=True, exact=True, quality=WEBP_QUALITY, method=WEBP_METHOD
     )
     return out.getvalue()
-
-
-def webp_size(data: bytes, *, where: str) -> Size:
-    """(width, height) from the first chunk of a WebP (VP8, VP8L or VP8X), nothing decoded.
-
-    Read before Pillow sees the bytes: libwebp allocates the whole canvas when it opens a file.
-    """
-    if len(data) < 30 or data[:4] != b"RIFF" or data[8:12] != b"WEBP":
-        raise SogError("not a WebP image (no RIFF/WEBP signature)", where=where)
-    kind = data[12:16]
-    if kind == b"VP8X":
-        width = 1 + int.from_bytes(data[24:27], "little")
-        height = 1 + int.from_bytes(data[27:30], "little")
-    elif kind == b"VP8L" and data[20] == VP8L_SIGNATURE:
-        bits = int.from_bytes(data[21:25], "little")
-        width, height = 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
-    elif kind == b"VP8 ":
-        width = int.from_bytes(data[26:28], "little") & 0x3FFF
-        height = int.from_bytes(data[28:30], "little") & 0x3FFF
-    else:
-        raise SogError(f"unknown WebP chunk {kind!r}", where=where)
-    if not (0 < width <= WEBP_MAX_SIDE and 0 < height <= WEBP_MAX_SIDE):
-        raise SogError(
-            f"image of {width}x{height} exceeds the WebP limit of {WEBP_MAX_SIDE} px per side",
-            where=where,
-        )
-    return width, height
 
 
 def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
@@ -105,14 +91,7 @@ def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
             arr = np.asarray(rgba, dtype=np.uint8)
     except SogError:
         raise
-    except (
-        OSError,
-        ValueError,
-        SyntaxError,
-        EOFError,
-        Image.DecompressionBombError,
-        Image.DecompressionBombWarning,
-    ) as exc:
+    except PILLOW_ERRORS as exc:
         raise SogError(f"corrupt WebP image: {exc}", where=where) from exc
     return arr.reshape(height, width, 4)
 

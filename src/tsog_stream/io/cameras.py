@@ -14,21 +14,23 @@ the model folder.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
+import re
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Final
+from typing import Any, BinaryIO, Final
 
 import numpy as np
 
 from ..constants import MAX_CAMERA_FILE_BYTES, MAX_CAMERAS
 from ..errors import FormatError, InputError, SourceError
-from ..schemas.cameras import CaptureCamera, cameras_from_json
-from .files import open_regular, read_bytes
+from ..schemas.cameras import CaptureCamera, HeaderCamera, cameras_from_json
+from .files import open_regular, read_head
 from .splatv import read_splatv_cameras
 
 COLMAP_MODELS: Final[dict[int, tuple[str, int]]] = {
@@ -55,6 +57,13 @@ MAX_IMAGES: Final = 1_000_000
 MAX_NAME_BYTES: Final = 4096
 MAX_LINE_BYTES: Final = 1 << 20
 """A text line longer than this (a 2D-points line of a huge image) is skipped in pieces."""
+MAX_JSON_BYTES_PER_CAMERA: Final = 4096
+"""Most bytes one camera of a 3DGS ``cameras.json`` takes: its eight keys and twelve numbers
+take 300-600 bytes, pretty-printed about 900."""
+MAX_CAMERAS_JSON_BYTES: Final = MAX_CAMERAS * MAX_JSON_BYTES_PER_CAMERA
+"""Largest ``cameras.json`` read (16 MiB, checked before reading): the most cameras a scene
+carries at the most bytes each. JSON parses to at most ~25x its bytes."""
+_JSON_SPACE: Final = re.compile(r"[ \t\n\r]*")
 CAMERA_RECORD: Final = struct.Struct("<iiQQ")
 IMAGE_RECORD: Final = struct.Struct("<i7di")
 POINT2D_BYTES: Final = 24
@@ -102,7 +111,8 @@ def read_cameras(path: str | os.PathLike[str]) -> FoundCameras:
         return model
     if p.suffix.lower() == ".splatv":
         return _splatv_cameras(p)
-    return FoundCameras(parse_cameras_json(_read_limited(p), where=str(p)), str(p), [])
+    data = _read_limited(p, MAX_CAMERAS_JSON_BYTES)
+    return FoundCameras(parse_cameras_json(data, where=str(p)), str(p), [])
 
 
 def find_cameras(input_path: str | os.PathLike[str]) -> FoundCameras | None:
@@ -124,26 +134,65 @@ def find_cameras(input_path: str | os.PathLike[str]) -> FoundCameras | None:
 
 
 def parse_cameras_json(data: bytes, *, where: str) -> list[CaptureCamera]:
-    """The cameras of a 3DGS ``cameras.json`` held in memory."""
+    """The cameras of a 3DGS ``cameras.json`` held in memory: a JSON list parsed an entry at
+    a time, refused at its MAX_CAMERAS + 1st entry (parsed whole, a few MB of ``{}`` entries
+    take gigabytes first)."""
     try:
-        entries = json.loads(data.decode("utf-8"))
+        entries = _json_list(data.decode("utf-8"), MAX_CAMERAS, where)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise FormatError(f"not valid UTF-8 JSON: {exc}", where=where) from None
     return cameras_from_json(entries, where=where)
 
 
-def _read_limited(path: Path) -> bytes:
-    """A camera file's bytes, refused before reading when over MAX_CAMERA_FILE_BYTES."""
+def _json_list(text: str, most: int, where: str) -> Any:
+    """The JSON value of ``text``; a top-level list is parsed an entry at a time and refused
+    past ``most`` entries, before the rest is parsed (ValueError where it is not JSON)."""
+    decoder = json.JSONDecoder()
+    at = _skip_space(text, 0)
+    if not text.startswith("[", at):
+        value, end = decoder.raw_decode(text, at)
+        if _skip_space(text, end) != len(text):
+            raise ValueError(f"extra data at character {end}")
+        return value
+    entries: list[Any] = []
+    at = _skip_space(text, at + 1)
+    while not text.startswith("]", at):
+        if len(entries) == most:
+            raise FormatError(f"more than the {most} cameras a scene may carry", where=where)
+        entry, at = decoder.raw_decode(text, at)
+        entries.append(entry)
+        at = _skip_space(text, at)
+        if text.startswith(",", at):
+            at = _skip_space(text, at + 1)
+            if text.startswith("]", at):
+                raise ValueError(f"expected a value after ',' at character {at}")
+        elif not text.startswith("]", at):
+            raise ValueError(f"expected ',' or ']' at character {at}")
+    if _skip_space(text, at + 1) != len(text):
+        raise ValueError(f"extra data at character {at + 1}")
+    return entries
+
+
+def _skip_space(text: str, at: int) -> int:
+    """The index of the first character at or after ``at`` that is not JSON whitespace."""
+    space = _JSON_SPACE.match(text, at)
+    return space.end() if space is not None else at
+
+
+def _read_limited(path: Path, limit: int = MAX_CAMERA_FILE_BYTES) -> bytes:
+    """A camera file's bytes, refused before reading when over ``limit`` (and read at most
+    ``limit + 1`` bytes, should it grow meanwhile)."""
     try:
         size = path.stat().st_size
     except OSError as exc:
         raise SourceError(f"cannot read the cameras: {exc.strerror}", where=str(path)) from None
-    if size > MAX_CAMERA_FILE_BYTES:
+    data = b"" if size > limit else read_head(path, size + 1)
+    if size > limit or len(data) > limit:
         raise FormatError(
-            f"{size} bytes, more than the {MAX_CAMERA_FILE_BYTES} a camera file may hold",
+            f"{max(size, len(data))} bytes, more than the {limit} a camera file may hold",
             where=str(path),
         )
-    return read_bytes(path)
+    return data
 
 
 def _splatv_cameras(path: Path) -> FoundCameras:
@@ -258,7 +307,8 @@ def parse_colmap_cameras_text(text: str, *, where: str) -> dict[int, Intrinsics]
     """``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS...`` per line, ``#`` comments."""
     by_name = {name: count for name, count in COLMAP_MODELS.values()}
     out: dict[int, Intrinsics] = {}
-    for number, line in enumerate(text.splitlines(), 1):
+    lines = io.StringIO(text, newline=None)  # a line at a time, never a list of them
+    for number, line in enumerate(lines, 1):
         fields = line.split()
         if not fields or fields[0].startswith("#"):
             continue
@@ -397,12 +447,14 @@ def cameras_for_input(
     own: list[CaptureCamera] | None = None,
 ) -> FoundCameras | None:
     """The cameras an input goes with: ``explicit`` (``--cameras``; its errors are the
-    caller's), else those the input carries (``own``), else those found beside it (one that
-    cannot be read is noted and left out: the scene does not depend on it)."""
+    caller's), else those the input carries (``own``, a format's header: marked as
+    :class:`HeaderCamera`), else those found beside it (one that cannot be read is noted and
+    left out: the scene does not depend on it)."""
     if explicit is not None:
         return read_cameras(explicit)
     if own:
-        return FoundCameras(list(own), f"{os.fspath(input_path)} (its own)", [])
+        header: list[CaptureCamera] = [HeaderCamera.of(camera) for camera in own]
+        return FoundCameras(header, f"{os.fspath(input_path)} (its own)", [])
     try:
         return find_cameras(input_path)
     except (FormatError, SourceError, InputError) as exc:

@@ -43,6 +43,7 @@ from .ply import (
     unmapped_columns,
 )
 from .ply_header import PlyHeader, Records, parse_header, read_elements
+from .ply_values import clamp_absurd
 
 CHUNK_SIZE: Final = 256
 """Vertices per ``chunk`` row."""
@@ -82,6 +83,7 @@ def parse_compressed_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> 
     bounds_names = _bound_names(chunk)
     bounds = gather_columns(chunk, bounds_names)
     notes = body.notes
+    notes.extend(clamp_absurd([bounds], bounds_names, header.format, where=name))
     notes.extend(nonfinite_notes([bounds], bounds_names))
     per_vertex = bounds.astype(np.float64)[np.arange(n) // CHUNK_SIZE]
     packed = {p: np.asarray(vertex[p], dtype=np.uint32) for p in PACKED}

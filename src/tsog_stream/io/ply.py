@@ -15,6 +15,9 @@ Decisions:
   declared: those rows are complete and intact, the header is the contract, and rejecting the
   file would help nobody. A body *shorter* than declared is a :class:`PlyError`.
 * **Non-finite values are kept as read** and counted in a note; later stages decide what to do.
+  Absurd finite values (beyond a bound of their kind) are what a wrong byte order in the
+  header gives: many refuse the file, naming the property, a few are clamped
+  (:mod:`~tsog_stream.io.ply_values`).
 * Normals (nx, ny, nz) are ignored. Every other unmapped vertex property is returned in
   :attr:`PlyContents.extra` (e.g. FreeTimeGS's ``t`` and ``motion_*``) and listed in a note.
 * PlayCanvas compressed PLY is recognised from its header and decoded by
@@ -47,6 +50,7 @@ from .ply_header import (
     parse_header,
     read_elements,
 )
+from .ply_values import clamp_absurd
 
 POSITION: Final = ("x", "y", "z")
 NORMALS: Final = ("nx", "ny", "nz")
@@ -96,6 +100,7 @@ def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents
     records = body.records["vertex"]
     columns = gather_column_groups(records, layout.groups)  # each its own array
     notes = body.notes
+    notes.extend(clamp_absurd(columns, layout.names, header.format, where=name))
     notes.extend(nonfinite_notes(columns, layout.names))
     extra = unmapped_columns(records, layout.mapped, notes)
     return PlyContents(layout.gaussians(columns), extra, notes, header)
@@ -179,6 +184,7 @@ def _read_by_blocks(file: BinaryIO, header: PlyHeader, name: str) -> PlyContents
         for n, out in extra.items():
             out[start : start + rows] = block[n]
     notes = located.notes
+    notes.extend(clamp_absurd(columns, layout.names, header.format, where=name))
     notes.extend(nonfinite_notes(columns, layout.names))
     notes.extend(_extras_note(list(extra)))
     return PlyContents(layout.gaussians(columns), extra, notes, header)

@@ -12,10 +12,12 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
+from ..constants import RENDER_MAX_SIDE
 from ..errors import InputError
 from ..framing import look_at, world_to_camera
 from ..io.cameras import read_cameras
@@ -23,6 +25,18 @@ from ..model import Gaussians
 from ..schemas.cameras import CaptureCamera
 
 F64 = npt.NDArray[np.float64]
+RENDER_MAX_PIXELS: Final = 4096 * 4096
+"""Most pixels one image may have (any camera; explicit sizes over it are refused, sizes
+taken from a camera file shrunk to fit): the rasterizer holds about 60 bytes a pixel."""
+DEFAULT_PIXELS: Final = 1280 * 720
+"""Most pixels of an image whose size nobody gave (``tsog render``'s 640-wide default,
+shrunk when the camera's shape would make it taller)."""
+MAX_ASPECT: Final = 8.0
+"""Longest image side over its shortest, at most (1:8 to 8:1): a camera file's stranger
+shape is narrowed to it, its field of view kept."""
+FOCAL_PER_SIDE: Final = (0.02, 50.0)
+"""Focal length over the image side it spans, at least and at most: a field of view across
+that side from 1.1 to 175 degrees (a camera file's focal lengths are held to it)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,10 +53,18 @@ class Camera:
     name: str = ""
 
     def __post_init__(self) -> None:
-        if self.width <= 0 or self.height <= 0:
-            raise InputError(f"image size must be positive, got {self.width}x{self.height}")
-        if not (self.fx > 0 and self.fy > 0 and math.isfinite(self.fx * self.fy)):
-            raise InputError(f"focal lengths must be positive, got fx={self.fx} fy={self.fy}")
+        check_image_size(self.width, self.height)
+        lo, hi = FOCAL_PER_SIDE
+        if not (
+            lo * self.width <= self.fx <= hi * self.width
+            and lo * self.height <= self.fy <= hi * self.height
+        ):
+            raise InputError(
+                f"focal lengths must be {lo:g} to {hi:g} times the image side they span, got "
+                f"fx={self.fx} fy={self.fy} for {self.width}x{self.height}"
+            )
+        if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
+            raise InputError(f"principal point must be finite, got cx={self.cx} cy={self.cy}")
         w2c = np.array(self.world_to_camera, dtype=np.float64)
         if w2c.shape != (4, 4) or not np.all(np.isfinite(w2c)):
             raise InputError(f"world_to_camera must be a finite (4, 4) matrix, got {w2c.shape}")
@@ -84,6 +106,26 @@ class Camera:
             self.cy * sy,
             self.world_to_camera,
             self.name,
+        )
+
+
+def check_image_size(width: int, height: int, *, where: str | None = None) -> None:
+    """Refuse an image size the renderer must not allocate: sides 1 to RENDER_MAX_SIDE,
+    at most :data:`RENDER_MAX_PIXELS` pixels, no longer than :data:`MAX_ASPECT` times wide
+    or tall."""
+    size = f"{width}x{height}"
+    if not (1 <= width <= RENDER_MAX_SIDE and 1 <= height <= RENDER_MAX_SIDE):
+        raise InputError(f"image sides must be 1-{RENDER_MAX_SIDE} pixels, got {size}", where=where)
+    if width * height > RENDER_MAX_PIXELS:
+        raise InputError(
+            f"{size} is {width * height} pixels, more than the {RENDER_MAX_PIXELS} an image "
+            "may have",
+            where=where,
+        )
+    if max(width, height) > MAX_ASPECT * min(width, height):
+        raise InputError(
+            f"{size} is more than {MAX_ASPECT:g} times as wide as tall or as tall as wide",
+            where=where,
         )
 
 
@@ -157,7 +199,8 @@ def load_cameras_json(
     :func:`tsog_stream.io.cameras.read_cameras`), scaled to ``width`` x ``height``.
 
     When only one of them is given the other keeps each camera's aspect ratio; when neither is,
-    the file's own sizes are used. Intrinsics scale per axis, as 3DGS's evaluation does.
+    the file's own sizes are used (either way within :data:`MAX_ASPECT` and
+    :data:`RENDER_MAX_PIXELS`). Intrinsics scale per axis, as 3DGS's evaluation does.
     """
     for label, value in (("width", width), ("height", height)):
         if value is not None and value <= 0:
@@ -165,42 +208,83 @@ def load_cameras_json(
     return [stretched(c, width, height) for c in read_cameras(path).cameras]
 
 
-def _size(capture: CaptureCamera, width: int | None, height: int | None) -> tuple[int, int]:
-    """The requested size, a missing side following the capture's aspect ratio."""
-    if width is None and height is None:
-        return capture.width, capture.height
-    if width is None:
-        assert height is not None
-        return max(1, round(capture.width * height / capture.height)), height
-    if height is None:
-        return width, max(1, round(capture.height * width / capture.width))
+def _size(
+    capture: CaptureCamera, width: int | None, height: int | None, budget: int
+) -> tuple[int, int]:
+    """The requested size. A side left None follows the capture's aspect ratio, held within
+    :data:`MAX_ASPECT`, and such a size is shrunk, its shape kept, to ``budget`` pixels
+    (both None: the capture's own size, held the same way); a size given whole is the
+    caller's, checked by :class:`Camera`."""
+    for label, value in (("width", width), ("height", height)):
+        if value is not None and value < 1:
+            raise InputError(f"{label} must be positive, got {value}")
+    if width is not None and height is not None:
+        return width, height
+    shape_w = min(capture.width, MAX_ASPECT * capture.height)
+    shape_h = min(capture.height, MAX_ASPECT * capture.width)
+    if width is not None:
+        w, h = float(width), width * shape_h / shape_w
+    elif height is not None:
+        w, h = height * shape_w / shape_h, float(height)
+    else:
+        w, h = shape_w, shape_h
+    scale = min(1.0, math.sqrt(budget / (w * h)))
+    return _bounded(max(1, round(w * scale)), max(1, round(h * scale)), budget)
+
+
+def _bounded(width: int, height: int, budget: int) -> tuple[int, int]:
+    """``width`` x ``height`` with the longer side trimmed until the shape is within
+    :data:`MAX_ASPECT` and the pixels within ``budget`` (rounding can leave either a pixel
+    over)."""
+    width = min(width, int(MAX_ASPECT * height), RENDER_MAX_SIDE)
+    height = min(height, int(MAX_ASPECT * width), RENDER_MAX_SIDE)
+    while width * height > budget:
+        if width >= height:
+            width -= 1
+        else:
+            height -= 1
     return width, height
 
 
-def from_capture(capture: CaptureCamera, width: int | None, height: int | None = None) -> Camera:
+def _sane(focal: float, centre: float, side: int) -> tuple[float, float]:
+    """A focal length held to :data:`FOCAL_PER_SIDE` of ``side`` and a principal point held
+    inside the image (a camera file's values may be anything finite)."""
+    lo, hi = FOCAL_PER_SIDE
+    return min(max(focal, lo * side), hi * side), min(max(centre, 0.0), float(side))
+
+
+def from_capture(
+    capture: CaptureCamera,
+    width: int | None,
+    height: int | None = None,
+    *,
+    budget: int = RENDER_MAX_PIXELS,
+) -> Camera:
     """A capture camera drawing ``width`` x ``height`` pixels as a player's window shows it:
     the vertical field of view kept, square pixels, the principal point moved with the centre
     (a window wider than the capture sees more at the sides). A side left None follows the
-    capture's aspect ratio (both None: the capture's size)."""
-    w, h = _size(capture, width, height)
+    capture's aspect ratio (both None: the capture's size), within :data:`MAX_ASPECT` and
+    ``budget`` pixels; the intrinsics are held to sane values (:func:`_sane`)."""
+    w, h = _size(capture, width, height, budget)
     scale = h / capture.height
     cx, cy = capture.principal_point
-    return Camera(
-        w,
-        h,
-        capture.fx * scale,
-        capture.fy * scale,
-        w / 2 + (cx - capture.width / 2) * scale,
-        h / 2 + (cy - capture.height / 2) * scale,
-        world_to_camera(capture),
-        capture.name,
-    )
+    fx, cx = _sane(capture.fx * scale, w / 2 + (cx - capture.width / 2) * scale, w)
+    fy, cy = _sane(capture.fy * scale, h / 2 + (cy - capture.height / 2) * scale, h)
+    return Camera(w, h, fx, fy, cx, cy, world_to_camera(capture), capture.name)
 
 
-def stretched(capture: CaptureCamera, width: int | None, height: int | None) -> Camera:
-    """A capture camera scaled per axis to ``width`` x ``height`` (3DGS evaluation style)."""
-    w, h = _size(capture, width, height)
+def stretched(
+    capture: CaptureCamera,
+    width: int | None,
+    height: int | None,
+    *,
+    budget: int = RENDER_MAX_PIXELS,
+) -> Camera:
+    """A capture camera scaled per axis to ``width`` x ``height`` (3DGS evaluation style;
+    sizes and intrinsics bounded as :func:`from_capture` bounds them)."""
+    w, h = _size(capture, width, height, budget)
     sx, sy = w / capture.width, h / capture.height
     cx, cy = capture.principal_point
-    w2c = world_to_camera(capture)
-    return Camera(w, h, capture.fx * sx, capture.fy * sy, cx * sx, cy * sy, w2c, capture.name)
+    fx, cx = _sane(capture.fx * sx, cx * sx, w)
+    fy, cy = _sane(capture.fy * sy, cy * sy, h)
+    return Camera(w, h, fx, fy, cx, cy, world_to_camera(capture), capture.name)

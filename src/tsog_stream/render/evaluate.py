@@ -25,7 +25,15 @@ from ..model import Gaussians, Scene
 from ..schemas.cameras import CaptureCamera
 from ..temporal import time_range
 from . import render, to_uint8
-from .camera import Camera, from_capture, load_cameras_json, scene_orbit
+from .camera import (
+    DEFAULT_PIXELS,
+    RENDER_MAX_PIXELS,
+    Camera,
+    check_image_size,
+    from_capture,
+    load_cameras_json,
+    scene_orbit,
+)
 from .metrics import mse, psnr_from_mse, ssim
 
 Span = tuple[float, float]
@@ -152,6 +160,8 @@ class CameraSetup:
         for name, value in (("--width", self.width), ("--height", self.height)):
             if value is not None and not 1 <= value <= RENDER_MAX_SIDE:
                 raise InputError(f"expected 1-{RENDER_MAX_SIDE} pixels, got {value}", where=name)
+        if self.width is not None and self.height is not None:
+            check_image_size(self.width, self.height, where="--width/--height")
         if self.views is not None and not 1 <= self.views <= RENDER_MAX_VIEWS:
             raise InputError(
                 f"expected 1-{RENDER_MAX_VIEWS} views, got {self.views}", where="--views"
@@ -171,6 +181,7 @@ class CameraSetup:
         if len(frame) == 0:
             raise InputError(f"the reference shows no Gaussians at t = {t:g} s to aim cameras at")
         width, height = self.size()
+        check_image_size(width, height, where="--width/--height")
         return scene_orbit(frame, self.views or 4, width, height, up=self.up)
 
 
@@ -207,8 +218,10 @@ def opening_camera(
     source: Source, camera: int | None, width: int | None, height: int | None
 ) -> Camera:
     """Capture camera ``camera`` of the source, or (None) the view it opens from, drawn at
-    ``width`` (default 640) x ``height`` (default: the camera's aspect ratio) as a player
-    window shows it (:func:`~tsog_stream.render.camera.from_capture`)."""
+    ``width`` x ``height`` as a player window shows it
+    (:func:`~tsog_stream.render.camera.from_capture`). Neither given: 640 wide, the camera's
+    aspect ratio, at most DEFAULT_PIXELS; one given: the other follows, at most
+    RENDER_MAX_PIXELS; both: refused beyond them (one line)."""
     if camera is not None:
         if not source.cameras:
             raise InputError(
@@ -223,9 +236,11 @@ def opening_camera(
         if opening is None:
             raise InputError("the scene shows nothing to aim a camera at")
         chosen = opening
+    if width is not None and height is not None:
+        check_image_size(width, height, where="--width/--height")
     if width is None and height is None:
-        width = DEFAULT_WIDTH
-    return from_capture(chosen, width, height)
+        return from_capture(chosen, DEFAULT_WIDTH, budget=DEFAULT_PIXELS)
+    return from_capture(chosen, width, height, budget=RENDER_MAX_PIXELS)
 
 
 def json_psnr(value: float) -> float | None:

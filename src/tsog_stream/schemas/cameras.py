@@ -69,6 +69,27 @@ class CaptureCamera(BaseModel):
         return math.degrees(2 * math.atan(self.height / (2 * self.fy)))
 
 
+class HeaderCamera(CaptureCamera):
+    """A camera a format's header carries (a ``.splatv``'s): a converter's choice of view,
+    not the pose of a captured image, so a viewer trusts it less (framing.opening_view).
+
+    Equal to (and hashed like) the :class:`CaptureCamera` with the same fields: the kind is
+    where the camera came from, not what it is, and a container stores both alike."""
+
+    @classmethod
+    def of(cls, camera: CaptureCamera) -> HeaderCamera:
+        """``camera`` marked as a header's."""
+        return cls.model_validate(camera.model_dump())
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, whatever the kind of either camera."""
+        if not isinstance(other, CaptureCamera):
+            return NotImplemented
+        return self.__dict__ == other.__dict__
+
+    __hash__ = CaptureCamera.__hash__
+
+
 def _determinant(r: tuple[Vec3, Vec3, Vec3]) -> float:
     """det of a 3x3 matrix given row by row."""
     return (
