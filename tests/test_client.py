@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 from aiohttp import web
 
+from peers import Peer, drip, silent, unavailable
 from tsog_stream.cli.client_commands import add_client_commands, cmd_fetch, cmd_play
+from tsog_stream.cli.main import main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.client import (
     HttpOptions,
@@ -27,7 +29,7 @@ from tsog_stream.client import (
 from tsog_stream.client.stream import scene_nbytes
 from tsog_stream.container.header import PREFIX_SIZE
 from tsog_stream.container.ranges import ByteRange, coalesce
-from tsog_stream.errors import IntegrityError, SourceError
+from tsog_stream.errors import InputError, IntegrityError, SourceError
 from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.synthetic import small_scene
@@ -89,7 +91,9 @@ class Origin:
         resp.headers["ETag"] = self.etag
         resp.content_length = len(body)
         await resp.prepare(request)
-        if "trickle" in self.faults:  # a byte every 0.2 s: never silent long enough to time out
+        # a byte every 0.2 s: never silent long enough to time out (trickle_chunks: past the
+        # opening request's bytes only)
+        if "trickle" in self.faults or ("trickle_chunks" in self.faults and a >= PREFIX_SIZE):
             for byte in bytes(body):
                 self.sent += 1  # counted before the client can have it: tests read it after
                 await resp.write(bytes([byte]))
@@ -386,7 +390,7 @@ def test_cli_fetch_and_play(
     assert cmd_fetch(args, Progress(quiet=True)) == 0
     assert (tmp_path / "f.ply").is_file()
     assert "requests" in capsys.readouterr().out
-    args = parser.parse_args(["play", origin.url(), "--duration", "0.5", "--fps", "10"])
+    args = parser.parse_args(["play", origin.url(), "--duration", "0.5", "--fps", "10", "-v"])
     assert cmd_play(args, lines.append) == 0
     out = capsys.readouterr().out
     assert "startup latency" in out and "cache hit rate" in out
@@ -404,10 +408,83 @@ def test_the_cache_evicts_least_recently_used(container: Path) -> None:
     assert 0 in cache and 1 not in cache and cache.nbytes <= cache.max_bytes
 
 
-def test_a_trickling_server_is_cut_off_at_the_request_deadline(origin: Origin) -> None:
-    origin.faults.add("trickle")
-    options = HttpOptions(retries=1, backoff_s=0.01, read_timeout_s=5.0, request_timeout_s=1.0)
-    began = time.monotonic()
-    with pytest.raises(SourceError, match="failed after 2 attempts"):
-        open_stream(origin.url(), http=options)
-    assert time.monotonic() - began < 5  # two attempts of 1 s, not 16 KiB x 0.2 s each
+DEADLINE = 2.0
+"""The deadline of one read in the tests of the deadline (60 s by default)."""
+SLACK = 1.0
+"""How late after the deadline a read may give up: a cancelled attempt's clean-up."""
+DRIP_S = 0.25
+"""A dripping server's pause between bytes: never silent long enough for a read timeout."""
+HEAD_206 = (
+    b"HTTP/1.1 206 Partial Content\r\nContent-Range: bytes 0-16383/100000\r\n"
+    b"Content-Length: 16384\r\n\r\n"
+)
+HEAD_200 = b"HTTP/1.1 200 OK\r\nContent-Length: 100000\r\n\r\n"
+SERVERS = {
+    "drips the opening answer's head": (drip(HEAD_206, DRIP_S, drip_head=True), "/s.tsogs"),
+    "drips the opening answer's body": (drip(HEAD_206, DRIP_S), "/s.tsogs"),
+    "drips an unpacked manifest": (drip(HEAD_200, DRIP_S), "/scene/"),
+    "answers 503 to every attempt": (unavailable, "/s.tsogs"),
+    "accepts and says nothing": (silent, "/s.tsogs"),
+}
+"""Servers that never finish an answer, and where the client reads from them."""
+
+
+@pytest.mark.parametrize("server", list(SERVERS))
+def test_a_read_gives_up_at_its_deadline_whatever_the_server_does(server: str) -> None:
+    """One deadline for a read, every attempt and wait included: at it the attempt running is
+    cut off and no other begins (a drip of a byte every 2 s took 607 s to give up on)."""
+    behaviour, path = SERVERS[server]
+    options = HttpOptions(retries=1000, backoff_s=0.05, max_backoff_s=0.2)
+    with Peer(behaviour, lifetime_s=DEADLINE + 10) as peer:
+        began = time.monotonic()
+        with pytest.raises(SourceError, match=rf"not received within {DEADLINE:g} s") as caught:
+            open_stream(f"http://127.0.0.1:{peer.port}{path}", http=options, timeout=DEADLINE)
+        took = time.monotonic() - began
+        attempts = peer.accepted
+        time.sleep(0.3)
+        assert peer.accepted == attempts  # nothing more after giving up
+    assert DEADLINE - 0.3 <= took < DEADLINE + SLACK
+    assert "\n" not in str(caught.value) and "see --timeout" in str(caught.value)
+
+
+def test_a_chunk_dripped_after_a_good_opening_gives_up_at_its_deadline(origin: Origin) -> None:
+    """Each chunk read has the deadline of its own: opening is quick, the chunk is dripped."""
+    origin.faults.add("trickle_chunks")
+    with open_stream(origin.url(), timeout=DEADLINE) as client:
+        began = time.monotonic()
+        with pytest.raises(
+            SourceError, match=r"bytes \[\d+, \d+\)( \(\d+ came\))? not received within 2 s"
+        ):
+            client.frame_at(0.3)
+        assert DEADLINE - 0.1 <= time.monotonic() - began < DEADLINE + SLACK
+        assert client.stats.requests == 2  # the opening, then one cut-off chunk read
+
+
+@pytest.mark.parametrize("command", ["fetch", "play", "info", "frame", "verify"])
+def test_cli_timeout_is_one_line_at_the_deadline(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = {
+        "fetch": ["--t", "0", "-o", str(tmp_path / "f.ply")],
+        "frame": ["--t", "0", "-o", str(tmp_path / "f.ply")],
+    }.get(command, [])
+    with Peer(drip(HEAD_206, DRIP_S), lifetime_s=DEADLINE + 10) as peer:
+        url = f"http://127.0.0.1:{peer.port}/s.tsogs"
+        began = time.monotonic()
+        assert main([command, url, *argv, "--timeout", f"{DEADLINE:g}", "-q"]) == 1
+        took = time.monotonic() - began
+    err = capsys.readouterr().err
+    assert err.startswith("tsog: error: ") and len(err.strip().splitlines()) == 1, err
+    assert "not received within 2 s" in err and took < DEADLINE + SLACK
+    assert not (tmp_path / "f.ply").exists()
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "soon"])
+def test_a_timeout_that_is_not_a_positive_time_is_refused(
+    value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exited:
+        main(["info", "http://127.0.0.1:9/s.tsogs", "--timeout", value])
+    assert exited.value.code == 2 and "--timeout" in capsys.readouterr().err
+    with pytest.raises(InputError, match="seconds > 0"):
+        open_stream("http://127.0.0.1:9/s.tsogs", timeout=float(value) if value != "soon" else 0)

@@ -4,10 +4,14 @@ for a scheduler that is not there."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import re
 import signal
+import socket
 import threading
 import time
+import tracemalloc
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -17,6 +21,7 @@ import pytest
 from distributed import Client, LocalCluster
 
 from helpers import reporting_job, wait_until
+from peers import Behaviour, Peer, claims, closes, http_error, random_bytes, silent
 from tsog_stream import machine
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
@@ -30,6 +35,7 @@ from tsog_stream.machine import usable_cores
 from tsog_stream.model import Scene
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment import engines
+from tsog_stream.segment.scheduler import client_handshake, parse_address, probe_scheduler
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
@@ -143,7 +149,26 @@ def _callback_ms_of_scheduler(dask_scheduler: Any) -> dict[str, float]:
     return _callback_ms(dask_scheduler)
 
 
-@pytest.mark.parametrize("address", ["0", "nan", "http://127.0.0.1:8786", "tcp://host"])
+MALFORMED = [
+    "0",
+    "nan",
+    "http://127.0.0.1:8786",
+    "udp://127.0.0.1:8786",
+    "tcp://host",
+    "tcp://127.0.0.1:0",
+    "tcp://127.0.0.1:99999",
+    "tcp://127.0.0.1:8786/path",
+    "tcp://[::1:8786",
+    "tcp://[not:an:ip]:8786",
+    "tcp://1.2.3.256:8786",
+    "tcp://-bad-:8786",
+    "tcp://a..b:8786",
+    "tcp://127.0.0.1:8786\n",
+]
+"""Addresses refused as written, before any name is looked up or any work done."""
+
+
+@pytest.mark.parametrize("address", MALFORMED)
 def test_a_malformed_cluster_address_is_one_line_before_any_work(
     address: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -154,14 +179,114 @@ def test_a_malformed_cluster_address_is_one_line_before_any_work(
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
-def test_a_scheduler_that_is_not_there_is_one_line(
-    scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+CONNECT_S = 1.0
+"""The connect timeout of the tests of peers that are not schedulers (10 s by default)."""
+NOT_SCHEDULERS: dict[str, tuple[Behaviour, str]] = {
+    "an HTTP server": (http_error, "an HTTP server answered, not a scheduler"),
+    "random bytes": (random_bytes, "its first message claims "),
+    "a claim of 2 GiB": (claims(2 << 30), "claims 2147483648 bytes, a handshake has 16 to 4096"),
+    "a claim too small": (claims(3), "claims 3 bytes"),
+    "a server that says nothing": (silent, f"no Dask handshake within {CONNECT_S:g} s"),
+    "a server that hangs up": (closes, "closed the connection without a handshake"),
+}
+"""What may listen at a scheduler address that is not a scheduler, and what the error says."""
+
+
+def _cli_segment_error(
+    address: str, source: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> tuple[str, float]:
+    """``tsog segment --cluster address``: its one error line and how long it took."""
+    out = tmp_path / "o.tsogs"
+    began = time.monotonic()
+    code = main(["segment", str(source), "-o", str(out), "-q", "--cluster", address])
+    took = time.monotonic() - began
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == [source.name]
+    return err.strip(), took
+
+
+@pytest.fixture(scope="module")
+def scene_file(scene: Scene, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("input") / "scene.sog"
+    path.write_bytes(bundle_bytes(encode_chunk(scene)))
+    return path
+
+
+@pytest.mark.parametrize("peer", list(NOT_SCHEDULERS))
+def test_a_peer_that_is_not_a_scheduler_is_one_line_in_bounded_time(
+    peer: str,
+    scene_file: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
-    monkeypatch.setattr(engines, "CONNECT_TIMEOUT_S", 1.0)
-    options = replace(OPTIONS, cluster="tcp://127.0.0.1:9")  # the discard port: refused
-    with pytest.raises(InputError, match="cannot reach the Dask scheduler"):
-        segment_scene(scene, tmp_path / "o.tsogs", options)
+    """Whatever listens at the address, the run stops with one line naming it within the
+    connect timeout (Dask's own client would hang on silence or take the size a peer claims)."""
+    behaviour, expected = NOT_SCHEDULERS[peer]
+    monkeypatch.setattr(engines, "CONNECT_TIMEOUT_S", CONNECT_S)
+    source = tmp_path / scene_file.name
+    source.write_bytes(scene_file.read_bytes())
+    with Peer(behaviour, lifetime_s=20) as server:
+        address = server.address("tcp")
+        err, took = _cli_segment_error(address, source, tmp_path, capsys)
+        assert server.accepted == 1  # one probe; Dask never connected
+    assert err.startswith(f"tsog: error: {address}: cannot reach the Dask scheduler: ")
+    assert expected in err and took < 10 * CONNECT_S
+
+
+def _closed_port() -> int:
+    """A loopback port nothing listens on (bound, then closed)."""
+    with socket.create_server(("127.0.0.1", 0)) as sock:
+        return int(sock.getsockname()[1])
+
+
+UNREACHABLE = {
+    "a closed port": ("tcp", "connection refused (nothing listens there)"),
+    "tls without Dask's TLS settings": ("tls", "tls:// needs Dask's TLS settings"),
+    "ucx without UCX installed": ("ucx", "ucx:// needs UCX support for Dask"),
+}
+
+
+@pytest.mark.parametrize("case", list(UNREACHABLE))
+def test_a_scheduler_that_cannot_be_reached_is_one_line_at_once(
+    case: str, scene: Scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    scheme, expected = UNREACHABLE[case]
+    if scheme == "ucx" and any(importlib.util.find_spec(m) for m in ("ucp", "distributed_ucxx")):
+        pytest.skip("UCX is installed here")
+    monkeypatch.setattr(engines, "CONNECT_TIMEOUT_S", CONNECT_S)
+    address = f"{scheme}://127.0.0.1:{_closed_port()}"
+    began = time.monotonic()
+    with pytest.raises(InputError) as caught, engines.engine(1, address):
+        pass
+    assert time.monotonic() - began < CONNECT_S / 2  # at once: no retrying until the timeout
+    assert str(caught.value).startswith(f"{address}: ") and expected in str(caught.value)
+    with pytest.raises(InputError, match=re.escape(expected)):
+        segment_scene(scene, tmp_path / "o.tsogs", replace(OPTIONS, cluster=address))
     assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def test_the_probe_allocates_nothing_from_a_claimed_size() -> None:
+    """A peer claiming 2 GiB is refused on its first 8 bytes: the probe's allocations stay
+    in kilobytes (Dask's own handshake took the 256 MiB a peer claimed and sent)."""
+    client_handshake()  # its imports are not the probe's allocations
+    with Peer(claims(2 << 30), lifetime_s=10) as server:
+        tracemalloc.start()
+        try:
+            with pytest.raises(InputError, match="claims 2147483648 bytes"):
+                probe_scheduler(parse_address(server.address("tcp")), CONNECT_S)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert peak < 1 << 20
+
+
+def test_the_probe_lets_a_real_scheduler_through(scheduler: str) -> None:
+    """A scheduler's own handshake passes, in well under the timeout."""
+    began = time.monotonic()
+    probe_scheduler(parse_address(scheduler), CONNECT_S)
+    assert time.monotonic() - began < 0.5
 
 
 def test_window_jobs_of_a_layered_sh_sequence_write_the_same_bytes(tmp_path: Path) -> None:

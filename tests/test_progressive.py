@@ -663,3 +663,94 @@ def test_a_share_is_drawn_at_a_time_from_the_rows_that_time_shows(bare: bool) ->
         assert 0 < len(got) < len(chosen)
         for mine, theirs in zip(vars(got).values(), vars(expected).values(), strict=True):
             assert np.array_equal(mine, theirs)
+
+
+def _lie(manifest: dict[str, Any], shape: str) -> None:
+    """Make the layer table of ``manifest`` (index JSON) lie in the way ``shape`` says."""
+    layers = manifest["layers"]
+    if shape == "5000 layers":
+        layers += [
+            {"index": k, "gaussians": 0, "bytes": 0, "psnr_db": 30.0} for k in range(3, 5000)
+        ]
+    elif shape == "one layer too many":
+        layers.append({"index": 3, "gaussians": 0, "bytes": 0, "psnr_db": None})
+        layers[2]["psnr_db"] = 50.0
+    elif shape == "10^18 bytes":
+        layers[1]["bytes"] = 10**18
+    elif shape == "one Gaussian more":
+        layers[0]["gaussians"] += 1
+    elif shape in ("+1e300 dB", "-1e300 dB", "-1 dB", "1000 dB"):
+        layers[0]["psnr_db"] = float(shape.split(maxsplit=1)[0])
+    elif shape == "no PSNR below the top":
+        layers[1]["psnr_db"] = None
+    elif shape == "a PSNR on the top layer":
+        layers[2]["psnr_db"] = 45.0
+    elif shape == "an empty middle layer":
+        for chunk in manifest["chunks"]:
+            chunk["layer"] = 2 if chunk.get("layer") == 1 else chunk.get("layer", 0)
+
+
+LYING_TABLES = {
+    "one layer too many": "layers: the table has 4 entries, the chunks are in 3",
+    "10^18 bytes": "layers[1]: says 1000000000000000000 bytes, its",
+    "one Gaussian more": "layers[0]: says {gaussians} Gaussians, its",
+    "no PSNR below the top": "layers[1]: no PSNR, expected the measured quality of layers 0..1",
+    "a PSNR on the top layer": "layers[2]: the last layer (the full scene) has a PSNR of 45 dB",
+    "an empty middle layer": "layers[1]: no chunk is in this layer",
+}
+"""Ways a layer table can lie, and the line ``tsog verify`` prints for each."""
+
+
+@pytest.mark.parametrize("shape", list(LYING_TABLES))
+def test_verify_checks_the_layer_table_against_the_chunks(
+    shape: str,
+    scene_files: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A layer table that lies (counts, bytes, PSNR, entries without chunks) is an index
+    problem (exit 6) named by its entry; the honest one is OK."""
+    folder = tmp_path / "unpacked"
+    assert main(["unpack", str(scene_files["layered"]), "-o", str(folder), "-q"]) == 0
+    assert main(["verify", str(folder), "-q"]) == 0
+    assert capsys.readouterr().out.strip().endswith("OK")
+    manifest = json.loads((folder / "manifest.json").read_bytes())
+    assert len(manifest["layers"]) == 3
+    expected = LYING_TABLES[shape].format(gaussians=manifest["layers"][0]["gaussians"] + 1)
+    _lie(manifest, shape)
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["verify", str(folder), "-q"]) == 6
+    out = capsys.readouterr().out
+    assert f"container: index: {expected}" in out, out
+    assert len(out.splitlines()) <= 4  # one line per lie, then the total
+
+
+ABSURD_TABLES = {
+    "5000 layers": "field 'layers': expected at most 16 items, found 5000",
+    "+1e300 dB": "field 'layers[0].psnr_db': expected",
+    "-1e300 dB": "field 'layers[0].psnr_db': expected",
+    "-1 dB": "field 'layers[0].psnr_db': expected",
+    "1000 dB": "field 'layers[0].psnr_db': expected",
+}
+"""Layer tables no writer makes: refused when the index is read (the schema's bounds), by
+every command, with the field named."""
+
+
+@pytest.mark.parametrize("shape", list(ABSURD_TABLES))
+@pytest.mark.parametrize("command", ["verify", "info"])
+def test_an_absurd_layer_table_is_refused_when_the_index_is_read(
+    shape: str,
+    command: str,
+    scene_files: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    folder = tmp_path / "unpacked"
+    assert main(["unpack", str(scene_files["layered"]), "-o", str(folder), "-q"]) == 0
+    manifest = json.loads((folder / "manifest.json").read_bytes())
+    _lie(manifest, shape)
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    assert main([command, str(folder), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert ABSURD_TABLES[shape] in err, err
+    assert len(err.splitlines()) == 1

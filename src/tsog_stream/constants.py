@@ -140,6 +140,13 @@ MAX_CAMERA_SIDE: Final = 65536
 MAX_CAMERA_FILE_BYTES: Final = 64 * 1024 * 1024
 """Largest cameras.json or COLMAP cameras.txt read (checked before reading)."""
 
+MAX_LAYERS_READ: Final = 16
+"""Most quality layers an index may list (writers make at most 8): a reader refuses more."""
+MAX_PSNR_DB: Final = 200.0
+"""Above any PSNR a layer can measure: a non-zero mean squared error of 8-bit pictures in
+[0, 1] is at least 1 / (255^2 P) for P pixels compared, under 198.1 dB for P < 10^15; a
+writer records an exact picture's (infinite) PSNR as this."""
+
 # --- Scene thumbnails (tsog segment writes them; the server's scene list shows them) --------
 THUMBNAIL_SUFFIX: Final = ".thumb.png"
 """A container's thumbnail sits beside it: ``clip.tsogs`` -> ``clip.tsogs.thumb.png``."""

@@ -7,8 +7,9 @@ and its body has that many bytes. The first response teaches the file's length a
 ETag; later requests carry ``If-Match: <etag>`` so a file replaced on the server fails with a
 412 (a SourceError), never a silent mix of two versions. Connection errors, timeouts and 5xx
 answers are retried with exponential backoff, resuming a truncated body from the last byte
-received. An origin that ignores ``Range`` (200 with the whole file) is tolerated for small
-files (kept in memory) and refused for large ones. See docs/client.md.
+received, all within one deadline per read (``HttpOptions.deadline_s``). An origin that
+ignores ``Range`` (200 with the whole file) is tolerated for small files (kept in memory) and
+refused for large ones. See docs/client.md.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from __future__ import annotations
 import asyncio
 import json
 import re
+from collections.abc import Awaitable, Callable
+from typing import TypeVar
 
 import aiohttp
 
@@ -29,6 +32,7 @@ from .http_options import HttpOptions
 _CONTENT_RANGE = re.compile(r"^bytes (\d+)-(\d+)/(\d+)$")
 _UNSATISFIED = re.compile(r"^bytes \*/(\d+)$")
 _MAX_ERROR_BODY = 4096
+T = TypeVar("T")
 
 
 class _RetryableError(Exception):
@@ -46,13 +50,52 @@ def backoff(options: HttpOptions, attempt: int) -> float:
 
 
 def new_session(options: HttpOptions) -> aiohttp.ClientSession:
-    """A client session with the options' timeouts and no transparent decompression."""
+    """A client session with the options' per-attempt timeouts (the deadline of a whole read
+    is :func:`with_retries`'s) and no transparent decompression."""
     timeout = aiohttp.ClientTimeout(
-        total=options.request_timeout_s,
-        sock_connect=options.connect_timeout_s,
-        sock_read=options.read_timeout_s,
+        total=None, sock_connect=options.connect_timeout_s, sock_read=options.read_timeout_s
     )
     return aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
+
+
+async def with_retries(
+    options: HttpOptions, attempt: Callable[[], Awaitable[T]], what: Callable[[], str], where: str
+) -> T:
+    """``attempt()`` until it succeeds, retrying RETRYABLE failures with backoff, at most
+    ``options.retries`` times and never past one deadline, ``options.deadline_s`` from now:
+    an attempt still running then is cancelled, a wait that would end after it is not begun.
+    ``what()`` names what is being read (it may change as a body resumes)."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + options.deadline_s
+    tries = 0
+    while True:
+        tries += 1
+        try:
+            async with asyncio.timeout_at(deadline) as limit:
+                return await attempt()
+        except RETRYABLE as exc:
+            cut = limit.expired()
+            reason = "still unfinished at the deadline" if cut else str(exc) or type(exc).__name__
+            if cut or tries > options.retries:
+                raise _gave_up(options, what(), tries, reason, where, deadline=cut) from exc
+            wait = backoff(options, tries)
+            if loop.time() + wait >= deadline:
+                raise _gave_up(options, what(), tries, reason, where, deadline=True) from exc
+            await asyncio.sleep(wait)
+
+
+def _gave_up(
+    options: HttpOptions, what: str, tries: int, reason: str, where: str, *, deadline: bool
+) -> SourceError:
+    """The one-line error of a read given up on: out of time or out of attempts."""
+    attempts = f"{tries} attempt{'s' if tries > 1 else ''}"
+    if deadline:
+        return SourceError(
+            f"{what} not received within {options.deadline_s:g} s ({attempts}, the last "
+            f"{reason}; see --timeout)",
+            where=where,
+        )
+    return SourceError(f"{what} failed after {attempts}: {reason}", where=where)
 
 
 class HttpSource:
@@ -119,23 +162,18 @@ class HttpSource:
         return await self._fetch(span, probe=False)
 
     async def _fetch(self, span: ByteRange, *, probe: bool) -> bytes:
-        """GET ``span`` with retries, resuming after the bytes already received."""
+        """GET ``span`` with retries within the read's deadline, resuming after the bytes
+        already received."""
         got = bytearray()
-        attempt = 0
-        while True:
-            rest = ByteRange(span.start + len(got), span.end)
-            try:
-                await self._get(rest, got, probe=probe)
-                return bytes(got)
-            except RETRYABLE as exc:
-                attempt += 1
-                if attempt > self.options.retries:
-                    raise SourceError(
-                        f"bytes [{rest.start}, {rest.end}) failed after {attempt} attempts: "
-                        f"{exc or type(exc).__name__}",
-                        where=self.name,
-                    ) from exc
-                await asyncio.sleep(backoff(self.options, attempt))
+
+        async def attempt() -> bytes:
+            await self._get(ByteRange(span.start + len(got), span.end), got, probe=probe)
+            return bytes(got)
+
+        def what() -> str:
+            return f"bytes [{span.start}, {span.end})" + (f" ({len(got)} came)" if got else "")
+
+        return await with_retries(self.options, attempt, what, self.name)
 
     def _headers(self, span: ByteRange) -> dict[str, str]:
         """Request headers: one range, no compression, pinned to the known version."""
@@ -282,7 +320,8 @@ class HttpFiles:
 
     Each file is one request with ``Accept-Encoding: identity``; only a 200 whose body has at
     most ``limit`` bytes is accepted (a longer declared length is refused unread). Connection
-    errors, timeouts and 5xx answers are retried with backoff, like :class:`HttpSource`.
+    errors, timeouts and 5xx answers are retried with backoff within one deadline per file, like
+    :class:`HttpSource`.
     """
 
     def __init__(self, options: HttpOptions | None = None) -> None:
@@ -303,19 +342,11 @@ class HttpFiles:
         self._session = None
 
     async def get(self, url: str, limit: int) -> bytes:
-        """The whole body of ``url`` (at most ``limit`` bytes), retrying transient failures."""
-        attempt = 0
-        while True:
-            try:
-                return await self._get_once(url, limit)
-            except RETRYABLE as exc:
-                attempt += 1
-                if attempt > self.options.retries:
-                    raise SourceError(
-                        f"GET failed after {attempt} attempts: {exc or type(exc).__name__}",
-                        where=redact_url(url),
-                    ) from exc
-                await asyncio.sleep(backoff(self.options, attempt))
+        """The whole body of ``url`` (at most ``limit`` bytes), retrying transient failures
+        within the read's deadline."""
+        return await with_retries(
+            self.options, lambda: self._get_once(url, limit), lambda: "GET", redact_url(url)
+        )
 
     async def _get_once(self, url: str, limit: int) -> bytes:
         """One GET of ``url``; checks status, encoding and length."""

@@ -41,7 +41,7 @@ from .adaptive import (
 )
 from .costs import SeekCost, seek_cost
 from .fetchers import ChunkFetcher, RangeFetcher, make_fetcher
-from .http_options import HttpOptions
+from .http_options import HttpOptions, with_deadline
 from .unpacked import pack, unpack
 from .verify import VerifyReport, verify_stream
 
@@ -252,14 +252,17 @@ class StreamClient:
         concurrency: int = 4,
         coalesce_gap: int | None = 64 * 1024,
         http: HttpOptions | None = None,
+        timeout: float | None = None,
     ) -> StreamClient:
         """Open a container by URL, ``file://`` URL, path or byte source.
 
         A URL ending with ``/`` or ``/manifest.json``, or a local folder, is read as the
         unpacked layout; anything else as one ``.tsogs`` file (see :func:`make_fetcher`).
+        ``timeout``: seconds one read over HTTP may take, its retries included (the opening
+        request, a chunk or a run of chunks; default ``http.deadline_s``, 60 s).
         """
         source = (
-            make_fetcher(target, http)
+            make_fetcher(target, with_deadline(http, timeout))
             if isinstance(target, str | os.PathLike)
             else RangeFetcher(target)
         )

@@ -38,6 +38,7 @@ class Stream:
         concurrency: int = 4,
         coalesce_gap: int | None = 64 * 1024,
         http: HttpOptions | None = None,
+        timeout: float | None = None,
     ) -> None:
         self._runner: asyncio.Runner | _LoopThread = (
             _LoopThread() if _loop_running() else asyncio.Runner()
@@ -48,6 +49,7 @@ class Stream:
             concurrency=concurrency,
             coalesce_gap=coalesce_gap,
             http=http,
+            timeout=timeout,
         )
         try:
             self.client: StreamClient = self._run(opening)
@@ -232,4 +234,5 @@ async def _drain(playback: Playback, on_frame: Callable[[PlayedFrame], None] | N
 open_stream = Stream
 """Open a container synchronously: a path or ``file://`` URL of a ``.tsogs`` file or of an
 unpacked folder, or an http(s) URL of either (a folder URL ends with ``/`` or
-``/manifest.json``). Use it as a context manager, or call ``close()``."""
+``/manifest.json``). ``timeout``: seconds one read over HTTP may take, retries included
+(default 60). Use it as a context manager, or call ``close()``."""

@@ -20,7 +20,7 @@ from ..container.stream_index import StreamIndex
 from ..errors import TsogError
 from ..model import Gaussians, Scene
 from ..schemas import ChunkMeta, ShBandsMeta
-from ..schemas.manifest import ChunkEntry
+from ..schemas.manifest import ChunkEntry, Manifest
 from ..temporal import lifespans
 from .fetchers import ChunkFetcher, RangeFetcher
 
@@ -126,10 +126,65 @@ async def _check_unused(source: ByteSource, index: StreamIndex) -> list[str]:
     return found
 
 
+def layer_problems(manifest: Manifest) -> list[str]:
+    """What the layer table says that its chunks do not: per layer, the Gaussians (SH-band
+    chunks hold none) and bytes of the chunks in it, at least one chunk, a PSNR for every
+    layer but the last (the full scene: null), finite and within [0, MAX_PSNR_DB]. The table
+    is what a player and ``tsog info`` show of the quality layers, so a table that lies is an
+    index problem even though no chunk is damaged. A table longer than the layers the chunks
+    use is one problem, not one per empty entry."""
+    layers = manifest.layers
+    if not layers:
+        return []
+    used = 1 + max((c.layer for c in manifest.chunks), default=-1)
+    gaussians, sizes, chunks = [0] * len(layers), [0] * len(layers), [0] * len(layers)
+    for chunk in manifest.chunks:  # the schema keeps every chunk's layer within the table
+        gaussians[chunk.layer] += chunk.count if chunk.holds_gaussians else 0
+        sizes[chunk.layer] += chunk.length
+        chunks[chunk.layer] += 1
+    problems = []
+    if used < len(layers):
+        problems.append(
+            f"layers: the table has {len(layers)} entries, the chunks are in {used} "
+            f"(layers[{used}] onward have no chunk)"
+        )
+    for layer in layers[:used]:
+        k, name = layer.index, f"layers[{layer.index}]"
+        if chunks[k] == 0:
+            problems.append(f"{name}: no chunk is in this layer")
+            continue
+        if layer.gaussians != gaussians[k]:
+            problems.append(
+                f"{name}: says {layer.gaussians} Gaussians, its {chunks[k]} chunks hold "
+                f"{gaussians[k]}"
+            )
+        if layer.bytes != sizes[k]:
+            problems.append(
+                f"{name}: says {layer.bytes} bytes, its {chunks[k]} chunks have {sizes[k]}"
+            )
+        problems.extend(_psnr_problems(layer.psnr_db, k, last=k == len(layers) - 1))
+    return problems
+
+
+def _psnr_problems(psnr_db: float | None, k: int, *, last: bool) -> list[str]:
+    """Layer ``k``'s PSNR: null for the last layer (the full scene), else a number (the
+    schema bounds it to [0, MAX_PSNR_DB])."""
+    name = f"layers[{k}]"
+    if last:
+        if psnr_db is None:
+            return []
+        return [f"{name}: the last layer (the full scene) has a PSNR of {psnr_db:g} dB, not null"]
+    if psnr_db is None:
+        return [f"{name}: no PSNR, expected the measured quality of layers 0..{k}"]
+    return []
+
+
 async def verify_stream(source: ChunkFetcher, index: StreamIndex) -> VerifyReport:
-    """Check a container file's unused bytes (the unpacked layout has none), then read every
-    chunk once, unverified, and check it."""
+    """Check the layer table against the chunk entries and a container file's unused bytes
+    (the unpacked layout has none), then read every chunk once, unverified, and check it."""
     report = VerifyReport(chunks=len(index.manifest.chunks))
+    for msg in layer_problems(index.manifest):
+        report.problems.append((Check.INDEX, CONTAINER, msg))
     if isinstance(source, RangeFetcher):
         for msg in await _check_unused(source.source, index):
             report.problems.append((Check.INDEX, CONTAINER, msg))

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING, Any, BinaryIO, cast
 
-from ..errors import InputError, SourceError
+from ..errors import InputError, SourceError, TsogError
 
 if TYPE_CHECKING:
     from fsspec import AbstractFileSystem
@@ -59,47 +59,70 @@ def _import_fsspec() -> Any:
 
 
 def filesystem(url: str) -> tuple[AbstractFileSystem, str]:
-    """The fsspec filesystem for ``url`` and the path within it, or a one-line error."""
+    """The fsspec filesystem for ``url`` and the path within it, or a one-line error: an
+    InputError for a protocol fsspec does not know, whose backend is not installed or that
+    needs settings the URL does not give; a SourceError for a store that cannot be reached
+    (some backends, such as ftp://, connect as the filesystem is made)."""
     fsspec = _import_fsspec()
+    scheme = scheme_of(url) or url.split("::", 1)[0]
     try:
+        fsspec.get_filesystem_class(scheme)
         fs, path = fsspec.core.url_to_fs(url)
     except ImportError as exc:
-        why = (str(exc).strip().splitlines() or ["a package is missing"])[0]
         raise InputError(
-            f"{scheme_of(url)}:// is not available here ({why}); "
+            f"{scheme}:// is not available here ({_first_line(exc, named=False)}); "
             f"for s3:// pip install 'tsog-stream[{EXTRA}]'",
             where=url,
         ) from None
-    except ValueError as exc:
-        raise InputError(f"not a storage URL fsspec knows: {exc}", where=url) from None
+    except UnicodeError as exc:  # a ValueError, but sent by a peer that is not the store
+        raise store_error(exc, url, "connect") from None
+    except (ValueError, TypeError) as exc:
+        raise InputError(
+            f"not a storage URL fsspec can open: {_first_line(exc)}", where=url
+        ) from None
+    except TsogError:
+        raise
+    except Exception as exc:
+        raise store_error(exc, url, "connect") from None
     return cast("AbstractFileSystem", fs), cast(str, path)
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+MAX_REASON = 300
+"""Characters of a store's own message kept in an error line (some quote whole requests)."""
+
+
+def _first_line(exc: BaseException, *, named: bool = True) -> str:
+    """The first line of ``exc``'s message (cut at MAX_REASON), after its class name."""
+    lines = str(exc).strip().splitlines()
+    text = lines[0][:MAX_REASON] if lines else ""
+    if not named:
+        return text or type(exc).__name__
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def store_error(exc: Exception, where: str, doing: str = "read") -> SourceError:
+    """The one-line SourceError for a failure of a store or its transport while ``doing``."""
+    if isinstance(exc, FileNotFoundError) and doing == "read":
+        return SourceError("no such object", where=where)
+    if isinstance(exc, PermissionError):
+        return SourceError(f"access denied: {_first_line(exc)}", where=where)
+    if isinstance(exc, TimeoutError):
+        return SourceError(f"cannot {doing}: timed out ({_first_line(exc)})", where=where)
+    return SourceError(f"cannot {doing}: {_first_line(exc)}", where=where)
 
 
 @contextlib.contextmanager
 def store_errors(where: str, doing: str = "read") -> Iterator[None]:
-    """Turn whatever the store raises (OSError, botocore's own errors, ...) into one
-    SourceError line; the project's own errors pass through."""
+    """Turn whatever a store or its transport raises (OSError, a timeout, botocore's or
+    requests' own errors, a backend's ValueError ...) into one SourceError line; the
+    project's own errors pass through. Caught here, at the store boundary, because every
+    backend has exceptions of its own and a user of any of them is owed one line."""
     try:
         yield
-    except SourceError:
+    except TsogError:
         raise
-    except FileNotFoundError as exc:
-        if doing == "read":
-            raise SourceError("no such object", where=where) from None
-        raise SourceError(f"cannot {doing}: {_first_line(exc)}", where=where) from None
-    except PermissionError as exc:
-        raise SourceError(f"access denied: {_first_line(exc)}", where=where) from None
-    except (OSError, ValueError, RuntimeError, TimeoutError) as exc:
-        raise SourceError(f"cannot {doing}: {_first_line(exc)}", where=where) from None
     except Exception as exc:
-        if type(exc).__module__.split(".")[0] in ("botocore", "aiobotocore", "s3fs", "fsspec"):
-            raise SourceError(f"cannot {doing}: {_first_line(exc)}", where=where) from None
-        raise
+        raise store_error(exc, where, doing) from None
 
 
 class ObjectPath:
@@ -248,10 +271,11 @@ def check_destination(url: str) -> None:
     bucket = target.path.strip("/").split("/", 1)[0]
     if "/" not in target.path.strip("/"):
         raise InputError("expected bucket/name after the scheme", where=url)
-    with store_errors(url, "write"):
-        found = target.fs.exists(bucket)
-    if not found:
-        raise SourceError(f"no bucket {bucket!r} (or no access to it)", where=url)
+    with store_errors(url, "write"):  # not fs.exists: it answers False for a store it cannot reach
+        try:
+            target.fs.info(bucket)
+        except FileNotFoundError:
+            raise SourceError(f"no bucket {bucket!r} (or no access to it)", where=url) from None
 
 
 def put_object(url: str, data: bytes) -> None:
@@ -279,5 +303,6 @@ __all__ = [
     "put_object",
     "scheme_of",
     "size_of",
+    "store_error",
     "store_errors",
 ]

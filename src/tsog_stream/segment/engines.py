@@ -13,7 +13,6 @@ import contextlib
 import multiprocessing
 import os
 import pickle
-import re
 import signal
 import threading
 import warnings
@@ -27,16 +26,16 @@ from ..codec.webp import use_cores
 from ..errors import InputError
 from ..machine import available_memory, release_freed_memory, tune_malloc, usable_cores
 from .meter import reporting_to
+from .scheduler import parse_address, probe_scheduler
 
 LOCAL_CLUSTER = "local"
 """``--cluster local``: a Dask LocalCluster on this machine, one single-threaded worker process
 per ``--workers``."""
-CLUSTER_ADDRESS = re.compile(r"(tcp|tls|ucx)://[A-Za-z0-9.\-\[\]:]{1,253}:[0-9]{1,5}")
-"""A Dask scheduler address: protocol://host:port."""
 LISTEN_POLL_S = 0.2
 """How often the thread hearing the pool's job reports looks whether the pool has ended."""
 CONNECT_TIMEOUT_S = 10.0
-"""How long to try reaching a scheduler before a one-line error."""
+"""How long reaching a scheduler may take (the probe of its handshake, then Dask's own
+connection, each) before a one-line error."""
 JOB_RETRIES = 2
 """Times Dask runs a job again when the worker running it is lost."""
 MALLOC_PLUGIN = "tsog-stream-malloc"
@@ -126,12 +125,9 @@ def _received(value: T) -> T:
 
 def check_cluster(value: str) -> str:
     """``local`` or a scheduler address (``tcp://host:8786``); InputError otherwise."""
-    if value == LOCAL_CLUSTER or CLUSTER_ADDRESS.fullmatch(value):
-        return value
-    raise InputError(
-        f"expected 'local' or a scheduler address such as tcp://127.0.0.1:8786, got {value!r}",
-        where="--cluster",
-    )
+    if value != LOCAL_CLUSTER:
+        parse_address(value)
+    return value
 
 
 Listener = Callable[[int, float], None]
@@ -289,12 +285,15 @@ def _dask_engine(workers: int, cluster: str, listener: Listener | None) -> Itera
         address: Any = cluster
         if cluster == LOCAL_CLUSTER:
             address = stack.enter_context(local_cluster(workers))
+        else:  # Dask's client trusts the peer: only a scheduler that answers gets that far
+            probe_scheduler(parse_address(cluster), CONNECT_TIMEOUT_S)
         try:
             client = stack.enter_context(
                 Client(address, timeout=CONNECT_TIMEOUT_S)  # type: ignore[no-untyped-call]
             )
-        except (OSError, TimeoutError) as exc:
-            raise InputError(f"cannot reach the Dask scheduler: {exc}", where=cluster) from None
+        except Exception as exc:  # whatever Dask raises on its way in, not a traceback
+            why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
+            raise InputError(f"cannot reach the Dask scheduler: {why}", where=cluster) from None
         _register_malloc_tuning(client)
         if listener is not None:
             client.subscribe_topic(PROGRESS_TOPIC, lambda event: listener(*event[1]))

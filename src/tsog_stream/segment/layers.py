@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..codec.sh_bands import without_sh
+from ..constants import MAX_PSNR_DB
 from ..errors import InputError
 from ..model import Gaussians, Scene
 from ..opacity import logit_to_alpha
@@ -121,8 +122,10 @@ def check_layers(layers: int | None) -> None:
 
 
 def _times(scene: Scene) -> list[float]:
-    """Centres of MEASURE_TIMES equal parts of the scene's time range."""
-    assert scene.timeline is not None
+    """Centres of MEASURE_TIMES equal parts of the scene's time range (a static scene: its
+    one moment, 0 s)."""
+    if scene.timeline is None:
+        return [0.0]
     first, last = time_range(scene.timeline)
     return [first + (k + 0.5) * (last - first) / MEASURE_TIMES for k in range(MEASURE_TIMES)]
 
@@ -144,7 +147,7 @@ def plan_layers(
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
-    if scene.timeline is None or view is None or len(scene) < 2:
+    if view is None or len(scene) < 2:
         return LayerPlan.single("one layer: nothing visible to measure layers on")
     times = list(times) or _times(scene)
     if layers is None:
@@ -195,7 +198,7 @@ def _quality_of_share(
                 mse(to_uint8(render(_share_at(scene, chosen, t, bare), camera)), f)
                 for t, f in zip(times, full, strict=True)
             ]
-            cache[share, bare] = psnr_from_mse(float(np.mean(errors)))
+            cache[share, bare] = min(psnr_from_mse(float(np.mean(errors))), MAX_PSNR_DB)
         return cache[share, bare]
 
     return quality
