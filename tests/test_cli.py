@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import io
 import json
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -18,16 +21,19 @@ import pytest
 
 from test_cli_hostile import HOSTILE_FILE_RUNS
 from tsog_stream import TimelineType
-from tsog_stream.cli import interrupt
+from tsog_stream.cli import interrupt, view_command
 from tsog_stream.cli import progress as progress_module
-from tsog_stream.cli.main import build_parser, main
+from tsog_stream.cli.main import _print_demo, build_parser, main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.cli.stream_commands import check_segment_args
+from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
+from tsog_stream.inputs import open_source
 from tsog_stream.io.chunks import read_chunk
 from tsog_stream.io.ply import read_ply, write_ply
 from tsog_stream.model import Gaussians
+from tsog_stream.schemas.manifest import dump_manifest
 from tsog_stream.synthetic import small_scene
 
 DONUT = "3dgs/v3dg_donut_fused.ply"
@@ -145,6 +151,9 @@ def test_demo_reports_a_faithful_stream(tmp_path: Path, capsys: pytest.CaptureFi
     assert report["tsog_bytes"] < report["extended_ply_bytes"]
     for row in report["errors"]:
         assert row["means_max"] < 1e-3 and row["visibility_flips"] == 0
+    _print_demo(report)  # as text, it closes with how to watch what it made
+    hint = f"watch it in the web player: tsog view {tmp_path / 'demo.tsogs'}"
+    assert capsys.readouterr().out.splitlines()[-1] == hint
 
 
 def test_encode_to_4dgs_refuses_unrepresentable_motion_unless_lossy(
@@ -462,3 +471,284 @@ def test_segment_starts_a_worker_per_core_it_may_use(tmp_path: Path, pinned: boo
     args = build_parser().parse_args(["segment", src, "-o", out, "--workers", "3"])
     check_segment_args(args)
     assert args.workers == 3
+
+
+# --- output locations: checked before any work, folders made (issue 55) -----------------------
+
+SMALL = ["--width", "32", "--height", "24"]
+OUTPUT_RUNS = {
+    "segment": (["{chunk}", "-o", "{out}", "--workers", "1", "--layers", "1"], "s.tsogs"),
+    "encode": (["{chunk}", "{out}"], "e.sog"),
+    "decode": (["{chunk}", "{out}"], "d.ply"),
+    "frame": (["{chunk}", "--t", "0.5", "-o", "{out}"], "f.ply"),
+    "extract": (["{stream}", "0", "-o", "{out}"], "c.sog"),
+    "unpack": (["{stream}", "-o", "{out}"], "u"),
+    "pack": (["{unpacked}", "-o", "{out}"], "p.tsogs"),
+    "render": (["{chunk}", "--t", "0.5", "-o", "{out}", *SMALL], "r.png"),
+    "eval": (
+        ["{chunk}", "{chunk}", *SMALL, "--times", "1", "--views", "1", "--plot", "{out}"],
+        "p.png",
+    ),
+    "fetch": (["{stream}", "--t", "0.5", "-o", "{out}"], "f.ply"),
+}
+"""Every command that writes a file or folder, its input placeholders and its output's name
+(unpack writes a folder)."""
+BAD_LOCATIONS = {
+    "below a file": "is a file, not a folder: nothing can be written below it",
+    "unwritable": "cannot create files in '/proc'",
+    "a device": "is a device, FIFO or socket: refused as an output",
+    "the wrong kind": "expected the name of a",
+}
+"""Where an output cannot go, and what the one error line says."""
+NO_FORCE = {"decode"}
+"""Commands without --force (they replace their output)."""
+WRITER_CASES = [pytest.param(command, where) for command in OUTPUT_RUNS for where in BAD_LOCATIONS]
+
+
+@pytest.fixture(scope="module")
+def written_inputs(dynamic_chunk: Path, dynamic_stream: Path) -> dict[str, Path]:
+    """The inputs of OUTPUT_RUNS: a chunk, its container and the container unpacked."""
+    unpacked = dynamic_stream.with_name("dynamic-unpacked")
+    if not unpacked.exists():
+        assert main(["unpack", str(dynamic_stream), "-o", str(unpacked), "-q"]) == 0
+    return {"chunk": dynamic_chunk, "stream": dynamic_stream, "unpacked": unpacked}
+
+
+def _bad_output(where: str, tmp_path: Path, name: str) -> Path:
+    """An output location of kind ``where`` (BAD_LOCATIONS) for an output called ``name``."""
+    if where == "below a file":
+        (tmp_path / "a-file").write_bytes(b"here")
+        return tmp_path / "a-file" / name
+    if where == "unwritable":  # root may write almost anywhere, not in /proc
+        return Path("/proc") / f"tsog-test-{os.getpid()}" / name
+    if where == "a device":
+        return Path("/dev/null")
+    taken = tmp_path / name
+    if name == "u":  # a folder is wanted: a file stands there
+        taken.write_bytes(b"a file")
+    else:
+        taken.mkdir()
+    return taken
+
+
+@pytest.mark.parametrize(("command", "where"), WRITER_CASES)
+def test_every_writer_refuses_a_bad_output_location_before_reading_anything(
+    command: str, where: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The output location is checked first: the inputs here do not exist, and the one error
+    line is about the output; nothing is left anywhere."""
+    argv, name = OUTPUT_RUNS[command]
+    out = _bad_output(where, tmp_path, name)
+    missing = {k: str(tmp_path / f"no-{k}") for k in ("chunk", "stream", "unpacked")}
+    line = [command, *(a.format(out=out, **missing) for a in argv), "-q"]
+    before = sorted(tmp_path.rglob("*"))
+    force = [] if command in NO_FORCE else ["-f"]
+    assert main(line + force) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"tsog: error: {out}: "), err
+    assert BAD_LOCATIONS[where] in err
+    assert sorted(tmp_path.rglob("*")) == before  # nothing written, not even a folder
+    assert not Path("/proc", f"tsog-test-{os.getpid()}").exists()
+
+
+@pytest.mark.parametrize("command", list(OUTPUT_RUNS))
+@pytest.mark.parametrize("spelled", ["path", "file URL"])
+def test_every_writer_makes_a_missing_output_folder(
+    command: str, spelled: str, written_inputs: dict[str, Path], tmp_path: Path
+) -> None:
+    """A path or a ``file://`` URL names the same place (a URL was once written below the
+    working folder as ``./file:/...``)."""
+    argv, name = OUTPUT_RUNS[command]
+    out = tmp_path / "new" / "deeper" / name
+    given = out.as_uri() if spelled == "file URL" else str(out)
+    names = {k: str(v) for k, v in written_inputs.items()}
+    assert main([command, *(a.format(out=given, **names) for a in argv), "-q"]) == 0
+    assert out.is_dir() if name == "u" else out.is_file()
+    assert not [p for p in out.parent.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_an_existing_output_is_kept_without_force_and_a_trailing_slash_is_no_file_name(
+    written_inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "c.tsogs"
+    out.write_bytes(b"keep")
+    chunk = str(written_inputs["chunk"])
+    assert main(["segment", chunk, "-o", str(out), "-q"]) == 1
+    assert (
+        capsys.readouterr().err
+        == f"tsog: error: {out}: already exists (pass --force to replace it)\n"
+    )
+    assert out.read_bytes() == b"keep"
+    assert main(["segment", chunk, "-o", f"{tmp_path}/newdir/", "-q"]) == 1
+    assert "ends with a path separator: expected a file name" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.tsogs"]
+
+
+# --- static scenes and assumed lengths (issue 55) ---------------------------------------------
+
+
+def test_segment_view_info_verify_and_play_take_a_static_scene(
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``tsog segment`` (and tsog view's segmentation, which runs it) makes a static PLY a
+    stream of one moment, with its thumbnail; info, verify and play read it."""
+    sample = samples / "3dgs/gs3d_pr477_lod3_tile_0.ply"
+    out = tmp_path / "streams" / "static.tsogs"
+    assert main(["segment", str(sample), "-o", str(out), "--workers", "1", "-q"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"{out}: ")
+    assert lines[1] == "  a static scene: a stream of one moment (0 s), shown the same at any time"
+    assert "  1 windows, 1 chunks" in lines
+    assert not any("never visible" in line or "layout" in line for line in lines)
+    assert f"  thumbnail: {out}.thumb.png" in lines
+    assert Path(f"{out}.thumb.png").read_bytes().startswith(b"\x89PNG")
+    assert main(["info", str(out), "--json", "-q"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["duration"] == "static (one moment)"
+    assert info["scene"]["timeline_type"] is None and info["scene"]["end_s"] == 0.0
+    assert main(["verify", str(out), "-q"]) == 0
+    assert main(["play", str(out), "-q"]) == 0
+    assert "frames:          1" in capsys.readouterr().out
+    frame = tmp_path / "at-5s.ply"
+    assert main(["frame", str(out), "--t", "5", "-o", str(frame), "-q"]) == 0
+    assert len(read_ply(frame).gaussians) == info["scene"]["gaussians"]
+    args = build_parser().parse_args(["view", str(sample), "--cache", str(tmp_path / "cache")])
+    copy = view_command._segmented(args, Progress(quiet=True))
+    with open_stream(copy) as stream:
+        assert stream.index.manifest.scene.timeline_type is None
+        assert len(stream.frame_at(3.0)) == info["scene"]["gaussians"]
+
+
+HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"
+ASSUMED = "duration 1.00 s (assumed: pass --duration-s)"
+
+
+def test_an_assumed_splatv_length_is_said_first_and_kept_in_the_index(
+    samples: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    clip = samples / HANABI
+    out = tmp_path / "clip.tsogs"
+    argv = ["segment", str(clip), "-o", str(out), "--layers", "1", "--workers", "1"]
+    assert main(argv) == 0
+    said = capsys.readouterr()
+    assert said.err.splitlines()[0] == (
+        f"tsog: warning: {clip.name} does not say its length: read as 1 s; set it with --duration-s"
+    )
+    assert "normalised" not in said.err  # the reader's own note is not said twice
+    assert said.out.splitlines()[1] == f"  {ASSUMED}"
+    with open_stream(out) as stream:
+        assert stream.index.manifest.scene.duration_assumed is True
+    with open_source(out) as source:  # what tsog render and eval say of the container
+        assert source.notes == [
+            "its length, 1 s, was assumed when it was segmented (the input did not say it): "
+            "segment it again with --duration-s"
+        ]
+    for target in (out, clip):
+        assert main(["info", str(target), "-q"]) == 0
+        shown = capsys.readouterr()
+        assert f"duration: {ASSUMED[9:]}" in shown.out.splitlines(), target
+    assert main([*argv, "-f", "--duration-s", "4"]) == 0
+    said = capsys.readouterr()
+    assert "does not say its length" not in said.err
+    assert said.out.splitlines()[1] == "  duration 4.00 s"
+    with open_stream(out) as stream:
+        assert stream.index.manifest.scene.duration_assumed is False
+        assert b"duration_assumed" not in dump_manifest(stream.index.manifest)
+    assert main(["info", str(clip), "--duration-s", "4", "--json", "-q"]) == 0
+    assert json.loads(capsys.readouterr().out)["duration"] == "4.00 s"
+
+
+# --- output for people: tsog play's summary, the demo's script and hint (issue 55) ---
+
+
+def test_play_says_a_few_lines_and_a_line_per_frame_only_with_v(
+    dynamic_stream: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """By default a log gets the summary (frames and first picture, stalls, bytes) and a
+    progress line every few seconds; -v a line per frame and the whole report."""
+    monkeypatch.setattr(progress_module, "QUIET_SECONDS", 0.0)  # a log from the first frame
+    assert main(["play", str(dynamic_stream)]) == 0
+    out, err = capsys.readouterr()
+    summary = out.splitlines()
+    assert [line.split(":")[0] for line in summary] == [
+        "frames",
+        "first picture",
+        "stalls",
+        "fetched",
+    ]
+    frames = int(summary[0].split()[1])
+    assert frames > 5 and re.fullmatch(r"first picture: +\d+\.\d ms", summary[1])
+    assert re.fullmatch(r"fetched: +\d+ bytes in \d+ requests \(\d+\.\d\d MB/s\)", summary[3])
+    assert len(err.splitlines()) <= 3, err  # opening, then a frame line every LOG_BAR_SECONDS
+    assert main(["play", str(dynamic_stream), "-v"]) == 0
+    out, err = capsys.readouterr()
+    assert len([line for line in err.splitlines() if "] t = " in line]) == frames
+    assert [line.split(":")[0] for line in out.splitlines()] == [
+        "frames",
+        "first picture",
+        "startup latency",
+        "stalls",
+        "fetched",
+        "cache hit rate",
+        "layers shown",
+    ]
+
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+NOT_PYTHON = (
+    *("apt", "apt-get", "aptitude", "dpkg", "snap", "yum", "dnf", "brew", "npm", "npx"),
+    *("node", "sudo", "su", "doas", "wrk", "nginx", "chromium", "curl", "wget"),
+)
+"""Package managers, ways to root and the other tools scripts/setup installs or uses."""
+
+
+def _stub(path: Path, body: str) -> None:
+    """An executable shell script."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f"#!/bin/sh\n{body}\n")
+    path.chmod(0o755)
+
+
+@pytest.mark.parametrize("venv", ["set up", "missing"])
+def test_the_demo_script_needs_nothing_but_python(tmp_path: Path, venv: str) -> None:
+    """scripts/demo, run in a copy of the repository with every package manager, sudo and
+    the benchmark tools on PATH recording their calls: it makes .venv with Python and pip
+    when it is missing, calls none of them, and runs tsog demo with the arguments given."""
+    repo, calls = tmp_path / "repo", tmp_path / "calls"
+    (repo / "scripts").mkdir(parents=True)
+    shutil.copy(REPO_ROOT / "scripts" / "demo", repo / "scripts" / "demo")
+    shutil.copy(REPO_ROOT / "pyproject.toml", repo / "pyproject.toml")
+    for name in NOT_PYTHON:
+        _stub(tmp_path / "bin" / name, f'echo "{name} $*" >> {calls}; exit 1')
+    venv_python = f'echo "venv-python $*" >> {calls}'
+    tsog = f'echo "tsog $*" >> {calls}'
+    if venv == "set up":
+        stamp = hashlib.sha256((repo / "pyproject.toml").read_bytes()).hexdigest()[:16]
+        _stub(repo / ".venv" / "bin" / "tsog", tsog)
+        (repo / ".venv" / f".tsog-installed-{stamp}").touch()
+    _stub(  # python3 -m venv DIR: a venv whose python and tsog record their calls
+        tmp_path / "python",
+        f'echo "python $*" >> {calls}; mkdir -p "$3/bin"\n'
+        f"printf '#!/bin/sh\\n%s\\n' '{venv_python}' > \"$3/bin/python\"\n"
+        f"printf '#!/bin/sh\\n%s\\n' '{tsog}' > \"$3/bin/tsog\"\n"
+        'chmod +x "$3/bin/python" "$3/bin/tsog"',
+    )
+    env = {**os.environ, "PATH": f"{tmp_path / 'bin'}:{os.environ['PATH']}"}
+    env["PYTHON"] = str(tmp_path / "python")
+    for _ in range(2):  # the second run installs nothing again
+        done = subprocess.run(
+            ["bash", str(repo / "scripts" / "demo"), "--seed", "3"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+        assert done.returncode == 0, done.stderr
+    said = calls.read_text().splitlines()
+    install = [
+        "python -m venv .venv",
+        "venv-python -m pip install --quiet --disable-pip-version-check -e .",
+    ]
+    ran = ["tsog demo --seed 3"] * 2
+    assert said == (ran if venv == "set up" else [*install, *ran])

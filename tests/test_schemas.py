@@ -28,7 +28,7 @@ from tsog_stream.schemas import (
     meta_json_schema_text,
     parse_meta,
 )
-from tsog_stream.schemas.manifest import manifest_json_schema_text
+from tsog_stream.schemas.manifest import dump_manifest, manifest_json_schema_text, parse_manifest
 
 ROOT = Path(__file__).resolve().parent.parent
 PLAYBOT = Path("3dgs") / "pc_playbot_lod6_sog" / "meta.json"
@@ -548,3 +548,52 @@ def test_ranges_that_would_decode_to_inf_or_nan_are_refused(
     with pytest.raises(MetaError) as info:
         parse_meta(json.dumps(doc).encode())
     assert info.value.field == field, str(info.value)
+
+
+# --- the index's scene: static streams, assumed lengths (issue 55) -----------------------------
+
+
+def manifest_doc(**scene: Any) -> Doc:
+    """A valid index of no chunks whose scene fields are overridden by ``scene``."""
+    box = {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}
+    fields: Doc = {"gaussians": 0, "stored": 0, "start_s": 0.0, "end_s": 2.0, "fps": None}
+    fields |= {"timeline_type": 2, "temporal": {}, "sh_bands": 0, "bbox": box}
+    return {
+        "generator": "test",
+        "policy": "hybrid",
+        "window_s": 1.0,
+        "max_pixels": 256,
+        "scene": {**fields, **scene},
+        "nodes": [],
+        "chunks": [],
+        "payload_bytes": 0,
+    }
+
+
+def test_an_index_without_duration_assumed_reads_as_a_length_that_was_read() -> None:
+    """Indexes written before the field read as before; the writer leaves it out when false
+    (the same bytes as before) and writes it when true."""
+    old = parse_manifest(json.dumps(manifest_doc()).encode())
+    assert old.scene.duration_assumed is False
+    assert "duration_assumed" not in json.loads(dump_manifest(old))["scene"]
+    assumed = parse_manifest(json.dumps(manifest_doc(duration_assumed=True)).encode())
+    assert assumed.scene.duration_assumed is True
+    assert json.loads(dump_manifest(assumed))["scene"]["duration_assumed"] is True
+    assert parse_manifest(dump_manifest(assumed)) == assumed
+
+
+@pytest.mark.parametrize("value", ["true", 1, 0, None, "yes"])
+def test_duration_assumed_is_a_json_boolean(value: Any) -> None:
+    with pytest.raises(MetaError) as info:
+        parse_manifest(json.dumps(manifest_doc(duration_assumed=value)).encode())
+    assert info.value.field == "scene.duration_assumed", str(info.value)
+
+
+def test_a_static_index_is_one_moment_without_a_timeline() -> None:
+    static = parse_manifest(
+        json.dumps(manifest_doc(timeline_type=None, start_s=0.0, end_s=0.0)).encode()
+    )
+    assert static.scene.timeline_type is None and static.scene.start_s == static.scene.end_s
+    schema = json.loads(manifest_json_schema_text())["$defs"]["SceneInfo"]["properties"]
+    assert schema["duration_assumed"]["type"] == "boolean"
+    assert schema["duration_assumed"]["default"] is False

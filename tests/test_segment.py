@@ -23,14 +23,17 @@ from helpers import means_log_step
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
 from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
+from tsog_stream.codec.chunk import decode_chunk, encode_chunk
 from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.constants import DEFAULT_MAX_PIXELS
 from tsog_stream.io.ply import write_ply
+from tsog_stream.io.readers import load_scene
 from tsog_stream.io.sequence import open_sequence
+from tsog_stream.merge.check import frame_errors
 from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment import layout, segmenter
 from tsog_stream.segment import meter as meter_module
-from tsog_stream.segment.layers import LayerPlan
+from tsog_stream.segment.layers import LAYERED_MIN_GAUSSIANS, LayerPlan
 from tsog_stream.segment.layout import chunk_counts
 from tsog_stream.segment.meter import Meter, encode_work, palette_progress
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
@@ -626,10 +629,94 @@ def test_impossible_options_are_input_errors(
     assert not out.exists() and not list(tmp_path.iterdir())
 
 
-def test_a_static_scene_cannot_be_segmented(tmp_path: Path) -> None:
-    src = make_scene(TimelineType.START_DURATION, background=20, objects=1, per_object=10)
-    with pytest.raises(InputError, match="4D"):
-        segment_scene(Scene(src.gaussians), tmp_path / "x.tsogs")
+STATIC_SAMPLES = {
+    "3dgs/v3dg_donut_fused.ply": DEFAULT_MAX_PIXELS,  # SH0, 45,624: layered
+    "3dgs/gs3d_pr477_lod3_tile_0.ply": 64 * 64,  # SH3, 1,971: cut under a small budget
+    "3dgs/pc_guitar.compressed.ply": DEFAULT_MAX_PIXELS,  # compressed PLY, 90,854: layered
+    "3dgs/pc_playbot_lod6_sog": DEFAULT_MAX_PIXELS,  # an unbundled SOG, SH2
+}
+"""Real static scenes and the pixel budget each is segmented under."""
+STATIC_TIMES = (0.0, 0.37, 7.25, -3.0)
+"""Times a static stream is asked for: its moment, inside and outside any range."""
+STATIC_SLACK = 1.25
+"""A static stream's decoded attributes may be off by up to this times the error of the same
+scene decoded from one standalone SOG at the same quality (chunks have their own codebooks,
+fitted to fewer Gaussians: 0.7-1.13x measured), plus 1e-4."""
+
+
+@pytest.mark.parametrize("name", list(STATIC_SAMPLES))
+def test_a_static_scene_is_a_stream_of_one_moment(samples: Path, tmp_path: Path, name: str) -> None:
+    """A static PLY, compressed PLY or SOG segments as one window at 0 s, split into chunks
+    under the pixel budget and into layers like any window; its frame at any time is the
+    whole scene, as the codec decodes it."""
+    scene = load_scene(samples / name).scene
+    assert scene.timeline is None
+    out = tmp_path / "static.tsogs"
+    options = SegmentOptions(workers=1, quality=100, max_pixels=STATIC_SAMPLES[name])
+    report = segment_scene(scene, out, options)
+    assert report.static and report.windows == 1 and report.layout is None
+    alone = decode_chunk(encode_chunk(scene, quality=100)).gaussians
+    expected, unpaired = frame_errors(scene.gaussians, alone)
+    assert unpaired == 0
+    with open_stream(out) as stream:
+        m = stream.index.manifest
+        info = m.scene
+        assert (info.timeline_type, info.start_s, info.end_s, info.fps) == (None, 0.0, 0.0, None)
+        assert not info.duration_assumed and info.temporal == {}
+        assert info.gaussians == info.stored == len(scene)
+        assert [(n.level, n.index, n.start_s, n.end_s) for n in m.nodes] == [(0, 0, 0.0, 0.0)]
+        assert sorted(m.nodes[0].chunks) == list(range(len(m.chunks)))
+        assert all((c.start_s, c.end_s) == (0.0, 0.0) for c in m.chunks)
+        assert stream.verify().problems == []  # hashes, decoding and the pixel budget
+        frames = [stream.frame_at(t) for t in STATIC_TIMES]
+        base = stream.frame_at(99.0, layers=1)
+    if STATIC_SAMPLES[name] < DEFAULT_MAX_PIXELS:
+        assert len(m.chunks) > 1  # cut spatially: one chunk's images would not fit
+    if len(scene) >= LAYERED_MIN_GAUSSIANS:
+        assert len(m.layers) > 1 and len(base) == m.layers[0].gaussians < len(scene)
+    for t, frame in zip(STATIC_TIMES, frames, strict=True):
+        assert np.array_equal(frame.means, frames[0].means), t
+        assert np.array_equal(frame.sh0, frames[0].sh0) and np.array_equal(frame.shN, frames[0].shN)
+    errors, unpaired = frame_errors(scene.gaussians, frames[0])
+    assert unpaired == 0 and set(errors) == set(expected)
+    for attribute, error in errors.items():
+        assert error <= STATIC_SLACK * expected[attribute] + 1e-4, (attribute, error, expected)
+
+
+def test_a_static_scene_s_layout_and_policy(tmp_path: Path) -> None:
+    """A static scene has nothing to choose: one window of STATIC_WINDOW_S (a window given is
+    not used), the policy given or the default, and no layout in the report."""
+    g = static_gaussians(300, seed=4)
+    out = tmp_path / "s.tsogs"
+    report = segment_scene(Scene(g), out, SegmentOptions(window_s=0.25, policy="duplicate"))
+    with open_stream(out) as stream:
+        m = stream.index.manifest
+    assert (m.window_s, m.policy) == (segmenter.STATIC_WINDOW_S, "duplicate")
+    assert report.layout is None and report.dropped == 0 and report.windows == 1
+    segment_scene(Scene(g), out, SegmentOptions(layers=1))  # replaces it: no policy given
+    with open_stream(out) as stream:
+        assert stream.index.manifest.policy == segmenter.DEFAULT_POLICY
+
+
+def test_the_container_s_folder_is_made_and_removed_again_on_failure(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """segment_scene("streams/clip.tsogs") works where streams/ does not exist (the README's
+    example); a segmentation that fails leaves no folder it made behind."""
+    scene = Scene(static_gaussians(200, seed=2))
+    out = tmp_path / "streams" / "deeper" / "clip.tsogs"
+    segment_scene(scene, out, SegmentOptions(layers=1))
+    with open_stream(out) as stream:
+        assert len(stream.frame_at(0.0)) == 200
+
+    def broken(*args: Any, **kwargs: Any) -> bytes:
+        raise InputError("the encoder broke")
+
+    monkeypatch.setattr(segmenter, "encode_job_payload", broken)
+    failed = tmp_path / "made" / "for" / "it.tsogs"
+    with pytest.raises(InputError, match="the encoder broke"):
+        segment_scene(scene, failed, SegmentOptions(layers=1))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["streams"]
 
 
 def test_no_chunk_holds_more_than_the_job_cap(

@@ -17,7 +17,14 @@ from fixtures_4d import splatv_bytes, splatv_records
 from tsog_stream import FormatError, InputError
 from tsog_stream.constants import SH_C0, VISIBILITY_THRESHOLD
 from tsog_stream.io.ply import parse_ply, ply_bytes
-from tsog_stream.io.splatv import F16_TINY, parse_splatv, read_splatv, sniff_splatv
+from tsog_stream.io.readers import ReadOptions, load_scene
+from tsog_stream.io.splatv import (
+    ASSUMED_DURATION,
+    F16_TINY,
+    parse_splatv,
+    read_splatv,
+    sniff_splatv,
+)
 from tsog_stream.model import Scene, TimelineType
 
 NONFINITE = {  # PROVENANCE.md: (non-finite positions, count)
@@ -276,3 +283,18 @@ def test_duration_must_be_positive() -> None:
     for bad in (0.0, -2.0, math.nan, math.inf):
         with pytest.raises(InputError, match="duration_s"):
             parse_splatv(data, duration_s=bad)
+
+
+def test_a_length_read_without_duration_s_is_flagged_as_assumed(samples: Path) -> None:
+    """A .splatv does not say its length: read without duration_s it is 1 s, and the reader
+    says that it assumed it (Loaded4D, then LoadedScene, carry it to the segmenter)."""
+    data = splatv_bytes(_two_gaussians())
+    assumed = parse_splatv(data)
+    assert assumed.duration_assumed is True and assumed.notes[0] == ASSUMED_DURATION
+    assert assumed.scene.timeline is not None and assumed.scene.timeline.scene_length == 1.0
+    given = parse_splatv(data, duration_s=3.0)
+    assert given.duration_assumed is False and ASSUMED_DURATION not in given.notes
+    clip = samples / "4d/splatv/tztechno_hanabi2_synthetic.splatv"
+    assert load_scene(clip).duration_assumed is True
+    assert load_scene(clip, options=ReadOptions(duration_s=2.0)).duration_assumed is False
+    assert load_scene(samples / "3dgs/gs3d_pr477_lod5_tile_0.ply").duration_assumed is False

@@ -33,12 +33,17 @@ def test_the_assumed_splatv_duration_is_the_first_thing_said(
     assert main(["segment", str(samples / HANABI), "-o", str(out), "-q"]) == 0
     said = capsys.readouterr()
     first = said.err.splitlines()[0]
-    assert first.startswith("tsog: warning: splatv time is normalised") and "--duration-s" in first
+    name = HANABI.rsplit("/", 1)[1]
+    assert first == (
+        f"tsog: warning: {name} does not say its length: read as 1 s; set it with --duration-s"
+    )
     lines = said.out.splitlines()
     assert lines[0].startswith(f"{out}: ") and "smaller than the input" in lines[0]
     assert any(line.endswith(" stored copies") for line in lines)
     assert main(["segment", str(samples / HANABI), "-o", str(out), "-f", "--duration-s", "4"]) == 0
-    assert "splatv time is normalised" not in capsys.readouterr().err
+    said = capsys.readouterr()
+    assert "does not say its length" not in said.err and "normalised" not in said.err
+    assert "  duration 4.00 s" in said.out.splitlines()
 
 
 def test_a_larger_output_is_said_to_be_larger(

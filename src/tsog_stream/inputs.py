@@ -64,6 +64,17 @@ def fit_options(kind: str, options: ReadOptions) -> ReadOptions:
     )
 
 
+def stream_notes(info: SceneInfo) -> list[str]:
+    """What a container's index says a reader should know: a length its writer assumed (a
+    ``.splatv`` segmented without a duration, ``SceneInfo.duration_assumed``)."""
+    if not info.duration_assumed:
+        return []
+    return [
+        f"its length, {info.end_s - info.start_s:g} s, was assumed when it was segmented (the "
+        "input did not say it): segment it again with --duration-s"
+    ]
+
+
 def _stream_span(info: SceneInfo) -> Span | None:
     """The time range a container declares (None when it holds a static scene)."""
     return None if info.timeline_type is None else (info.start_s, info.end_s)
@@ -116,6 +127,7 @@ def _stream_source(target: str, kind: str, cameras: str | os.PathLike[str] | Non
         span,
         stream.frame_at,
         stream.close,
+        notes=stream_notes(info),
         fps=info.fps,
         cameras=chosen,
         opening=opening,

@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-import io
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from PIL import Image
-
-from .codec.chunk import read_meta
+from .codec.chunk import checked_images, read_meta
 from .constants import META_JSON, TEMPORAL_CHANNELS
-from .errors import SogError
 from .model import Scene, TimelineType
 from .schemas import listed_files
 from .schemas.cameras import CaptureCamera
@@ -34,25 +30,17 @@ def _group_of(field: str) -> str:
     return _GROUPS.get(head.split("[")[0], head)
 
 
-def _image_size(data: bytes, where: str) -> tuple[int, int]:
-    """(width, height) read from a WebP header without decoding pixels."""
-    try:
-        with Image.open(io.BytesIO(data), formats=["WEBP"]) as img:
-            return int(img.size[0]), int(img.size[1])
-    except (OSError, ValueError) as exc:
-        raise SogError(f"corrupt WebP image: {exc}", where=where) from exc
-
-
 def chunk_summary(files: Mapping[str, bytes], *, where: str) -> dict[str, Any]:
-    """Count, SH bands, timeline, image sizes and bytes per attribute of a chunk's files."""
+    """Count, SH bands, timeline, image sizes and bytes per attribute of a chunk's files
+    (image sizes read from their headers and checked as a decode checks them, no pixel
+    decoded)."""
     meta = read_meta(files, where=where)
+    _, sizes = checked_images(meta, files, where=where)
     images: dict[str, list[int]] = {}
     groups: dict[str, int] = {"meta.json": len(files[META_JSON])}
     for field, name in listed_files(meta):
-        data = files.get(name)
-        if data is None:
-            raise SogError(f"file {name!r} listed in {field} is missing", where=where)
-        images[name] = list(_image_size(data, f"{where}/{name}"))
+        data = files[name]
+        images[name] = list(sizes[name])
         group = _group_of(field)
         groups[group] = groups.get(group, 0) + len(data)
     out: dict[str, Any] = {
@@ -73,11 +61,22 @@ def chunk_summary(files: Mapping[str, bytes], *, where: str) -> dict[str, Any]:
     return out
 
 
-def scene_summary(scene: Scene) -> dict[str, Any]:
-    """Count, SH bands, timeline type, time range and temporal orders of an in-memory scene."""
+def duration_text(start_s: float, end_s: float, *, static: bool, assumed: bool = False) -> str:
+    """A scene's length as ``tsog`` shows it: '2.50 s', '1.00 s (assumed: pass --duration-s)'
+    when its reader assumed it, or 'static (one moment)'."""
+    if static:
+        return "static (one moment)"
+    text = f"{end_s - start_s:.2f} s"
+    return f"{text} (assumed: pass --duration-s)" if assumed else text
+
+
+def scene_summary(scene: Scene, *, duration_assumed: bool = False) -> dict[str, Any]:
+    """Count, SH bands, duration (``duration_assumed``: its reader assumed it), timeline type,
+    time range and temporal orders of an in-memory scene."""
     out: dict[str, Any] = {"count": len(scene), "sh_bands": scene.gaussians.sh_bands}
     if scene.timeline is not None:
         first, last = time_range(scene.timeline)
+        out["duration"] = duration_text(first, last, static=False, assumed=duration_assumed)
         out["timeline"] = {
             "type": int(scene.timeline.type),
             "type_name": scene.timeline.type.name.lower(),

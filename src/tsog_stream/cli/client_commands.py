@@ -10,14 +10,12 @@ import argparse
 import asyncio
 import math
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..client import PlayStats, open_stream
 from ..errors import InputError
-from ..io.files import refuse_existing
 from ..server.link import LinkShape, parse_bandwidth, parse_latency
-from .common import Subparsers, add_common
+from .common import Subparsers, add_common, add_timeout, check_frame_output, local_file
 from .progress import Progress
 from .stream_commands import STREAM_HELP, stream_frame
 
@@ -31,9 +29,14 @@ def add_client_commands(sub: Subparsers) -> None:
     p.add_argument("url", help=STREAM_HELP)
     p.add_argument("--t", type=float, required=True, help="time in seconds")
     p.add_argument(
-        "-o", "--output", type=Path, required=True, help="frame.ply or frame.sog (or a folder)"
+        "-o",
+        "--output",
+        type=local_file,
+        required=True,
+        help="frame.ply or frame.sog (or a folder)",
     )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_timeout(p)
     add_common(p)
 
     p = sub.add_parser(
@@ -77,13 +80,20 @@ def add_client_commands(sub: Subparsers) -> None:
         action="store_true",
         help="wait for every layer of each frame (no adaptation): the comparison",
     )
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="a progress line per frame and the whole report (startup, cache, layers shown)",
+    )
+    add_timeout(p)
     add_common(p)
 
 
 def cmd_fetch(args: argparse.Namespace, progress: Progress) -> int:
     """tsog fetch: one frame, reading only the chunks it needs."""
-    refuse_existing(args.output, overwrite=args.force)
-    stats = stream_frame(args.url, args.t, args.output, progress)
+    check_frame_output(args.output, overwrite=args.force)
+    stats = stream_frame(args.url, args.t, args.output, progress, timeout=args.timeout)
     print(f"{stats.requests} requests, {stats.bytes} bytes")
     return 0
 
@@ -95,7 +105,7 @@ def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     if args.latency is not None:
         raise InputError("a latency needs a link: give --bandwidth too", where="--latency")
     progress(f"opening {args.url}")
-    with open_stream(args.url) as client:
+    with open_stream(args.url, timeout=args.timeout) as client:
         playback = client.client.play(
             args.start,
             speed=args.speed,
@@ -105,8 +115,11 @@ def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             adaptive=args.realtime and not args.full_quality,
         )
         # keep nothing: each frame is dropped once reported (memory stays bounded by the cache)
-        client.drain_playback(playback, lambda f: progress(_line(f.t, playback.stats)))
-    print(_report(playback.stats))
+        client.drain_playback(
+            playback, lambda f: _on_frame(progress, _line(f.t, playback.stats), args.verbose)
+        )
+    _end_live_line(progress)
+    print(_report(playback.stats, EVERY if args.verbose else SHORT))
     return 0
 
 
@@ -128,28 +141,49 @@ def _play_shaped(args: argparse.Namespace, progress: Callable[[str], None]) -> i
             speed=args.speed,
             fps=args.fps,
             adaptive=not args.full_quality,
-            on_frame=lambda f, stats: progress(f"{_line(f.t, stats)}, {f.layers} layers"),
+            on_frame=lambda f, stats: _on_frame(
+                progress, f"{_line(f.t, stats)}, {f.layers} layers", args.verbose
+            ),
         )
     )
+    _end_live_line(progress)
     print(
         f"link:            {shape.describe()} (full quality needs "
         f"{report.full_bitrate_bps / 1e6:.2f} Mbit/s on average)"
     )
-    print(f"opening:         {report.opened_s * 1000:.1f} ms")
-    print(_report(report.stats))
-    print(_quality_line(report))
+    if args.verbose:
+        print(f"opening:         {report.opened_s * 1000:.1f} ms")
+    print(_report(report.stats, EVERY if args.verbose else (*SHORT, "layers shown")))
+    print(_quality_line(report, every=args.verbose))
     return 0
 
 
-def _quality_line(report: LinkPlayReport) -> str:
-    """The sampled shown frames' PSNR against full quality."""
+def _on_frame(progress: Callable[[str], None], line: str, verbose: bool) -> None:
+    """A played frame's progress: a line each with ``-v`` (or to a plain callable), else a
+    status line redrawn on a terminal and in a log one every few seconds."""
+    if isinstance(progress, Progress) and not verbose:
+        progress.tick(line)
+    else:
+        progress(line)
+
+
+def _end_live_line(progress: Callable[[str], None]) -> None:
+    """End the redrawn status line before the report is printed."""
+    if isinstance(progress, Progress):
+        progress.done()
+
+
+def _quality_line(report: LinkPlayReport, *, every: bool) -> str:
+    """The sampled shown frames' worst PSNR against full quality (``every``: and each)."""
     if not report.quality:
         return "quality:         not measured (the scene has no view to render from)"
+    worst = "full" if math.isinf(report.worst_psnr) else f"{report.worst_psnr:.1f} dB"
+    if not every:
+        return f"quality:         worst {worst} against full quality"
     shown = ", ".join(
         f"t={t:.2f} s: {'full' if math.isinf(db) else f'{db:.1f} dB'}"
         for t, _, db in report.quality
     )
-    worst = "full" if math.isinf(report.worst_psnr) else f"{report.worst_psnr:.1f} dB"
     return f"quality:         worst {worst} against full quality ({shown})"
 
 
@@ -161,19 +195,25 @@ def _line(t: float, stats: PlayStats) -> str:
     )
 
 
-def _report(stats: PlayStats) -> str:
-    """The summary printed after a playback."""
+SHORT = ("frames", "first picture", "stalls", "fetched")
+"""The lines of a playback's report printed by default."""
+EVERY = (*SHORT[:2], "startup latency", *SHORT[2:], "cache hit rate", "layers shown")
+"""The lines printed with ``-v``."""
+
+
+def _report(stats: PlayStats, lines: tuple[str, ...]) -> str:
+    """The named lines of what a playback cost, in the order of EVERY."""
     rate = stats.bytes / stats.elapsed_s / 1e6 if stats.elapsed_s > 0 else 0.0
-    return "\n".join(
-        [
-            f"frames:          {stats.frames}",
-            f"first picture:   {stats.first_picture_s * 1000:.1f} ms",
-            f"startup latency: {stats.startup_s * 1000:.1f} ms",
-            f"stalls:          {stats.stalls} frames late, {stats.stall_s * 1000:.1f} ms in "
-            "total (a stall: a frame whose chunks had not arrived when it was due, a freeze)",
-            f"fetched:         {stats.bytes} bytes in {stats.requests} requests ({rate:.2f} MB/s)",
-            f"cache hit rate:  {stats.hit_rate * 100:.1f}%",
-            "layers shown:    "
-            + ", ".join(f"{n} frames with {k}" for k, n in sorted(stats.layers_shown.items())),
-        ]
-    )
+    values = {
+        "frames": f"{stats.frames}",
+        "first picture": f"{stats.first_picture_s * 1000:.1f} ms",
+        "startup latency": f"{stats.startup_s * 1000:.1f} ms",
+        "stalls": f"{stats.stalls} frames late, {stats.stall_s * 1000:.1f} ms in total (a stall: "
+        "a frame whose chunks had not arrived when it was due, a freeze)",
+        "fetched": f"{stats.bytes} bytes in {stats.requests} requests ({rate:.2f} MB/s)",
+        "cache hit rate": f"{stats.hit_rate * 100:.1f}%",
+        "layers shown": ", ".join(
+            f"{n} frames with {k}" for k, n in sorted(stats.layers_shown.items())
+        ),
+    }
+    return "\n".join(f"{name + ':':<17}{values[name]}" for name in EVERY if name in lines)

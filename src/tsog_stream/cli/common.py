@@ -9,11 +9,14 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
 
-from ..errors import InputError
+from ..client.http_options import DEFAULT_DEADLINE_S
+from ..errors import InputError, printable
+from ..io.chunks import chunk_folder
+from ..io.files import check_output, local_path
 from ..io.objects import ObjectPath, is_object_url
-from ..io.readers import FORMATS, LoadedScene, ReadOptions, load_scene
+from ..io.readers import FORMATS, LoadedScene, ReadOptions, detect_format, load_scene
 from ..io.sequence import DEFAULT_FPS
-from ..io.splatv import ASSUMED_DURATION
+from ..io.splatv import ASSUMED_DURATION, ASSUMED_DURATION_S
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -62,6 +65,29 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output on stderr")
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a finite number of seconds > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0, got {text}")
+    return value
+
+
+def add_timeout(p: argparse.ArgumentParser) -> None:
+    """``--timeout``: the deadline of one read of a stream over HTTP (client.HttpOptions)."""
+    p.add_argument(
+        "--timeout",
+        type=seconds,
+        default=DEFAULT_DEADLINE_S,
+        metavar="SECONDS",
+        help="give up on one read of a stream over HTTP (the opening request, a chunk) after "
+        f"this long, retries included (default {DEFAULT_DEADLINE_S:g})",
+    )
+
+
 def add_input(p: argparse.ArgumentParser) -> None:
     """The INPUT argument, --format and the per-format reading options."""
     p.add_argument(
@@ -101,7 +127,7 @@ CAMERAS_HELP = (
 
 def add_cameras(p: argparse.ArgumentParser) -> None:
     """--cameras PATH: where the input's capture cameras are."""
-    p.add_argument("--cameras", type=Path, metavar="PATH", help=CAMERAS_HELP)
+    p.add_argument("--cameras", type=local_file, metavar="PATH", help=CAMERAS_HELP)
 
 
 def read_options(args: argparse.Namespace) -> ReadOptions:
@@ -128,17 +154,32 @@ ASSUMPTIONS = frozenset({ASSUMED_DURATION})
 """Reader notes that are assumptions about time, not repairs: warnings, printed first."""
 
 
+def assumed_duration(input_name: str) -> str:
+    """The warning on a ``.splatv`` read without --duration-s, naming the file and the flag."""
+    name = printable(Path(input_name).name or input_name)
+    return (
+        f"{name} does not say its length: read as {ASSUMED_DURATION_S:g} s; "
+        "set it with --duration-s"
+    )
+
+
 def load_input(args: argparse.Namespace, progress: Progress) -> LoadedScene:
-    """Load the INPUT (and its capture cameras) with progress and reader notes on stderr."""
+    """Load the INPUT (and its capture cameras) with progress and reader notes on stderr. An
+    assumption the read will make about time (a ``.splatv`` without --duration-s) is the
+    first line said, before the read: it changes everything shown of the file."""
+    kind = args.format or detect_format(args.input)
+    said = kind == "splatv" and args.duration_s is None
+    if said:
+        warn(assumed_duration(args.input))
     progress(f"reading {args.input}")
     loaded = load_scene(
         args.input,
-        format=args.format,
+        format=kind,
         options=read_options(args),
         progress=progress,
         cameras=getattr(args, "cameras", None),
     )
-    print_reader_notes(loaded.notes)
+    print_reader_notes([n for n in loaded.notes if not (said and n == ASSUMED_DURATION)])
     return loaded
 
 
@@ -151,6 +192,26 @@ def print_reader_notes(notes: list[str]) -> None:
     for text in notes:
         if text not in ASSUMPTIONS:
             note(text)
+
+
+def check_encode_output(output: Path, *, overwrite: bool) -> None:
+    """Refuse, before the input is read, a location ``tsog encode`` could not write
+    (io.files.check_output): a ``.4dgs`` or ``.sog`` file, else a SOG folder."""
+    is_4dgs = output.suffix.lower() == ".4dgs"
+    check_output(output, overwrite=overwrite, folder=not is_4dgs and chunk_folder(output))
+
+
+def local_file(text: str) -> Path:
+    """An argparse type for a local path given as a path or a ``file://`` URL (``Path`` alone
+    would turn ``file:///a/b`` into ``file:/a/b`` below the working folder)."""
+    return local_path(text)
+
+
+def check_frame_output(output: Path, *, overwrite: bool) -> None:
+    """Refuse, before anything is read, a location ``tsog frame``/``tsog fetch`` could not write
+    (io.files.check_output): a ``.ply`` or ``.sog`` file, else a folder."""
+    is_ply = output.suffix.lower() == ".ply"
+    check_output(output, overwrite=overwrite, folder=not is_ply and chunk_folder(output))
 
 
 def check_time(t: float, span: tuple[float, float] | None) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,10 +18,10 @@ from typing import Any
 from .._version import __version__
 from ..codec.chunk import decode_chunk, encode_chunk
 from ..codec.precision import DEFAULT_QUALITY, without_faint
-from ..errors import TsogError
+from ..errors import TsogError, printable
 from ..inputs import STREAM_KINDS, input_kind
 from ..io.chunks import read_chunk_files, write_chunk_files
-from ..io.files import refuse_existing
+from ..io.files import check_output
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
 from ..summary import cameras_summary, chunk_summary, scene_summary
@@ -34,8 +35,12 @@ from .common import (
     add_cameras,
     add_common,
     add_input,
+    add_timeout,
+    check_encode_output,
+    check_frame_output,
     check_time,
     load_input,
+    local_file,
     note,
 )
 from .progress import Progress
@@ -83,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("encode", help="encode a scene to a SOG/TSOG chunk (.sog zip or folder)")
     add_input(p)
     p.add_argument(
-        "output", type=Path, help="OUT.sog for a bundled zip, any other path for a folder"
+        "output", type=local_file, help="OUT.sog for a bundled zip, any other path for a folder"
     )
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fit (default 0)")
     p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
@@ -97,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("decode", help="decode a chunk to a float 3DGS PLY (base values)")
     add_input(p)
-    p.add_argument("output", type=Path, help="output .ply")
+    p.add_argument("output", type=local_file, help="output .ply")
     add_common(p)
 
     p = sub.add_parser(
@@ -106,16 +111,22 @@ def build_parser() -> argparse.ArgumentParser:
     add_input(p)
     add_cameras(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    add_timeout(p)
     add_common(p)
 
     p = sub.add_parser("frame", help="export the scene at time t as a static PLY or SOG")
     add_input(p)
     p.add_argument("--t", type=float, required=True, help="time in seconds")
     p.add_argument(
-        "-o", "--output", type=Path, required=True, help="frame.ply or frame.sog (or a folder)"
+        "-o",
+        "--output",
+        type=local_file,
+        required=True,
+        help="frame.ply or frame.sog (or a folder)",
     )
     p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
     p.add_argument("-v", "--verbose", action="store_true", help="report the bytes read")
+    add_timeout(p)
     add_common(p)
 
     add_stream_commands(sub)
@@ -127,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
     p.add_argument(
-        "--out", type=Path, default=Path("out"), help="folder for demo.sog (default ./out)"
+        "--out", type=local_file, default=Path("out"), help="folder for demo.sog (default ./out)"
     )
     p.add_argument("--seed", type=SEED, default=0, help="scene and palette seed (default 0)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -137,7 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
-    refuse_existing(args.output, overwrite=args.force)
+    check_encode_output(args.output, overwrite=args.force)
     scene = load_input(args, progress).scene
     if args.output.suffix.lower() == ".4dgs":
         for text in write_4dgs(args.output, scene, lossy=args.lossy):
@@ -157,6 +168,7 @@ def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_decode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog decode."""
+    check_output(args.output, overwrite=True)  # decode replaces OUTPUT, as it always has
     scene = load_input(args, progress).scene
     write_ply(args.output, scene.gaussians)
     progress.done()
@@ -165,13 +177,14 @@ def cmd_decode(args: argparse.Namespace, progress: Progress) -> int:
 
 
 def _print_text(info: dict[str, Any], indent: str = "") -> None:
-    """Print a nested summary as indented 'key: value' lines."""
+    """Print a nested summary as indented 'key: value' lines, values (camera names, a
+    file's strings) escaped for the terminal."""
     for key, value in info.items():
         if isinstance(value, dict):
             print(f"{indent}{key}:")
             _print_text(value, indent + "  ")
         else:
-            print(f"{indent}{key}: {value}")
+            print(f"{indent}{key}: {printable(str(value))}")
 
 
 def _print_seek_table(rows: list[dict[str, Any]]) -> None:
@@ -191,7 +204,7 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
     info: dict[str, Any] = {"file": str(args.input), "format": kind}
     if kind in STREAM_KINDS:
         progress("measuring seek costs")
-        info = stream_info(args.input)
+        info = stream_info(args.input, args.timeout)
     elif kind == "sog":
         files = read_chunk_files(Path(args.input))
         info.update(chunk_summary(files, where=str(args.input)))
@@ -200,7 +213,7 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
         info.update({k: v for k, v in scene_summary(decoded).items() if k == "timeline"})
     else:
         loaded = load_input(args, progress)
-        info.update(scene_summary(loaded.scene))
+        info.update(scene_summary(loaded.scene, duration_assumed=loaded.duration_assumed))
         info["cameras"] = cameras_summary(loaded.cameras, loaded.cameras_source)
     progress.done()
     if args.json:
@@ -215,9 +228,9 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     """tsog frame."""
-    refuse_existing(args.output, overwrite=args.force)
+    check_frame_output(args.output, overwrite=args.force)
     if input_kind(args.input, args.format) in STREAM_KINDS:
-        stats = stream_frame(args.input, args.t, args.output, progress)
+        stats = stream_frame(args.input, args.t, args.output, progress, timeout=args.timeout)
         if args.verbose:
             print(f"read {stats.bytes} bytes in {stats.requests} requests", file=sys.stderr)
         return 0
@@ -253,10 +266,6 @@ def _print_demo(report: dict[str, Any]) -> None:
         f"stream: {s['bytes']} bytes, {s['windows']} windows, {s['chunks']} chunks -> {s['output']}"
     )
     print(f"served at {s['url']} (loopback, stopped after the run)")
-    if s["output"]:
-        folder = Path(s["output"]).parent
-        print(f"watch it: scripts/setup && .venv/bin/tsog serve {folder}, then open")
-        print("  http://127.0.0.1:8080/play/demo (the web player)")
     print(f"  played {s['frames']} frames from t = {s['start_t']} s at 2x speed")
     print(f"  startup {s['startup_ms']} ms, {s['stalls']} stalls, {s['requests']} requests,")
     print(f"  {s['bytes_fetched']} bytes, cache hit rate {s['cache_hit_rate']:.0%}")
@@ -275,6 +284,14 @@ def _print_demo(report: dict[str, Any]) -> None:
             f"{row['visibility_flips']:9d}",
         )
         print(" ".join(cells))
+    if s["output"]:
+        print(f"watch it in the web player: {_tsog_command()} view {printable(s['output'])}")
+
+
+def _tsog_command() -> str:
+    """How to run tsog again: its name when it is on PATH, else the path it was run by."""
+    ran = Path(sys.argv[0])
+    return "tsog" if shutil.which("tsog") or ran.name != "tsog" else printable(str(ran))
 
 
 COMMANDS = {

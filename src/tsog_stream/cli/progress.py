@@ -86,14 +86,20 @@ class Progress:
     def bar(self, stage: str, fraction: float) -> None:
         """Draw a bar for ``stage`` at ``fraction`` (0..1); without a terminal, a line at most
         every LOG_BAR_SECONDS, and the full bar."""
-        if not self.live and fraction < 1.0:
+        filled = int(max(0.0, min(1.0, fraction)) * 30)
+        text = f"{stage} [{'#' * filled}{'.' * (30 - filled)}] {fraction * 100:5.1f}%"
+        self.tick(text, last=fraction >= 1.0)
+
+    def tick(self, stage: str, *, last: bool = False) -> None:
+        """One step of many quick ones (a chunk, a frame): redrawn on a terminal; without
+        one, a line at most every LOG_BAR_SECONDS (and the ``last``), never one per step."""
+        if not self.live and not last:
             now = time.monotonic() - self.start
             if now - self._bar_logged < LOG_BAR_SECONDS:
                 interrupt.check()
                 return
             self._bar_logged = now
-        filled = int(max(0.0, min(1.0, fraction)) * 30)
-        self(f"{stage} [{'#' * filled}{'.' * (30 - filled)}] {fraction * 100:5.1f}%")
+        self(stage)
 
     def done(self) -> None:
         """End the live line, if one is open (and drop a held stage: that work is over)."""

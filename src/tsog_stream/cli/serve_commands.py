@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.objects import as_location
 from ..signing import load_secret, parse_ttl, sign_url
-from .common import Integer, Subparsers
+from .common import Integer, Subparsers, local_file
 from .progress import Progress
 
 SECRET_HELP = (
@@ -59,7 +59,7 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
         help="paths under ROOT (files, scene folders, or a folder above them) served only with a "
         "signed URL (tsog sign); '*' crosses '/'; repeatable",
     )
-    p.add_argument("--secret-file", type=Path, help=SECRET_HELP)
+    p.add_argument("--secret-file", type=local_file, help=SECRET_HELP)
     p.add_argument("--keepalive", type=float, default=15.0, help="idle and request-head timeout, s")
     p.add_argument("--send-timeout", type=float, default=60.0, help="deadline to send one body, s")
     p.add_argument(
@@ -96,7 +96,7 @@ def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
         help="sign a path prefix ending with '/' instead of the exact path (a folder, or a "
         "scene's /v1/scenes/ID/ URLs)",
     )
-    p.add_argument("--secret-file", type=Path, help=SECRET_HELP)
+    p.add_argument("--secret-file", type=local_file, help=SECRET_HELP)
     p.add_argument("-q", "--quiet", action="store_true", help="no messages on stderr")
     p.set_defaults(func=cmd_sign)
     return p

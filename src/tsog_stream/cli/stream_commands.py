@@ -24,10 +24,11 @@ from ..codec.chunk import encode_chunk
 from ..codec.precision import DEFAULT_QUALITY
 from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS, thumbnail_path
 from ..container.sources import ReadStats
-from ..errors import InputError, TsogError
+from ..errors import InputError, TsogError, printable
 from ..io.cameras import cameras_for_input
 from ..io.chunks import write_chunk_files
-from ..io.files import atomic_write_bytes, refuse_existing, remove_stale_temp_files
+from ..io.files import atomic_write_bytes, check_output, remove_stale_temp_files
+from ..io.objects import is_object_url
 from ..io.ply import write_ply
 from ..io.readers import detect_format
 from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
@@ -49,7 +50,7 @@ from ..segment.segmenter import (
     segment_scene,
     segment_sequence,
 )
-from ..summary import cameras_summary
+from ..summary import cameras_summary, duration_text
 from .common import (
     QUALITY,
     QUALITY_HELP,
@@ -59,6 +60,7 @@ from .common import (
     add_cameras,
     add_common,
     add_input,
+    add_timeout,
     check_time,
     input_bytes,
     load_input,
@@ -79,8 +81,9 @@ _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
 
 def check_segment_args(args: argparse.Namespace) -> None:
-    """Refuse bad options before the (possibly long) input read."""
-    refuse_existing(args.output, overwrite=args.force)
+    """Refuse bad options and an output location that cannot be written before the
+    (possibly long) input read."""
+    check_output(args.output, overwrite=args.force)
     if args.window != AUTO and not _WINDOW.match(args.window):
         raise InputError(
             f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
@@ -115,14 +118,18 @@ def parse_window(text: str, fps: float | None) -> float | None:
 
 def add_stream_commands(sub: Subparsers) -> None:
     """Register the stream subcommands on the main parser."""
-    p = sub.add_parser("segment", help="segment a 4D scene into a streamable .tsogs container")
+    p = sub.add_parser(
+        "segment",
+        help="segment a scene into a streamable .tsogs container (a static one: one moment)",
+    )
     add_input(p)
     add_cameras(p)
     p.add_argument(
         "-o",
         "--output",
         required=True,
-        help="the container to write (.tsogs): a path or a storage URL (s3://bucket/scene.tsogs)",
+        help="the container to write (.tsogs): a path (its folder made if missing) or a "
+        "storage URL (s3://bucket/scene.tsogs)",
     )
     p.add_argument(
         "--window",
@@ -200,6 +207,7 @@ def add_stream_commands(sub: Subparsers) -> None:
 
     p = sub.add_parser("verify", help="check a container: hashes, decoding, pixel budget, index")
     p.add_argument("input", help=STREAM_HELP)
+    add_timeout(p)
     add_common(p)
 
     p = sub.add_parser("extract", help="copy one chunk of a container out as a standalone .sog")
@@ -236,6 +244,7 @@ def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
     """tsog segment: frame sequences stream window by window, other inputs load whole."""
     check_segment_args(args)
     kind = args.format or detect_format(args.input)
+    assumed = False  # the input's length (a .splatv read without --duration-s)
     if kind in ("ply-sequence", "sog-sequence"):
         fps = args.fps if args.fps is not None else DEFAULT_FPS
         seq = open_sequence(args.input, fps=fps, kind=kind.split("-")[0])
@@ -250,8 +259,9 @@ def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
     else:
         loaded = load_input(args, progress)
         source, cameras, source_name = loaded.scene, loaded.cameras, loaded.cameras_source
+        assumed = loaded.duration_assumed
         del loaded
-    held = Held(source)
+    held = Held(source, duration_assumed=assumed)
     del source  # held only by ``held`` from here: _segment drops it before the thumbnail
     return _segment(args, progress, held, input_bytes(args.input), (cameras, source_name))
 
@@ -263,6 +273,8 @@ class Held:
     process at 5.6x its arrays, 2.2x without)."""
 
     source: Scene | FrameSequence | None
+    duration_assumed: bool = False
+    """The input's reader assumed its length (a ``.splatv`` without --duration-s)."""
 
 
 def _segment(
@@ -320,6 +332,7 @@ def _segment(
             cameras=cameras,
             on_chunk=on_chunk,
             on_stage=progress,
+            duration_assumed=held.duration_assumed,
         )
 
     merged: Scene | None = None
@@ -340,6 +353,7 @@ def _segment(
     del source, merged
     progress.done()
     print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, input_size)}")
+    print(f"  {_duration_line(report)}")
     if report.layout is not None:
         _print_layout(report.layout, fps)
     print(f"  {report.windows} windows, {report.chunks} chunks")
@@ -347,7 +361,8 @@ def _segment(
         f" ({report.faint} too faint at quality {args.quality} left out)" if report.faint else ""
     )
     print(f"  {report.gaussians} Gaussians, {report.stored} stored copies{faint}")
-    print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
+    if not report.static:
+        print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
     print(f"  {_cameras_line(cameras, cameras_source, report)}")
     print(f"  {_layers_line(report)}")
     warming.join()
@@ -358,6 +373,16 @@ def _segment(
     more = " ..." if len(report.bytes_per_window) > 12 else ""
     print(f"  bytes per window (level 0): {shown}{more}")
     return 0
+
+
+def _duration_line(report: SegmentReport) -> str:
+    """The stream's length, said to be assumed when it was (a .splatv without --duration-s),
+    or that a static scene is a stream of one moment."""
+    if report.static:
+        return "a static scene: a stream of one moment (0 s), shown the same at any time"
+    assumed = report.duration_assumed
+    text = duration_text(report.start_s, report.end_s, static=False, assumed=assumed)
+    return f"duration {text}"
 
 
 def _layers_line(report: SegmentReport) -> str:
@@ -424,9 +449,10 @@ def _cameras_line(cameras: list[CaptureCamera], source: str, report: SegmentRepo
             "opens on a framing of the dense core"
         )
     many = "camera" if len(cameras) == 1 else "cameras"
-    found = f"{len(cameras)} capture {many} from {source}"
+    found = f"{len(cameras)} capture {many} from {printable(source)}"
     if report.view is not None and report.view == cameras[0]:
-        return f"{found}: opens from the first ({cameras[0].name or '0'}; {report.view_why})"
+        name = printable(cameras[0].name) or "0"
+        return f"{found}: opens from the first ({name}; {report.view_why})"
     return f"{found}: opens on a framing of the dense core ({report.view_why})"
 
 
@@ -529,9 +555,9 @@ def layers_summary(layers: Sequence[Layer]) -> dict[str, Any]:
     return out
 
 
-def stream_info(target: str) -> dict[str, Any]:
+def stream_info(target: str, timeout: float | None = None) -> dict[str, Any]:
     """Header, index summary and a seek-cost table of a container."""
-    with open_stream(target) as reader:
+    with open_stream(target, timeout=timeout) as reader:
         h, m = reader.index.header, reader.index.manifest
         return {
             "file": target,
@@ -547,6 +573,12 @@ def stream_info(target: str) -> dict[str, Any]:
             "policy": m.policy,
             "window_s": m.window_s,
             "max_pixels": m.max_pixels,
+            "duration": duration_text(
+                m.scene.start_s,
+                m.scene.end_s,
+                static=m.scene.timeline_type is None,
+                assumed=m.scene.duration_assumed,
+            ),
             "scene": m.scene.model_dump(),
             "nodes": len(m.nodes),
             "chunks": len(m.chunks),
@@ -567,11 +599,13 @@ def write_frame(output: Path, frame: Gaussians, t: float, progress: Progress) ->
     print(f"{output}: {len(frame)} Gaussians visible at t = {t} s")
 
 
-def stream_frame(target: str, t: float, output: Path, progress: Progress) -> ReadStats:
+def stream_frame(
+    target: str, t: float, output: Path, progress: Progress, *, timeout: float | None = None
+) -> ReadStats:
     """tsog frame (and fetch) on a stream: only the chunks t needs are read; returns what
     reading them cost."""
     progress(f"opening {target}")
-    with open_stream(target) as reader:
+    with open_stream(target, timeout=timeout) as reader:
         info = reader.index.manifest.scene
         check_time(t, None if info.timeline_type is None else (info.start_s, info.end_s))
         progress(f"fetching t = {t} s")
@@ -583,7 +617,7 @@ def stream_frame(target: str, t: float, output: Path, progress: Progress) -> Rea
 
 def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
     """tsog verify: exit 0 when clean, 3 hash, 4 decode, 5 budget, 6 index mismatch."""
-    with open_stream(args.input) as reader:
+    with open_stream(args.input, timeout=args.timeout) as reader:
         progress("verifying chunks")
         report = reader.verify()
     progress.done()
@@ -597,7 +631,7 @@ def cmd_verify(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
     """tsog extract."""
-    refuse_existing(args.output, overwrite=args.force)
+    check_output(args.output, overwrite=args.force)
     with open_stream(args.input) as reader:
         data = reader.chunk_bytes(args.chunk)
     atomic_write_bytes(args.output, data)
@@ -607,15 +641,25 @@ def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_unpack(args: argparse.Namespace, progress: Progress) -> int:
     """tsog unpack."""
+    _check_unpack_output(args.output, overwrite=args.force)
     with open_stream(args.input) as reader:
         count = reader.unpack(args.output, overwrite=args.force)
     print(f"{args.output}: manifest.json and {count} chunks")
     return 0
 
 
+def _check_unpack_output(output: str, *, overwrite: bool) -> None:
+    """Refuse, before any chunk is read, a folder (or storage prefix, whose manifest.json is
+    what exists or not) that unpacking could not publish."""
+    if is_object_url(output):
+        check_output(f"{output.rstrip('/')}/manifest.json", overwrite=overwrite)
+    else:
+        check_output(output, overwrite=overwrite, folder=True)
+
+
 def cmd_pack(args: argparse.Namespace, progress: Progress) -> int:
     """tsog pack."""
-    refuse_existing(args.output, overwrite=args.force)
+    check_output(args.output, overwrite=args.force)
     with open_stream(args.input) as reader:
         size = reader.pack(args.output)
     print(f"{args.output}: {size} bytes")

@@ -5,7 +5,12 @@ One folder per input version (named by its fingerprint) holds the container and 
 earlier versions of the same input read the same way (the input changed: they can never be
 used again), then the least recently used others while the cache holds more than
 MAX_CACHE_BYTES. A running ``tsog view`` holds a shared lock on its folder's ``source.json``,
-so a copy being served is never removed.
+so a copy being served is never removed, and an exclusive lock on the folder itself while it
+checks or makes the copy, so a second ``tsog view`` of the same input waits, then reuses it.
+
+Whatever a folder's place holds that is not a complete copy (a symbolic link, a file, a run's
+leftovers, a damaged container) is removed and made again; links are removed, never followed,
+and nothing outside the cache folder is ever touched.
 """
 
 from __future__ import annotations
@@ -15,10 +20,13 @@ import fcntl
 import json
 import os
 import shutil
-from collections.abc import Iterator
+import stat
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
+
+from ..errors import SourceError
 
 MAX_CACHE_BYTES = 4 << 30
 """Bytes of segmented copies kept at most (least recently used removed first), besides the
@@ -27,6 +35,9 @@ SOURCE_FILE = "source.json"
 """Each copy's record of its input (path, options) and when it was last used (its mtime)."""
 KEY_LENGTH = 24
 """Hex digits of a copy's folder name (the input's fingerprint): other names are not ours."""
+CLAIM_ATTEMPTS = 8
+"""Times a copy's folder is claimed again when the one locked was removed meanwhile (by the
+run that held it failing, or by eviction) before giving up."""
 
 
 @dataclass(frozen=True)
@@ -44,6 +55,108 @@ def record(folder: Path, source: dict[str, Any]) -> None:
     """Write the copy's record of its input (after the container, so a copy without one is
     a copy being made, or one a failed run left)."""
     (folder / SOURCE_FILE).write_text(json.dumps(source, sort_keys=True))
+
+
+@contextlib.contextmanager
+def claimed(root: Path, key: str, waiting: Callable[[str], None]) -> Iterator[Path]:
+    """The folder ``root/key``, made a real folder if something else was there (a symbolic
+    link or a file is removed: never what it points to) and held exclusively until exit, so
+    two runs never make the same copy at once (the second waits, announced by ``waiting``).
+    A cache that cannot be used is a :class:`SourceError` naming it, in one line."""
+    folder = root / key
+    for _ in range(CLAIM_ATTEMPTS):
+        handle = _open_folder(root, folder)
+        try:
+            _lock(handle, waiting)
+            if _same_file(handle, folder):  # not removed while we waited for it
+                yield folder
+                return
+        finally:
+            os.close(handle)
+    raise SourceError(
+        "its folders keep disappearing; is another program clearing it?", where=str(root)
+    )
+
+
+def _open_folder(root: Path, folder: Path) -> int:
+    """Make ``folder`` (a real folder in ``root``) and open it without following links."""
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        if entry_kind(folder) not in ("folder", "missing"):
+            folder.unlink()  # a link or a file in the copy's place: the entry itself goes
+        folder.mkdir(exist_ok=True)
+        return os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    except OSError as exc:
+        raise unusable_cache(root, exc) from None
+
+
+def unusable_cache(root: Path, exc: OSError) -> SourceError:
+    """The one-line error of a cache folder that cannot be made or written."""
+    if isinstance(exc, FileExistsError):
+        why = "it is not a folder"
+    elif isinstance(exc, NotADirectoryError):
+        why = "a part of this path is a file, not a folder"
+    elif isinstance(exc, FileNotFoundError):
+        why = "no folder can be made here"  # /proc, /sys: present, yet nothing can be added
+    else:
+        why = (exc.strerror or str(exc)).lower()
+    return SourceError(
+        f"cannot keep segmented copies here: {why} (--cache DIR chooses another folder)",
+        where=str(root),
+    )
+
+
+def _lock(handle: int, waiting: Callable[[str], None]) -> None:
+    """Lock the open folder exclusively, announcing a wait for another run."""
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        waiting("waiting for another tsog view making the same copy")
+        fcntl.flock(handle, fcntl.LOCK_EX)
+    except OSError:
+        return  # a file system without locks: the copy is made unguarded
+
+
+def _same_file(handle: int, path: Path) -> bool:
+    """Whether ``path`` (not followed) is still the folder open as ``handle``."""
+    try:
+        found = path.lstat()
+    except OSError:
+        return False
+    held = os.fstat(handle)
+    return (found.st_dev, found.st_ino) == (held.st_dev, held.st_ino)
+
+
+def entry_kind(path: Path) -> str:
+    """What ``path`` itself is (a link is not followed): "missing", "folder", "file",
+    "symbolic link" or "other" (a FIFO, a socket, a device)."""
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return "missing"
+    if stat.S_ISLNK(mode):
+        return "symbolic link"
+    if stat.S_ISDIR(mode):
+        return "folder"
+    return "file" if stat.S_ISREG(mode) else "other"
+
+
+def has_record(folder: Path) -> bool:
+    """Whether a copy's folder holds its record, a regular file that reads as one."""
+    return _read_source(folder / SOURCE_FILE) is not None
+
+
+def clear(folder: Path) -> bool:
+    """Remove what the claimed ``folder`` holds (links removed, not followed); whether it held
+    anything."""
+    found = False
+    for path in folder.iterdir():
+        found = True
+        if entry_kind(path) == "folder":
+            shutil.rmtree(path)  # removes the links inside, never what they point to
+        else:
+            path.unlink(missing_ok=True)
+    return found
 
 
 def mark_used(folder: Path) -> None:
@@ -108,7 +221,10 @@ def _copies(root: Path) -> list[Copy]:
 
 
 def _read_source(path: Path) -> dict[str, Any] | None:
-    """A copy's record, or None when it has none (being made) or it cannot be read."""
+    """A copy's record, or None when it has none (being made), it is not a regular file or it
+    cannot be read."""
+    if entry_kind(path) != "file":
+        return None
     try:
         source = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -144,8 +260,13 @@ __all__ = [
     "KEY_LENGTH",
     "MAX_CACHE_BYTES",
     "SOURCE_FILE",
+    "claimed",
+    "clear",
+    "entry_kind",
     "evict",
+    "has_record",
     "mark_used",
     "record",
     "serving",
+    "unusable_cache",
 ]

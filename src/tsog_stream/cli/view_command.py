@@ -13,6 +13,7 @@ import argparse
 import asyncio
 import contextlib
 import hashlib
+import io
 import json
 import os
 import webbrowser
@@ -22,36 +23,60 @@ from urllib.parse import quote
 
 from .._version import __version__
 from ..client import open_stream
-from ..errors import InputError
+from ..errors import InputError, TsogError, printable
 from ..inputs import STREAM_KINDS, input_kind, is_url
 from ..io.objects import is_object_url
 from ..io.sequence import list_frames
-from .common import Integer, Subparsers, add_cameras, add_common, add_input
+from ..schemas.manifest import SceneInfo
+from ..summary import duration_text
+from .common import (
+    Integer,
+    Subparsers,
+    add_cameras,
+    add_common,
+    add_input,
+    assumed_duration,
+    input_bytes,
+    local_file,
+    note,
+    warn,
+)
 from .progress import Progress
 from .view_cache import (
     KEY_LENGTH,
     MAX_CACHE_BYTES,
-    SOURCE_FILE,
+    claimed,
+    clear,
+    entry_kind,
     evict,
+    has_record,
     mark_used,
     record,
     serving,
+    unusable_cache,
 )
 
 CACHE_ENV = "TSOG_CACHE_DIR"
 MAX_FINGERPRINT_FILES = 100_000
 """A folder with more files than this is refused rather than walked for ever."""
 
-VIEW_EPILOG = f"""examples:
-  tsog view clip.splatv --duration-s 10       segment once (cached), serve, print the URL
-  tsog view frames/ --fps 30 --open           a frame folder, opened in the browser
-  tsog view clip.tsogs --port 8080            a container is served as it is
+VIEW_EPILOG = f"""examples, one per kind of input:
+  tsog view clip.splatv --duration-s 10       a .splatv (its length: the file does not say it)
+  tsog view frames/ --fps 30 --open           numbered PLY or SOG frames, opened in a browser
+  tsog view 'frames/f_*.ply' --fps 30         the same frames by pattern (quoted)
+  tsog view point_cloud.ply                   a 3DGS PLY, compressed PLY or FreeTimeGS PLY
+  tsog view ckpt.npz --scene-length-s 4       a FreeTimeGS checkpoint
+  tsog view scene.sog                         a SOG/TSOG chunk (.sog zip or its folder)
+  tsog view clip.4dgs                         a .4dgs scene
+  tsog view clip.tsogs --port 8080            a container (or unpacked folder), served as it is
+  tsog view clip.splatv -v                    also print the segment report (layout, sizes)
 
 The segmented copy lives in $TSOG_CACHE_DIR, else $XDG_CACHE_HOME/tsog-stream/view, else
 ~/.cache/tsog-stream/view (--cache DIR to choose), one folder per input version. Making a
 copy removes the copies of earlier versions of that input, then the least recently used
-ones beyond {MAX_CACHE_BYTES >> 30} GiB in all (never one being served); delete the folder
-freely. The server listens on 127.0.0.1 only; Ctrl-C stops it."""
+ones beyond {MAX_CACHE_BYTES >> 30} GiB in all (never one being served); anything else found
+in a copy's place (a link, a file, what a stopped run left) is made again. Delete the
+folder freely. The server listens on 127.0.0.1 only; Ctrl-C stops it."""
 
 
 def add_view_command(sub: Subparsers) -> None:
@@ -68,7 +93,13 @@ def add_view_command(sub: Subparsers) -> None:
         "--port", type=Integer(0, 65535), default=0, help="port on 127.0.0.1 (default: any free)"
     )
     p.add_argument("--open", action="store_true", help="open the player in a web browser")
-    p.add_argument("--cache", type=Path, help="folder for segmented copies (see below)")
+    p.add_argument("--cache", type=local_file, help="folder for segmented copies (see below)")
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="print the segment command's whole report (layout, seek cost, sizes per level)",
+    )
     add_common(p)
 
 
@@ -141,21 +172,71 @@ def _scene_name(target: str) -> str:
 
 
 def _segmented(args: argparse.Namespace, progress: Progress) -> Path:
-    """The input's container in the cache, segmented now unless an unchanged copy is there."""
+    """The input's container in the cache, segmented now unless a complete copy of the
+    unchanged input is there (anything else in its place is removed and made again)."""
+    root = cache_root(args.cache)
+    with claimed(root, fingerprint(args), progress) as folder:
+        container = folder / f"{_scene_name(args.input)}.tsogs"
+        scene = _complete_copy(folder, container)
+        if scene is not None:
+            if scene.duration_assumed:  # the first line, as when the reader said it
+                warn(assumed_duration(args.input))
+            shown = printable(str(container))
+            print(f"{shown}: reusing the copy segmented earlier (the input is unchanged)")
+            print(f"  {_copy_line(container, scene)}")
+            mark_used(folder)
+            return container
+        _clear_leftovers(root, folder)
+        try:
+            _segment_into(args, container, progress)
+            record(folder, source_of(args))
+        except BaseException as exc:
+            with contextlib.suppress(OSError):  # held still: no other run has begun in it
+                clear(folder)
+                folder.rmdir()  # a failed segment publishes nothing (nor a thumbnail)
+            if isinstance(exc, OSError):  # writing the copy: the disk is full, or read-only
+                raise unusable_cache(root, exc) from None
+            raise
+    removed = evict(root, folder)
+    if removed:
+        shown = printable(str(root))
+        print(f"  cache: removed {len(removed)} older or least recently used copies ({shown})")
+    return container
+
+
+def _clear_leftovers(root: Path, folder: Path) -> None:
+    """Empty a claimed folder that holds no complete copy, saying so if it held anything."""
+    try:
+        if clear(folder):
+            shown = printable(str(folder))
+            note(f"{shown}: an incomplete or damaged copy (a stopped run?): segmenting again")
+    except OSError as exc:
+        raise unusable_cache(root, exc) from None
+
+
+def _complete_copy(folder: Path, container: Path) -> SceneInfo | None:
+    """What a copy a run finished in ``folder`` holds, or None when there is none: its record
+    and its container must be regular files (not links) and the container must open."""
+    if not has_record(folder) or entry_kind(container) != "file":
+        return None
+    try:
+        return _scene_of(container)
+    except (TsogError, OSError):
+        return None
+
+
+def _scene_of(container: Path) -> SceneInfo:
+    """The scene a container's index describes (a damaged index or manifest fails here)."""
+    with open_stream(container) as opened:
+        return opened.index.manifest.scene
+
+
+def _segment_into(args: argparse.Namespace, container: Path, progress: Progress) -> None:
+    """Run the segment command on the input, as typed, into ``container``; its report is
+    printed with ``-v``, else two lines: what was made, where, how big."""
     from .main import build_parser  # noqa: PLC0415 - the segment command, as typed
     from .stream_commands import cmd_segment  # noqa: PLC0415
 
-    root = cache_root(args.cache)
-    folder = root / fingerprint(args)
-    container = folder / f"{_scene_name(args.input)}.tsogs"
-    if container.is_file():
-        print(f"{container}: reusing the copy segmented earlier (the input is unchanged)")
-        if (folder / SOURCE_FILE).is_file():
-            mark_used(folder)
-        else:  # a copy made before the cache kept records: it joins the eviction order
-            record(folder, source_of(args))
-        return container
-    folder.mkdir(parents=True, exist_ok=True)
     argv = ["segment", args.input, "-o", str(container)]
     for flag, value in (
         ("--format", args.format),
@@ -167,17 +248,36 @@ def _segmented(args: argparse.Namespace, progress: Progress) -> Path:
         if value is not None:
             argv += [flag, str(value)]
     argv += ["--duration-mode", args.duration_mode]
-    try:
+    report = contextlib.nullcontext() if args.verbose else contextlib.redirect_stdout(io.StringIO())
+    with report:
         cmd_segment(build_parser().parse_args(argv), progress)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            folder.rmdir()  # only when empty: a failed segment publishes nothing
-        raise
-    record(folder, source_of(args))
-    removed = evict(root, folder)
-    if removed:
-        print(f"  cache: removed {len(removed)} older or least recently used copies ({root})")
-    return container
+    if not args.verbose:
+        progress.done()
+        print(
+            f"segmented {printable(args.input)} into {printable(str(container))} (-v: its layout)"
+        )
+        print(f"  {_copy_line(container, _scene_of(container), input_bytes(args.input))}")
+
+
+def _copy_line(container: Path, scene: SceneInfo, input_size: int = 0) -> str:
+    """What a copy holds and how big it is, in one line."""
+    span = duration_text(
+        scene.start_s,
+        scene.end_s,
+        static=scene.timeline_type is None,
+        assumed=scene.duration_assumed,
+    )
+    was = f" (the input: {_bytes_text(input_size)})" if input_size else ""
+    size = _bytes_text(container.stat().st_size)
+    return f"{scene.gaussians:,} Gaussians, {span}, {size}{was}"
+
+
+def _bytes_text(size: int) -> str:
+    """A size as people read it: 950 B, 138 kB, 12.4 MB, 3.1 GB."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if size >= scale:
+            return f"{size / scale:.3g} {unit}"
+    return f"{size} B"
 
 
 def cmd_view(args: argparse.Namespace, progress: Progress) -> int:

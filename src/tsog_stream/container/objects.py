@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from typing import Any, cast
 
 from ..errors import SourceError
-from ..io.files import refuse_existing
+from ..io.files import check_output
 from ..io.objects import ObjectPath, is_object_url, object_at, store_errors
 from .ranges import ByteRange
 from .sources import ReadStats
@@ -232,7 +232,7 @@ def put_objects(base: str, files: dict[str, bytes], *, overwrite: bool) -> None:
     root = object_at(base)
     names = list(files)
     first = names[0]
-    refuse_existing(str(root / first), overwrite=overwrite)
+    check_output(str(root / first), overwrite=overwrite)
     written: list[ObjectPath] = []
     try:
         for name in [*names[1:], first]:

@@ -95,11 +95,14 @@ class StreamIndex:
         Windows are chosen by index (not by comparing with their stored float edges, which
         round differently from frame times), so a time is in exactly one window and each
         Gaussian is shown once; a chunk is kept when its own visible interval meets the query
-        within the evaluation's time tolerance. Nothing is chosen outside the scene's range.
+        within the evaluation's time tolerance. Nothing is chosen outside the scene's range,
+        except in a static scene (no timeline), which shows the same at every time.
         """
         if not (math.isfinite(start) and math.isfinite(end)):
             raise InputError(f"times must be finite numbers of seconds, got [{start}, {end}]")
         m = self.manifest
+        if m.scene.timeline_type is None:
+            start = end = m.scene.start_s
         fps = m.scene.fps
         slack = TIME_EPSILON * (1.0 / fps if fps else 1.0) + WINDOW_EPSILON * m.window_s
         windows = self.windows

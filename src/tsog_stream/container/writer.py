@@ -20,7 +20,7 @@ from types import TracebackType
 from typing import BinaryIO, Protocol
 
 from ..errors import SourceError
-from ..io.files import temp_path
+from ..io.files import local_path, make_parents, remove_made, temp_path
 from ..schemas.manifest import Manifest
 from .header import (
     COMPACT_MAX,
@@ -173,21 +173,24 @@ class ContainerFile:
     """A container being written to ``path``: temp file beside it, renamed on success.
 
     Use as a context manager; leaving it by an exception (Ctrl-C included) removes the temp
-    file and leaves the destination untouched. An OSError while writing (a full disk) becomes
-    a SourceError naming the destination.
+    file and leaves the destination untouched (and removes the folders above it that it
+    made). An OSError while writing (a full disk) becomes a SourceError naming the destination.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
+        self.path = local_path(path)
         self.tmp = temp_path(self.path)
         self._file: BinaryIO | None = None
         self.writer: PayloadWriter | None = None
         self.length = 0
+        self._made: list[Path] = []
 
     def __enter__(self) -> PayloadWriter:
+        self._made = make_parents(self.path)
         try:
             self._file = open(self.tmp, "w+b")
         except OSError as exc:
+            remove_made(self._made)
             raise SourceError(
                 f"cannot create a file here: {exc.strerror}", where=str(self.path)
             ) from exc
@@ -216,6 +219,7 @@ class ContainerFile:
                     file.close()
                 with contextlib.suppress(OSError):
                     self.tmp.unlink()
+                remove_made(self._made)
         if isinstance(exc, OSError):
             raise _write_error(exc, self.path) from exc
 

@@ -21,3 +21,5 @@ class Loaded4D:
     notes: list[str] = field(default_factory=list)
     cameras: list[CaptureCamera] = field(default_factory=list)
     """Capture cameras the file carries (``.splatv`` headers), in file order."""
+    duration_assumed: bool = False
+    """The scene's length was assumed, not read (a ``.splatv`` read without ``duration_s``)."""

@@ -79,6 +79,9 @@ class LoadedScene:
     """Capture cameras: given with ``cameras=``, carried by the file, or found beside it."""
     cameras_source: str = ""
     """Where the cameras were read ("" without cameras)."""
+    duration_assumed: bool = False
+    """The scene's length was assumed, not read (a ``.splatv`` read without ``duration_s``:
+    1 s); a container made of it says so (``SceneInfo.duration_assumed``)."""
 
 
 def _is_glob(path: str | os.PathLike[str]) -> bool:
@@ -225,4 +228,10 @@ def _load(
         contents = parse_ply(read_bytes(path), name=str(path))  # the header tells which kind
         return LoadedScene(Scene(contents.gaussians), kind, list(contents.notes))
     loaded = _read_4d(kind, str(path), options, progress)
-    return LoadedScene(loaded.scene, kind, list(loaded.notes), list(loaded.cameras))
+    return LoadedScene(
+        loaded.scene,
+        kind,
+        list(loaded.notes),
+        list(loaded.cameras),
+        duration_assumed=loaded.duration_assumed,
+    )

@@ -64,11 +64,14 @@ PREAMBLE: Final = struct.Struct("<II")
 """magic, JSON length."""
 MAX_JSON_BYTES: Final = 16 * 1024 * 1024
 """A JSON header longer than this is rejected before it is read."""
+ASSUMED_DURATION_S: Final = 1.0
+"""Seconds a clip read without duration_s is taken to last (the file does not say)."""
 ASSUMED_DURATION: Final = (
     "splatv time is normalised to [0, 1] and the file does not say how long the clip is: "
     "read as 1 s (pass --duration-s)"
 )
-"""The note on a clip read without duration_s (the CLI says it first, as a warning)."""
+"""The note on a clip read without duration_s (``Loaded4D.duration_assumed`` says it too; the
+CLI says it first, as a warning)."""
 RECORD: Final = np.dtype(
     [
         ("position", "<f4", (3,)),
@@ -121,9 +124,10 @@ def parse_splatv(
     records = np.frombuffer(data, RECORD, count=chunk.count, offset=chunk.offset)
     keep = _keep_mask(records, notes)
     scene = _to_scene(records[keep], duration, notes)
-    if duration_s is None:
+    assumed = duration_s is None
+    if assumed:
         notes.insert(0, ASSUMED_DURATION)
-    return Loaded4D(scene, notes, _header_cameras(chunks, name, notes))
+    return Loaded4D(scene, notes, _header_cameras(chunks, name, notes), duration_assumed=assumed)
 
 
 def read_splatv_cameras(path: str | os.PathLike[str]) -> tuple[list[CaptureCamera], list[str]]:
@@ -150,9 +154,9 @@ def _header_cameras(
 
 
 def _duration(duration_s: float | None) -> float:
-    """The seconds in one normalised time unit (1.0 when not given)."""
+    """The seconds in one normalised time unit (ASSUMED_DURATION_S when not given)."""
     if duration_s is None:
-        return 1.0
+        return ASSUMED_DURATION_S
     if not (isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0):
         msg = f"must be a positive number of seconds, got {duration_s!r}"
         raise InputError(msg, where="duration_s")

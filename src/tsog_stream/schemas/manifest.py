@@ -2,7 +2,7 @@
 
 The index says what the scene is, how time is cut into nodes (windows and, for layered
 policies, coarser levels) and, for every chunk, where its bytes are, what it holds (count, time
-interval, bounding box) and its SHA-256. See docs/spec.md §9.
+interval, bounding box) and its SHA-256. See docs/spec.md §8.2.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic.dataclasses import dataclass
 
-from ..constants import TEMPORAL_CHANNELS
+from ..constants import MAX_LAYERS_READ, MAX_PSNR_DB, TEMPORAL_CHANNELS
 from ..errors import IntegrityError, MetaError
 from .cameras import CameraList, CaptureCamera
 from .sog_meta import to_meta_error
@@ -56,12 +56,19 @@ class Core:
 
 
 class SceneInfo(_Model):
-    """What the whole stream holds."""
+    """What the whole stream holds. A static scene is a stream of one moment:
+    ``timeline_type`` null and ``start_s == end_s``."""
 
     gaussians: NonNegInt = Field(description="Gaussians in the source scene")
     stored: NonNegInt = Field(description="Gaussians stored, duplicates included")
     start_s: Finite = Field(description="first second of the scene")
     end_s: Finite = Field(description="last second of the scene")
+    duration_assumed: Annotated[bool, Field(strict=True)] = Field(
+        default=False,
+        description="true when the scene's length (end_s - start_s) was assumed, not read from "
+        "the input: a .splatv, whose time is normalised, read without a duration (absent in "
+        "the JSON when false)",
+    )
     fps: Finite | None = Field(default=None, description="frame rate of type-0/1 timelines")
     timeline_type: Literal[0, 1, 2] | None = Field(description="TSOG timeline type; null = static")
     temporal: dict[str, NonNegInt] = Field(description="dynamic attribute -> polynomial order")
@@ -131,7 +138,7 @@ class Layer(_Model):
         description="Gaussians stored in the layer's chunks (copies included)"
     )
     bytes: NonNegInt = Field(description="bytes of the layer's chunks")
-    psnr_db: Finite | None = Field(
+    psnr_db: Annotated[float, Field(ge=0.0, le=MAX_PSNR_DB)] | None = Field(
         description="PSNR of layers 0..index against all layers, rendered by the CPU renderer "
         "at the sampled times from the opening view (null for the last layer: the full scene)"
     )
@@ -160,6 +167,7 @@ class Manifest(_Model):
     )
     layers: list[Layer] = Field(
         default_factory=list,
+        max_length=MAX_LAYERS_READ,
         description="quality layers, base first (empty: one layer, every chunk's layer is 0)",
     )
 
@@ -237,11 +245,14 @@ def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manife
 
 def dump_manifest(manifest: Manifest) -> bytes:
     """Compact, deterministic JSON of the index; a single-layer index is written as before
-    layers existed (no ``layers``, no chunk ``layer``), a base chunk never names its layer and
-    a chunk of Gaussians has no ``sh_of``."""
+    layers existed (no ``layers``, no chunk ``layer``), a base chunk never names its layer, a
+    chunk of Gaussians has no ``sh_of`` and a scene whose length was read has no
+    ``duration_assumed``."""
     data = manifest.model_dump(mode="json")
     if not data["layers"]:
         del data["layers"]
+    if not data["scene"]["duration_assumed"]:
+        del data["scene"]["duration_assumed"]
     for chunk in data["chunks"]:
         if chunk["layer"] == 0:
             del chunk["layer"]

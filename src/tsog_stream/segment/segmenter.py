@@ -1,4 +1,7 @@
-"""Segment a 4D scene into a ``.tsogs`` container: plan, split spatially, encode in parallel, pack.
+"""Segment a scene into a ``.tsogs`` container: plan, split spatially, encode in parallel, pack.
+
+A 4D scene is cut into time windows; a static scene is a stream of one moment (0 s) in one
+window, split spatially and into quality layers like any window.
 
 Chunks are encoded in worker processes (``workers``) and written in a fixed order, so the same
 scene and options give a byte-identical container whatever the worker count.
@@ -171,6 +174,13 @@ class SegmentReport:
     """How the layers were chosen (segment/layers.py)."""
     faint: int = 0
     """Gaussians too faint to store at the quality, left out (precision.faint_at)."""
+    start_s: float = 0.0
+    end_s: float = 0.0
+    """The stream's time range (the index's ``scene.start_s``, ``scene.end_s``)."""
+    static: bool = False
+    """A static scene: a stream of one moment (no timeline)."""
+    duration_assumed: bool = False
+    """The scene's length was assumed by its reader (the index's ``duration_assumed``)."""
 
 
 def palette_pixels(count: int, sh_bands: int) -> int:
@@ -218,10 +228,22 @@ def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
     return min(lo, MAX_CHUNK_GAUSSIANS)
 
 
+STATIC_WINDOW_S = 1.0
+"""The ``window_s`` of a static scene's index: its one window holds the whole scene, a stream
+of one moment at 0 s (any positive length would do: every time falls in window 0)."""
+
+
+def static_plan(scene: Scene) -> Plan:
+    """The plan of a static scene: one moment (0 s), one window holding every Gaussian."""
+    everything = np.arange(len(scene), dtype=np.int64)
+    return Plan(0.0, 0.0, STATIC_WINDOW_S, 1, {NodeKey(0, 0): everything}, 0)
+
+
 def plan_scene(scene: Scene, options: SegmentOptions) -> Plan:
-    """The time plan of a dynamic scene under the options' policy and window (both set)."""
+    """The time plan of a scene: a dynamic one's under the options' policy and window (both
+    set), a static one's :func:`static_plan`."""
     if scene.timeline is None:
-        raise InputError("segmenting needs a 4D scene (this input has no timeline)")
+        return static_plan(scene)
     if options.window_s is None or options.policy is None:
         raise InputError("the plan needs a window and a policy: choose them with scene_layout")
     start, end = lifespans(scene.timeline)
@@ -237,11 +259,11 @@ def plan_scene(scene: Scene, options: SegmentOptions) -> Plan:
     )
 
 
-def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choice:
+def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choice | None:
     """The layout for a 4D scene: the options' window and policy where set, the cost model's
-    choice for the rest."""
+    choice for the rest (None for a static scene: one window, nothing to choose)."""
     if scene.timeline is None:
-        raise InputError("segmenting needs a 4D scene (this input has no timeline)")
+        return None
     if options.window_s is not None:
         window_count(0.0, 1.0, options.window_s)  # refuses a non-positive window at once
     costs = measure_costs(scene, max_count, options.seed, options.quality)
@@ -251,8 +273,12 @@ def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choic
     )
 
 
-def _with_layout(options: SegmentOptions, choice: Choice) -> SegmentOptions:
-    """The options with the chosen window and policy filled in."""
+def _with_layout(options: SegmentOptions, choice: Choice | None) -> SegmentOptions:
+    """The options with the chosen window and policy filled in (a static scene's: its one
+    window, and the policy given or the default; nothing crosses a window)."""
+    if choice is None:
+        policy = options.policy or DEFAULT_POLICY
+        return replace(options, window_s=STATIC_WINDOW_S, policy=policy, slice_s=None)
     layout = choice.chosen.layout
     return replace(options, window_s=layout.window_s, policy=layout.policy, slice_s=layout.slice_s)
 
@@ -677,6 +703,10 @@ def _write_container(
         view_why=views.why,
         layers=manifest.layers,
         layers_why=layering.why,
+        start_s=manifest.scene.start_s,
+        end_s=manifest.scene.end_s,
+        static=manifest.scene.timeline_type is None,
+        duration_assumed=manifest.scene.duration_assumed,
     )
 
 
@@ -710,17 +740,22 @@ def segment_scene(
     layout: Choice | None = None,
     cameras: Sequence[CaptureCamera] = (),
     on_stage: StageProgress | None = None,
+    duration_assumed: bool = False,
 ) -> SegmentReport:
-    """Segment an in-memory scene into the container at ``path`` (published atomically), in
-    ``layout`` when already chosen for these options (see :func:`merge_or_frames`), with its
+    """Segment an in-memory scene into the container at ``path`` (published atomically; its
+    folder made if missing), in ``layout`` when already chosen for these options (see
+    :func:`merge_or_frames`; a static scene is a stream of one moment, one window), with its
     capture ``cameras`` and the view a player opens it from (framing.default_view);
     ``on_stage`` hears of each phase before it starts, ``on_chunk`` of each chunk written
-    (and of the ETA while none is)."""
+    (and of the ETA while none is). ``duration_assumed``: the scene's reader assumed its
+    length (``LoadedScene.duration_assumed``); the index says so (``scene.duration_assumed``)."""
     options = options or SegmentOptions()
     stage = on_stage or (lambda _text: None)
     max_count = max_gaussians_per_chunk(options.max_pixels, scene.gaussians.sh_bands)
     check_layers(options.layers)
-    if layout is None:
+    if scene.timeline is None:
+        stage(f"a static scene of {len(scene)} Gaussians: one moment, one window")
+    elif layout is None:
         stage(f"choosing the layout of {len(scene)} Gaussians (encoding samples)")
     with ThreadPoolExecutor(1, "tsog-view") as beside:  # the view on the other core (5M: 1 s)
         viewing = beside.submit(Views.of, scene.gaussians, cameras)
@@ -759,6 +794,7 @@ def segment_scene(
         "timeline_type": int(tl.type) if tl is not None else None,
         "temporal": {a: int(c.shape[1]) for a, c in scene.temporal.items()},
         "sh_bands": scene.gaussians.sh_bands,
+        "duration_assumed": duration_assumed and tl is not None,
     }
     report = _write_container(
         path,
@@ -1195,6 +1231,8 @@ def merge_or_frames(
     max_count = max_gaussians_per_chunk(options.max_pixels, merged.gaussians.sh_bands)
     per_frame = sequence_layout(seq, options, max_count)
     whole = scene_layout(merged, options, max_count)
+    if whole is None:  # a merge always has a timeline; kept frame by frame if not
+        return "the merge has no timeline", per_frame
     why = why_not_merged(per_frame, whole)
     return why, (whole if why is None else per_frame)
 
