@@ -270,9 +270,10 @@ def flipbook_section(
         f"Playing from its start on a fresh page for {seconds:g} s (30 frames a second to "
         f"fetch and upload; the page keeps the layers its measured throughput allows, "
         f"stream.js): {play['frames']} frames drawn, {play['buffering_share']:.0%} of them "
-        f"waiting for chunks, {play['rate']:.2f} media seconds per wall second (1.00 = no "
-        f"stall): {play['first_pass_rate']:.2f} on the first pass through the clip, when every "
-        f"chunk is fetched and decoded, {play['later_rate']:.2f} on the loops after it, from "
+        f"waiting for chunks (the last picture stays on screen meanwhile), {play['rate']:.2f} "
+        f"media seconds per wall second (1.00 = no stall): {play['first_pass_rate']:.2f} on the "
+        f"first pass through the clip, its start included (the page waits for the base layer of "
+        f"its first seconds before it plays), {play['later_rate']:.2f} on the loops after it, from "
         f"chunks kept loaded (`KEEP_GAUSSIANS` in stream.js); {play['chunks_loaded']} chunks "
         f"loaded at the end, {play['bytes']:,} bytes fetched.",
     ]

@@ -173,11 +173,12 @@ def test_the_list_counts_what_one_frame_shows(media: Path, samples: Path) -> Non
     assert fire["gaussians_per_frame"] == _most_held(_index(media / "fire.tsogs"))
     assert fire["gaussians_per_frame"] < fire["gaussians"]
     assert (monkey["duration_assumed"], fire["duration_assumed"]) == (False, True)
+    assert [listed[k]["static"] for k in ("monkey", "fire", "still")] == [False, False, True]
     items = {_item_id(li): li for li in re.findall(r"<li>.*?</li>", page)}
     assert "31,658 Gaussians per frame" in items["monkey"] and "94,974" not in page
     assert "0.10 s &middot;" in items["monkey"] and "(assumed)" not in items["monkey"]
     assert "1.00 s (assumed) &middot;" in items["fire"]
-    assert f"{len(still):,} Gaussians &middot;" in items["still"]
+    assert f"still &middot; {len(still):,} Gaussians &middot;" in items["still"]
 
 
 def _item_id(li: str) -> str:
@@ -233,6 +234,7 @@ def test_the_page_marks_an_assumed_length_and_a_per_frame_count() -> None:
         "thumbnail": None,
         "duration_s": 2.5,
         "duration_assumed": True,
+        "static": False,
         "gaussians": 10,
         "gaussians_per_frame": 4,
         "bytes": 2_000_000,
@@ -241,6 +243,7 @@ def test_the_page_marks_an_assumed_length_and_a_per_frame_count() -> None:
     item |= {"duration_assumed": False, "gaussians_per_frame": 10}
     shown = _scene_item(item)
     assert "2.50 s &middot; 10 Gaussians &middot;" in shown and "a&lt;b" in shown
+    assert "still &middot; 10 Gaussians &middot;" in _scene_item(item | {"static": True})
 
 
 # --- object storage ------------------------------------------------------------------------

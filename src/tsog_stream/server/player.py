@@ -157,7 +157,10 @@ def _scene_item(item: dict[str, Any]) -> str:
 
 
 def _duration(item: dict[str, Any]) -> str:
-    """The scene's length, "(assumed)" when the input did not say it."""
+    """The scene's length, "(assumed)" when the input did not say it; "still" for a static
+    scene (one moment)."""
+    if item["static"]:
+        return "still"
     assumed = " (assumed)" if item["duration_assumed"] else ""
     return f"{item['duration_s']:.2f} s{assumed}"
 
