@@ -35,6 +35,7 @@ from tsog_stream.io.ply import read_ply, write_ply
 from tsog_stream.model import Gaussians
 from tsog_stream.schemas.manifest import dump_manifest
 from tsog_stream.synthetic import small_scene
+from tsog_stream.temporal import time_range
 
 DONUT = "3dgs/v3dg_donut_fused.ply"
 
@@ -752,3 +753,24 @@ def test_the_demo_script_needs_nothing_but_python(tmp_path: Path, venv: str) -> 
     ]
     ran = ["tsog demo --seed 3"] * 2
     assert said == (ran if venv == "set up" else [*install, *ran])
+
+
+# --- tsog info of a chunk reads its timeline only ----------------------------------------------
+
+CONFORMANCE = Path(__file__).parent / "data" / "conformance"
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in CONFORMANCE.iterdir() if p.is_dir()))
+def test_info_gives_a_chunks_time_range_as_its_decode_does(
+    name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``tsog info`` decodes a chunk's timeline images alone: the same time range as the
+    whole chunk decoded."""
+    folder = CONFORMANCE / name
+    scene = read_chunk(folder)
+    assert scene.timeline is not None
+    first, last = time_range(scene.timeline)
+    assert main(["info", str(folder), "--json", "-q"]) == 0
+    timeline = json.loads(capsys.readouterr().out)["timeline"]
+    assert timeline["time_range_s"] == [round(first, 6), round(last, 6)]
+    assert timeline["type"] == int(scene.timeline.type)

@@ -7,7 +7,7 @@ from typing import Any
 
 from .codec.chunk import checked_images, read_meta
 from .constants import META_JSON, TEMPORAL_CHANNELS
-from .model import Scene, TimelineType
+from .model import Scene, Timeline, TimelineType
 from .schemas import listed_files
 from .schemas.cameras import CaptureCamera
 from .temporal import time_range
@@ -77,16 +77,22 @@ def scene_summary(scene: Scene, *, duration_assumed: bool = False) -> dict[str, 
     if scene.timeline is not None:
         first, last = time_range(scene.timeline)
         out["duration"] = duration_text(first, last, static=False, assumed=duration_assumed)
-        out["timeline"] = {
-            "type": int(scene.timeline.type),
-            "type_name": scene.timeline.type.name.lower(),
-            "fps": scene.timeline.fps,
-            "time_range_s": [round(first, 6), round(last, 6)],
-        }
+        out["timeline"] = timeline_summary(scene.timeline)
         out["temporal"] = {
             a: int(c.shape[1]) for a, c in scene.temporal.items() if a in TEMPORAL_CHANNELS
         }
     return out
+
+
+def timeline_summary(timeline: Timeline) -> dict[str, Any]:
+    """Type, frame rate and the time range in which a timeline's Gaussians are visible."""
+    first, last = time_range(timeline)
+    return {
+        "type": int(timeline.type),
+        "type_name": timeline.type.name.lower(),
+        "fps": timeline.fps,
+        "time_range_s": [round(first, 6), round(last, 6)],
+    }
 
 
 def cameras_summary(

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from .._version import __version__
-from ..codec.chunk import decode_chunk, encode_chunk
+from ..codec.chunk import decode_chunk_timeline, encode_chunk
 from ..codec.precision import DEFAULT_QUALITY, without_faint
 from ..errors import TsogError, printable
 from ..inputs import STREAM_KINDS, input_kind
@@ -24,7 +24,7 @@ from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.files import check_output
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
-from ..summary import cameras_summary, chunk_summary, scene_summary
+from ..summary import cameras_summary, chunk_summary, scene_summary, timeline_summary
 from ..temporal import time_range
 from . import interrupt
 from .client_commands import add_client_commands, cmd_fetch, cmd_play
@@ -208,9 +208,10 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
     elif kind == "sog":
         files = read_chunk_files(Path(args.input))
         info.update(chunk_summary(files, where=str(args.input)))
-        progress("decoding")
-        decoded = decode_chunk(files, where=str(args.input))
-        info.update({k: v for k, v in scene_summary(decoded).items() if k == "timeline"})
+        progress("decoding the timeline")
+        timeline = decode_chunk_timeline(files, where=str(args.input))
+        if timeline is not None:
+            info["timeline"] = timeline_summary(timeline)
     else:
         loaded = load_input(args, progress)
         info.update(scene_summary(loaded.scene, duration_assumed=loaded.duration_assumed))

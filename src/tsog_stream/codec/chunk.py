@@ -16,7 +16,7 @@ import numpy.typing as npt
 from .. import constants as C
 from .._version import __version__
 from ..errors import InputError, SogError
-from ..model import F32, Scene, TimelineType
+from ..model import F32, Scene, Timeline, TimelineType
 from ..morton import morton_order
 from ..schemas import (
     ChunkMeta,
@@ -301,6 +301,20 @@ def decode_chunk(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Scene
             timeline.result() if timeline is not None else None,
             temporal.result() if temporal is not None else {},
         )
+
+
+def decode_chunk_timeline(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Timeline | None:
+    """The timeline a chunk stores (None for a static chunk), decoding its timeline images
+    only: a chunk's time range without the memory of its Gaussians (``tsog info``)."""
+    meta = read_meta(files, where=where)
+    needed, sizes = checked_images(meta, files, where=where)
+    timeline_meta, count = meta.timeline, int(meta.count)
+    if timeline_meta is None:
+        return None
+    with ImageDecoder(needed, where=where, sizes=sizes) as decoder:
+        return decoder.then(
+            timeline_meta.files, lambda images: decode_timeline(timeline_meta, images, count)
+        ).result()
 
 
 def decode_chunk_bytes(data: bytes, *, where: str = "<chunk>") -> Scene:
