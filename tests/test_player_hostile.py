@@ -196,3 +196,26 @@ def test_a_chunk_longer_than_its_manifest_says_is_cut_off(
         assert re.fullmatch(r"chunk \d+: more than the manifest's \d+ bytes", error), error
     finally:
         origin.page.close()
+
+
+@pytest.mark.parametrize(("fy", "fov"), [(1e-30, 175.0), (1e30, 1.1)])
+def test_a_stored_view_s_field_of_view_is_held_to_the_renderer_s_range(
+    root: Path, base: str, browser: Any, fy: float, fov: float
+) -> None:
+    """A stored opening view whose focal length gives a field of view of ~180 or ~0 degrees
+    opens the scene at the CPU renderer's limit (render/camera.py FOCAL_PER_SIDE), not with a
+    degenerate projection."""
+    manifest = manifest_of(root)
+    assert manifest["view"] is not None
+    manifest["view"]["fy"] = fy
+    origin = Origin(browser, root, manifest)
+    try:
+        origin.open(base)
+        origin.page.wait_for_function(
+            "window.tsogPlayer?.error || window.tsogPlayer?.stream?.covered(0.5)", timeout=30_000
+        )
+        assert origin.page.evaluate("window.tsogPlayer.error ?? null") is None
+        shown = origin.page.evaluate("window.tsogPlayer.camera.camera.fov")
+        assert shown == pytest.approx(fov)
+    finally:
+        origin.page.close()

@@ -4,6 +4,10 @@
 // is +y. A capture camera looks along +z with y down (COLMAP/OpenCV); an engine camera looks
 // along -z with y up: same position, rotation columns (x, -y, -z). See docs/design/player.md.
 
+/** Vertical fields of view a stored camera may give, in degrees: the CPU renderer's range
+ * (render/camera.py FOCAL_PER_SIDE: a focal length of 0.02-50 image sides). */
+export const FOV_RANGE_DEG = [1.1, 175];
+
 const AXES = { y: [0, 1, 0], '-y': [0, -1, 0], z: [0, 0, 1], '-z': [0, 0, -1], x: [1, 0, 0], '-x': [-1, 0, 0] };
 
 /** The scene's up axis: `?up=` when given, else the mean up (-y column) of the capture cameras
@@ -46,7 +50,8 @@ export function capturePose(pc, camera, turn) {
     const local = new pc.Quat().setFromMat4(m);
     const rotation = new pc.Quat().mul2(turn, local);
     const position = turn.transformVector(new pc.Vec3(...camera.position), new pc.Vec3());
-    const fov = 2 * Math.atan(camera.height / (2 * camera.fy)) * (180 / Math.PI);
+    const stored = 2 * Math.atan(camera.height / (2 * camera.fy)) * (180 / Math.PI);
+    const fov = Math.min(Math.max(stored, FOV_RANGE_DEG[0]), FOV_RANGE_DEG[1]);
     return { position, rotation, fov, name: camera.name };
 }
 
