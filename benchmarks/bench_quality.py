@@ -35,14 +35,14 @@ from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import load_scene
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.merge import merge_sequence
-from tsog_stream.model import Gaussians, Scene
+from tsog_stream.model import Gaussians, Scene, evaluate_at
 from tsog_stream.render import render, to_uint8
 from tsog_stream.render.camera import Camera, scene_orbit
 from tsog_stream.render.evaluate import mean_psnr
 from tsog_stream.render.metrics import psnr, ssim
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene
-from tsog_stream.temporal import evaluate_at, time_range
+from tsog_stream.temporal import time_range
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

@@ -41,11 +41,11 @@ from tsog_stream.codec.webp import decode_webp, encode_webp
 from tsog_stream.errors import TsogError
 from tsog_stream.io.fourdgs import encode_4dgs, parse_4dgs
 from tsog_stream.io.readers import load_scene
-from tsog_stream.model import Gaussians, Scene
+from tsog_stream.model import Gaussians, Scene, evaluate_at
 from tsog_stream.render.camera import scene_orbit
 from tsog_stream.render.plot import Series, line_chart, write_png
 from tsog_stream.synthetic import freetime_scene
-from tsog_stream.temporal import evaluate_at, time_range
+from tsog_stream.temporal import time_range
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

@@ -26,9 +26,10 @@ from tsog_stream import Gaussians, Scene, TimelineType
 from tsog_stream.codec.positions import log_transform
 from tsog_stream.constants import U16_MAX
 from tsog_stream.io.ply import write_ply
+from tsog_stream.model import evaluate_all, reference_times
 from tsog_stream.segment.meter import report_progress
 from tsog_stream.server.app import start_server
-from tsog_stream.temporal import evaluate_all, lifespans, reference_times, visibility_half_width
+from tsog_stream.temporal import lifespans, visibility_half_width
 
 
 def means_log_step(mins: list[float], maxs: list[float]) -> npt.NDArray[np.float64]:

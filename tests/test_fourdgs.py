@@ -24,8 +24,8 @@ import pytest
 from tsog_stream import FormatError, InputError, Scene, TimelineType, UnsupportedError
 from tsog_stream.constants import SH_C0
 from tsog_stream.io.fourdgs import encode_4dgs, parse_4dgs, read_4dgs, sniff_4dgs, write_4dgs
+from tsog_stream.model import evaluate_all
 from tsog_stream.synthetic import small_scene, static_gaussians
-from tsog_stream.temporal import evaluate_all
 
 F64 = npt.NDArray[np.float64]
 FLOAT32 = 1e-5

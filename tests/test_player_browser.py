@@ -25,13 +25,12 @@ from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.io.sequence import open_sequence
-from tsog_stream.model import Scene, TimelineType
+from tsog_stream.model import Scene, TimelineType, evaluate_all
 from tsog_stream.schemas.manifest import ChunkEntry
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import Privacy, make_app
 from tsog_stream.signing import sign_url
 from tsog_stream.synthetic import SceneSpec, generate_scene
-from tsog_stream.temporal import evaluate_all
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]
 

@@ -44,11 +44,11 @@ from tsog_stream.codec.tsog_images import quantize_timeline
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import InputError
 from tsog_stream.framing import dense_core
-from tsog_stream.model import Gaussians, Scene, Timeline, TimelineType
+from tsog_stream.model import Gaussians, Scene, Timeline, TimelineType, reference_times
 from tsog_stream.opacity import alpha_to_logit, logit_to_alpha
 from tsog_stream.sh_palette import COLOUR_PER_SQUARED
 from tsog_stream.synthetic import freetime_scene, small_scene, static_gaussians
-from tsog_stream.temporal import lifespans, recentre, reference_times, time_range
+from tsog_stream.temporal import lifespans, recentre, time_range
 
 
 @pytest.fixture(scope="module")

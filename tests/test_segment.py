@@ -30,6 +30,7 @@ from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import load_scene
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.merge.check import frame_errors
+from tsog_stream.model import evaluate_all, reference_times
 from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment import layout, segmenter
 from tsog_stream.segment import meter as meter_module
@@ -49,13 +50,7 @@ from tsog_stream.segment.segmenter import (
 )
 from tsog_stream.summary import chunk_summary
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
-from tsog_stream.temporal import (
-    evaluate_all,
-    lifespans,
-    reference_times,
-    time_range,
-    visibility_half_width,
-)
+from tsog_stream.temporal import lifespans, time_range, visibility_half_width
 
 F64 = npt.NDArray[np.float64]
 POLICIES = ("duplicate", "hierarchy", "hybrid")

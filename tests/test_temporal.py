@@ -9,16 +9,8 @@ import numpy.typing as npt
 import pytest
 
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
-from tsog_stream.temporal import (
-    count_at,
-    evaluate_all,
-    lifespans,
-    opacity_at,
-    recentre,
-    shown_at,
-    time_range,
-    visibility_half_width,
-)
+from tsog_stream.model import count_at, evaluate_all, opacity_at, shown_at
+from tsog_stream.temporal import lifespans, recentre, time_range, visibility_half_width
 
 
 def f64(values: list[float]) -> npt.NDArray[np.float64]:

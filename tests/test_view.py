@@ -32,11 +32,10 @@ from tsog_stream.cli import view_cache, view_command
 from tsog_stream.cli.main import build_parser, main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.container.header import Header
-from tsog_stream.model import Gaussians, Scene
+from tsog_stream.model import Gaussians, Scene, evaluate_all
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
-from tsog_stream.temporal import evaluate_all
 
 FRAMES = "4d/tztechno_fireworks_frames"
 START_TIMEOUT_S = 120

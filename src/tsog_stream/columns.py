@@ -1,6 +1,7 @@
 """Reductions over the short axis of (N, C) arrays, done column by column or pairwise: numpy
-reduces an (N, 3) array along either axis a few values at a time (``.min(axis=0)`` on 1M rows:
-26 ms; each column's own ``.min()``: 0.5 ms), and these paths run on every chunk encoded. And
+reduces an (N, 3) array along either axis a few values at a time, far slower than each
+column's own reduction (docs/design/chunk-codec.md), and these paths run on every chunk
+encoded. And
 rows a block at a time, for work whose temporaries would otherwise be many times its input."""
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ def down(pick: Any, values: Array, **options: Any) -> Array:
 
 def across(pick: np.ufunc, values: Array) -> Array:
     """``pick`` (np.minimum, np.maximum) over the columns of (N, C) ``values``, row by row:
-    the same values as ``.min(axis=1)``, NaN included, 3.6x faster on three columns."""
+    the same values as ``.min(axis=1)``, NaN included, in less time."""
     return np.asarray(functools.reduce(pick, values.T))
 
 

@@ -17,11 +17,11 @@ from .compare import attribute_errors
 from .errors import InputError
 from .io.files import atomic_write_bytes
 from .io.ply import ply_bytes
-from .model import Gaussians, Scene
+from .model import Gaussians, Scene, evaluate_all
 from .segment.segmenter import SegmentOptions, segment_scene
 from .server.app import make_app, start_server
 from .synthetic import SceneSpec, generate_scene, rig_cameras
-from .temporal import evaluate_all, time_range
+from .temporal import time_range
 
 Progress = Callable[[str], None]
 

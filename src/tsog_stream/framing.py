@@ -46,9 +46,8 @@ core fills less than a sixth of a 50-degree view."""
 FRAMING_NAME = "framing"
 """The ``name`` of a framing camera (capture cameras carry their image names)."""
 FRAMING_SAMPLE = 1 << 20
-"""Gaussians the view of a bigger scene is measured on, every k-th (a 5M-Gaussian scene's
-weighted medians and coverage took 4.3 s of segmenting's serial start; a median of 2^20
-samples is as good a centre)."""
+"""Gaussians the view of a bigger scene is measured on, every k-th: all of them would be
+seconds of segmenting's serial start, and a median of 2^20 samples is as good a centre."""
 
 
 def rotation(camera: CaptureCamera) -> F64:

@@ -1,7 +1,7 @@
 """Rows of an array put in a new order, some of them gathered to its front, or each one's
 axes swapped, in its own memory a block at a time: ``a[...] = np.take(a, order, axis=0)``
 holds a whole copy of ``a`` beside it for a moment, which was the encoder's peak on wide rows
-(the SH bands of a 500k SH3 job: 86 MiB more, twice)."""
+(the SH bands)."""
 
 from __future__ import annotations
 

@@ -21,11 +21,10 @@ from .errors import InputError
 from .framing import default_view
 from .io.cameras import read_cameras
 from .io.readers import ReadOptions, detect_format, load_scene
-from .model import Gaussians, Scene
+from .model import Gaussians, Scene, opacity_at
 from .render.evaluate import Source, Span, scene_source
 from .schemas.cameras import CaptureCamera
 from .schemas.manifest import SceneInfo
-from .temporal import opacity_at
 
 URL_SCHEMES = ("http://", "https://", "file://")
 PAGE_BACKGROUND = (18 / 255, 18 / 255, 18 / 255)

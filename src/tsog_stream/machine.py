@@ -33,13 +33,9 @@ UNLIMITED: Final = 1 << 60
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
 """glibc ``mallopt`` parameters (malloc.h)."""
 MMAP_THRESHOLD: Final = 4 << 20
-"""Allocations from this size on are mapped on their own, and unmapped when freed. A job's
-per-Gaussian temporaries (a 500k window's are 4-60 MiB each) otherwise stayed in the heap
-as holes the next ones did not fit: a 500k SH3 window job peaked 274-291 MiB above the
-process with 32 MiB here, 236-256 with 4 MiB (1 MiB: 231-235, and its 2 MiB working
-blocks mapped afresh each time), its wall time within the runs' spread (11-14 s) and
-0.2-0.4 s more system time for the pages mapped afresh. Dask's default, 128 KiB, mapped
-every block: 1.6x slower."""
+"""Allocations from this size on are mapped on their own, and unmapped when freed: a job's
+large per-Gaussian temporaries then leave no holes in the heap, while the working blocks
+below it are still reused (measured: docs/design/cluster.md)."""
 TRIM_THRESHOLD: Final = 64 << 20
 """Free memory at the top of the heap kept for reuse before it is handed back."""
 
@@ -104,16 +100,10 @@ def tune_malloc() -> bool:
     """Give glibc's allocator fixed thresholds (mmap MMAP_THRESHOLD, trim TRIM_THRESHOLD)
     and one arena for every thread; False where there is no glibc.
 
-    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back sooner),
-    which also pins the mmap threshold at 128 KiB: every large temporary array is then mapped
-    and zeroed afresh, and encoding a window ran 1.6x slower in a Dask worker than in a plain
-    process (14.4 s against 8.9 s for three 40k-Gaussian SH3 frames; 9.1 s with the
-    thresholds glibc grows to by itself, 32 and 64 MiB; the mmap threshold is 4 MiB since
-    2026-11-29, see MMAP_THRESHOLD).
-    One arena: a worker's threads (Dask's event loop receiving a job, the thread running it,
-    the codec's pools) each kept freed memory in an arena of their own that the others could
-    not reuse; the 1M scene's largest job peaked at 469 MiB in a Dask worker, 364 MiB with
-    one arena (a pool worker 382 -> 338), in the same time.
+    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also pins the mmap
+    threshold low, so every large temporary would be mapped and zeroed afresh; and with an
+    arena per thread, memory one thread freed is not reused by the others (measured:
+    docs/design/cluster.md).
     """
     mallopt = _libc_function("mallopt")
     if mallopt is None:
@@ -130,8 +120,7 @@ def release_freed_memory() -> bool:
     """Hand the pages glibc's heap holds free back to the system (``malloc_trim``); False
     where there is no glibc. A phase's temporaries (the layout's sample encodes, the sampled
     frames, the layers' renders), once freed, otherwise stay in the process's RSS for the rest
-    of the run under the next phase's peak: segmenting 12 30k-Gaussian SOG frames peaked 26 MiB
-    above a two-frame tiny input's run with this, 42 MiB without (bench_segment)."""
+    of the run under the next phase's peak (measured: docs/design/segmenter.md)."""
     trim = _libc_function("malloc_trim")
     return trim is not None and bool(trim(0))
 
@@ -144,7 +133,7 @@ def _libc_function(name: str) -> Any:
 
 @functools.cache
 def _libc() -> Any:
-    """The C library, found once (each lookup took ~2 ms), or None."""
+    """The C library, found once (a lookup is slow), or None."""
     try:
         return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
     except OSError:

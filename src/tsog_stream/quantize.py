@@ -44,8 +44,7 @@ REFINE_PASSES: Final = 200
 """Upper bound on 1-D Lloyd passes in :func:`build_codebook`; it stops when nothing moves."""
 BLOCK_VALUES: Final = 1 << 16
 """Values a block of the histogram's or the prefix sums' arithmetic holds (512 KiB of
-float64): a codebook of a 65536-entry SH palette's 2.9M values held five times its values
-as float64 temporaries (115 MiB) when they were computed whole."""
+float64): computed whole, a codebook held five times its values as float64 temporaries."""
 
 
 def dp_codebook(samples: npt.ArrayLike) -> F32:
@@ -133,8 +132,7 @@ def _binned_labels(data: F64, mids: F64, bins: _LabelBins) -> U8:
     """``searchsorted(mids, data, side="right")`` as bytes, without searching most values:
     each bin (widened by BIN_MARGIN bins each side) whose label is the same at both ends
     gives its values that label, exactly, as the label only grows with the value; the values
-    of bins a midpoint falls in, and non-finite ones, are searched (1M Gaussians' three
-    columns: 147 -> ~45 ms)."""
+    of bins a midpoint falls in, and non-finite ones, are searched."""
     finite = np.isfinite(data)
     everywhere = bool(finite.all())
     position = data - bins.low if everywhere else np.where(finite, data, bins.low) - bins.low
@@ -224,8 +222,7 @@ def _binned(
     """The weights and the weighted values of the usable samples summed in WEIGHTED_BINS
     equal bins over ``span`` (their least and greatest), a block of samples at a time: each
     added in the samples' order onto zeros, as ``np.bincount`` adds them whole (the same
-    bits), without the float64 values, their bins and their products whole (a 500k
-    window's scales: 1.5M values, 45 MiB)."""
+    bits), without the float64 values, their bins and their products whole."""
     low, high = span
     mass, moment = np.zeros(WEIGHTED_BINS), np.zeros(WEIGHTED_BINS)
     done = 0
@@ -342,7 +339,7 @@ def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:
 def _cost_matrix(pw: F64, pwx: F64, pwxx: F64, out: F64 | None = None) -> F64:
     """cost[end, start] = weighted SSE of bins start..end (inf where start > end), written
     into ``out`` when given (an (H, H) view). Computed in place, a block of ends at a time:
-    whole, its two (H, H) temporaries were 16 MiB beside the 8 MiB result at 1024 bins."""
+    whole, its two (H, H) temporaries were twice the result."""
     h = pw.size - 1
     cost = np.empty((h, h)) if out is None else out
     step = max(1, BLOCK_VALUES // h)

@@ -38,9 +38,8 @@ Progress = Callable[[float], None]
 
 BLOCK_BYTES: Final = 2 << 20
 """Upper bound on the bytes of one block of products or distances: under glibc's mmap
-threshold, so blocks reuse memory (blocks of 256 MiB were mapped and zeroed afresh each time:
-a third of the leaf products' time). 2 MiB blocks stay in cache: 300k SH3 vectors fitted in
-3.3 s against 3.6 s with 16 MiB (1 MiB: 3.2 s, 512 KiB: 3.4 s), and hold 40 MiB less.
+threshold, so blocks reuse memory, and small enough to stay in cache (measured:
+docs/design/quantizers.md, "The palette's constants").
 
 Results do not depend on it, except the principal axes' covariance, whose block sums are
 part of the palette's definition and use COVARIANCE_BLOCK_BYTES."""
@@ -48,8 +47,8 @@ COVARIANCE_BLOCK_BYTES: Final = 16 << 20
 """Rows of the points summed at a time into the covariance of the principal axes (a fixed
 summation order: the palette, and so a chunk's bytes, depend on it)."""
 LEAF_SIZE: Final = 128
-"""Points per kd-tree leaf searched by brute force (128: 1M random SH3 vectors 34.4 -> 31.4 s
-at 0.1 % lower error, the real alti vectors within 0.12 %; docs/design/quantizers.md)."""
+"""Points per kd-tree leaf searched by brute force (chosen by measurement:
+docs/design/quantizers.md)."""
 TREES: Final = 2
 """Independent kd-trees whose leaf neighbours are pooled."""
 SPLIT_DIMS: Final = 16
@@ -64,42 +63,37 @@ REFINE_TOLERANCE: Final = 1e-3
 """Refinement stops when a pass lowers the squared error by less than this fraction."""
 ROUND_LEFT_FAR: Final = 0.6
 """Share of the clusters still to merge that a merging round leaves while at least twice k
-are left (0.59-0.63 measured on 200k and 833k random SH3 vectors into 65536, 2026-11-28)."""
+are left (measured: docs/design/quantizers.md, "The palette's constants")."""
 ROUND_LEFT_NEAR: Final = 0.25
-"""The share a round leaves near k (0.16-0.27 measured); in between, blended by how many are
+"""The share a round leaves near k; in between, blended by how many are
 left: the progress expects the rounds still to come from these two."""
 PASSES_BASE: Final = 2.0
 PASSES_PER_RATIO: Final = 0.5
 """Refinement passes the progress expects before the tolerance stops them: PASSES_BASE plus
-this per vector per palette entry, at least 2 (into 65536 entries: 3 passes on 200k random
-SH3 vectors, 8 on 833k, 2026-11-28; 4 on 300k realistic ones, 2026-11-27)."""
+this per vector per palette entry, at least 2 (fitted to measured fits)."""
 REFINE_SETUP_PASSES: Final = 1.0
 """The refinement's own set-up (the vectors sorted by label, their errors, their columns)
-in passes: the first pass reports it with its own (833k: 1.09 s against 0.49 s a pass)."""
+in passes: the first pass reports it with its own."""
 SETUP_WEIGHT: Final = 0.65
 """Work before the first merging round (distinct rows, principal axes) per vector, against a
-round's per cluster (0.62-0.66 measured on 200k and 833k random and 300k realistic SH3
-vectors)."""
+round's per cluster (measured)."""
 PASS_WEIGHT: Final = 0.21
 """Work of a refinement pass per vector, against a merging round's per cluster; with
 PASS_ENTRY_WEIGHT per palette entry (each pass finds the entries' neighbours), fitted to
-passes measured on 200k and 833k random SH3 vectors into 65536 (0.8 and 0.35 of a visit per
-vector in all), within 2 % on 300k realistic ones."""
+measured passes."""
 PASS_ENTRY_WEIGHT: Final = 1.8
 """Work of a refinement pass per palette entry (see PASS_WEIGHT)."""
 COARSEN_ROUND_LEAST: Final = 64
 """Merging a palette's entries within a slack stops after a round that merged fewer than
-1/64 of them: the last rounds merged a few dozen of 36k each, for a pass over all (100k
-random SH3 vectors: 9 rounds against 5, with a neighbour search each: 0.5 s against 0.2)."""
+1/64 of them: later rounds merge a few dozen entries each, for a pass over all."""
 COARSEN_NEIGHBOURS: Final = 1
 """Nearest entries per tree each entry may merge with: found once, then renamed round after
-round, the first ones those of the fit's last refinement pass. A search in every round took
-0.22 s beside a 40k SH3 fit's 0.63 (0.08 s now, 0.2 % more entries kept); 2 and 4 per tree
-kept more entries, and took longer."""
+round, the first ones those of the fit's last refinement pass (a search every round costs
+more than the few entries it saves; more neighbours keep more entries)."""
 COARSEN_RESEARCH: Final = 4 / 3
 """The entries' neighbours are searched again once a quarter of them have merged since the
-last search: renamed lists thin out as their entries merge (never searched again, quality
-75's slack stopped with under a third of it spent on 3000 random SH3 vectors)."""
+last search: renamed lists thin out as their entries merge, and never searched again the
+merging stops with most of the slack unspent."""
 COLOUR_PER_SQUARED: Final = 1.0 / (12.0 * math.pi)
 """Mean squared view-dependent colour error (each channel, over every view direction) per unit
 of an f_rest vector's squared error: the bands' basis is orthonormal over the sphere, so each
@@ -303,7 +297,7 @@ def _labels(labels: Ints, count: int) -> Labels:
 def _unique_rows(data: F32, *, in_place: bool = False) -> tuple[F32, Ints, F64]:
     """Distinct rows (byte-wise), the row of each input vector, and multiplicities;
     ``in_place``: the distinct rows are kept in ``data``'s memory, a view of its front, not a
-    copy (the copy beside the vectors was 86 MiB on a 500k SH3 job).
+    copy (a copy would hold the vectors twice).
 
     Rows are told apart by a 64-bit hash of their bytes, then checked against the row each
     was matched to; only when two distinct rows share a hash are the rows themselves sorted
@@ -340,7 +334,7 @@ def _gathered(data: F32, first: Ints, in_place: bool) -> F32:
 
 def _each_matches(data: F32, first: Ints, inverse: Ints) -> bool:
     """Whether every row equals the row its hash matched it to, compared a block at a time
-    (the matched rows of 833k SH3 vectors gathered at once were 143 MiB more)."""
+    (the matched rows gathered at once would be another copy of the vectors)."""
     step = _rows_per_block(4 * data.shape[1])
     for start in range(0, len(data), step):
         rows = np.take(first, inverse[start : start + step])
@@ -377,7 +371,7 @@ def _principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
     Sums by ``einsum``, not BLAS: a multi-threaded BLAS sums in an order that depends on its
     thread count, so the palette (and the chunk's bytes) differed between a process with one
     BLAS thread (a Dask worker) and one with two. The covariance is summed a block of rows at
-    a time (the centred points whole, and weighted, were 286 MiB on 833k SH3 vectors).
+    a time (the centred points whole, and weighted, were twice the points).
     """
     mean = np.einsum("n,nd->d", weights, points) / weights.sum()  # float64 sums, no copy
     centre = mean.astype(np.float32)
@@ -397,7 +391,7 @@ def _tree_coords(points: F32, axes: tuple[F32, F32], tree: int, rng: np.random.G
     [j, i]): PCA coordinates, leading ones rotated after tree 0.
 
     Projected (and rotated) a block of rows at a time and written transposed: the centred
-    points whole were as large as the points (the fit's peak on 400k SH3 vectors, 63 MiB),
+    points whole were as large as the points (the fit's peak),
     and the leaves read the coordinates by axis, which took a transposed copy of them."""
     dims = axes[1].shape[1]
     by_axis: F32 = np.empty((dims, len(points)), np.float32)
@@ -446,7 +440,7 @@ def _leaves(by_axis: F32, leaf: int) -> tuple[Ints, npt.NDArray[np.bool_]]:
 
 def _widths(by_axis: F32, picks: Ints) -> F32:
     """(D, C) extent along each coordinate of each row of ``picks`` (C sampled point ids),
-    a coordinate at a time (all at once, the samples were 13 MiB at 270k points)."""
+    a coordinate at a time (all at once, the samples would be D times larger)."""
     out: F32 = np.empty((len(by_axis), len(picks)), np.float32)
     for axis, coordinate in enumerate(by_axis):
         sample = np.take(coordinate, picks)
@@ -458,9 +452,9 @@ def _leaf_neighbours(points: F32, ids: Ints, real: npt.NDArray[np.bool_], count:
     """For every point, its ``count`` nearest other points in its leaf, (n, count).
 
     Scores x·y − |y|²/2: one product per leaf, by BLAS on the one thread ``_fit`` allows
-    (6x faster than ``einsum``'s loops; multi-threaded, thousands of these small products
+    (faster than ``einsum``'s loops; multi-threaded, thousands of these small products
     stalled on a busy machine), less half the squared norms. The leaves' rows are gathered
-    by ``np.take`` (4x faster than fancy indexing on rows this wide).
+    by ``np.take`` (faster than fancy indexing on rows this wide).
     """
     cells, length = ids.shape
     best = np.empty((cells, length, count), np.intp)
@@ -562,7 +556,7 @@ def _agglomerate(
     """Parallel Ward merging from one cluster per unique point down to ``k`` clusters (the
     points and their weights are the first round's means and masses: nothing writes into
     them). A round's arrays of every cluster go as soon as it is done with them: the first
-    round's, a point's each, were held beside the second's (a 500k SH3 window: 15 MiB)."""
+    round's, a point's each, would be held beside the second's."""
     means, mass = points, weights
     labels: Ints | None = None  # each point its own cluster until the first round ends
     while len(means) > k:
@@ -654,7 +648,7 @@ def _fold_movers(
     """Each host's weighted mean with the movers folded into it (``moves``: hosts, movers and
     each mover's host slot), written to ``out[rows]``, a block of hosts at a time. Each host's
     movers are added in their order, as all at once (the same sums, without a float64 copy
-    of every mover: 143 MiB in the first round of 833k SH3 vectors, nor of every host)."""
+    of every mover, nor of every host)."""
     hosts, movers, slot = moves
     by_host = np.argsort(slot, kind="stable")  # stable: each host's movers keep their order
     slots = slot[by_host]
@@ -692,9 +686,9 @@ def _refine(
     pass), which the palette's merging starts from.
 
     The points are visited in label order, so a block's candidate centroids are a few rows
-    used over and over (gathered at random they took 60 % of a pass: 833k vectors 20 -> 15 s).
+    used over and over (gathered at random they took most of a pass).
     They are put in that order in place, a block at a time (``points`` is the fit's own array
-    of distinct rows): a sorted copy beside them was 143 MiB more on 833k SH3 vectors, as was
+    of distinct rows): a sorted copy would hold them twice, as would
     a transposed copy for the cluster sums (:func:`_update` transposes a block at a time).
     """
     order = np.argsort(labels, kind="stable")
@@ -741,7 +735,7 @@ def _update(points: F32, weights: F64, centroids: F32, labels: Ints) -> tuple[F3
     The sums are taken a block of rows at a time, each block transposed so every coordinate is
     contiguous, and divided in place (:func:`_cluster_sums`): a transposed copy of all the
     points, a sum array per coordinate stacked and the filled rows' copies were the fit's
-    peak on 400k SH3 vectors (69 MiB and ~80 MiB beside the points' 69)."""
+    peak, about twice the points beside them."""
     count = len(centroids)
     mass = np.bincount(labels, weights, minlength=count)
     means = _cluster_sums(points, weights, labels, count)

@@ -1,11 +1,10 @@
-"""Temporal evaluation: the static Gaussians of a 4D scene at time t (seconds).
+"""Lifespans: when each Gaussian of a 4D scene is visible (:func:`lifespans`,
+:func:`time_range`, the type-2 :func:`visibility_half_width` and :func:`scale_cap`), and
+moving the time each Gaussian's motion is stored about (:func:`recentre`).
 
-Visibility (docs/spec.md, "Evaluation"):
-- type 0: frame id == floor(t * fps) (fps 1 when absent);
-- type 1: start <= t < start + duration (in timeline units);
-- type 2: opacity times exp(-1/2 ((t - centre) / scale)^2), invisible under the threshold.
-Dynamic attributes: base + sum_k c_k (t - t_ref)^k, t_ref = frame time / start / centre,
-quaternions renormalised, scales in log space, opacity in logit space.
+Evaluating a scene at time t is the model's (:meth:`~tsog_stream.model.Scene.at`,
+:func:`~tsog_stream.model.evaluate_at` and its kin), so that ``Scene.at`` needs nothing
+from this module.
 """
 
 from __future__ import annotations
@@ -17,11 +16,9 @@ import numpy.typing as npt
 
 from .constants import SCALE_CAP_SPANS, VISIBILITY_THRESHOLD
 from .errors import InputError
-from .model import Gaussians, Scene, Timeline, TimelineType
+from .model import Scene, Timeline, TimelineType
 
 F64 = npt.NDArray[np.float64]
-TIME_EPSILON = 1e-9
-"""Tolerance (in timeline units) so t = k / fps lands in frame k despite float rounding."""
 
 
 def visibility_half_width(threshold: float = VISIBILITY_THRESHOLD) -> float:
@@ -29,11 +26,6 @@ def visibility_half_width(threshold: float = VISIBILITY_THRESHOLD) -> float:
     if not 0 < threshold < 1:
         raise InputError(f"threshold must be in (0, 1), got {threshold}")
     return math.sqrt(2.0 * math.log(1.0 / threshold))
-
-
-def reference_times(timeline: Timeline) -> F64:
-    """t_ref of each Gaussian in seconds: frame time, start or centre."""
-    return timeline.t0 * timeline.seconds_per_unit
 
 
 def recentre(scene: Scene, t0: F64) -> None:
@@ -120,128 +112,10 @@ def time_range(timeline: Timeline, threshold: float = VISIBILITY_THRESHOLD) -> t
     return float(min(0.0, start.min())), float(end.max())
 
 
-def _visible(
-    timeline: Timeline, t: float, threshold: float
-) -> tuple[npt.NDArray[np.bool_], F64 | None]:
-    """Mask of Gaussians alive at t, and for type 2 their temporal opacity factor."""
-    units = t / timeline.seconds_per_unit
-    if timeline.type is TimelineType.FRAME:
-        frame = math.floor(units + TIME_EPSILON)
-        return np.rint(timeline.t0) == frame, None
-    if timeline.type is TimelineType.START_DURATION:
-        start, duration = timeline.t0, timeline.t1
-        return (start <= units + TIME_EPSILON) & (units + TIME_EPSILON < start + duration), None
-    factor = np.exp(-0.5 * ((t - timeline.t0) / timeline.t1) ** 2)
-    return factor >= threshold, factor
-
-
-def _polynomial(coeffs: npt.NDArray[np.float32], dt: F64) -> F64:
-    """sum_k c_k dt^k for coefficients (N, order, C) and offsets (N,)."""
-    powers = dt[:, None] ** np.arange(1, coeffs.shape[1] + 1)  # (N, order)
-    return np.asarray(np.einsum("nk,nkc->nc", powers, coeffs.astype(np.float64)), np.float64)
-
-
-def _check_time(t: float) -> None:
-    """Reject a time that is not a finite number of seconds."""
-    if not math.isfinite(t):
-        raise InputError(f"time must be a finite number of seconds, got {t}")
-
-
-def evaluate_at(scene: Scene, t: float, threshold: float | None = None) -> Gaussians:
-    """Static Gaussians visible at time ``t`` (seconds), attributes evaluated at t."""
-    _check_time(t)
-    if scene.timeline is None:
-        return scene.gaussians
-    mask, factor = _visible(scene.timeline, t, _threshold(threshold))
-    return _evaluate(scene, scene.timeline, t, mask, None if factor is None else factor[mask])
-
-
-def shown_at(scene: Scene, t: float, threshold: float | None = None) -> npt.NDArray[np.bool_]:
-    """Which Gaussians :func:`evaluate_at` gives at ``t`` (it gives them in row order), without
-    evaluating them."""
-    _check_time(t)
-    if scene.timeline is None:
-        return np.ones(len(scene), bool)
-    return _visible(scene.timeline, t, _threshold(threshold))[0]
-
-
-def count_at(scene: Scene, t: float, threshold: float | None = None) -> int:
-    """How many Gaussians :func:`evaluate_at` gives at ``t``, without evaluating them."""
-    return int(np.count_nonzero(shown_at(scene, t, threshold)))
-
-
-def evaluate_all(
-    scene: Scene, t: float, threshold: float | None = None
-) -> tuple[Gaussians, npt.NDArray[np.bool_]]:
-    """Every Gaussian evaluated at ``t`` (index-aligned with the scene) and the visibility mask.
-
-    Used to compare two encodings of one scene Gaussian by Gaussian, even where quantisation
-    moved a lifespan edge across t.
-    """
-    _check_time(t)
-    if scene.timeline is None:
-        return scene.gaussians, np.ones(len(scene), bool)
-    mask, factor = _visible(scene.timeline, t, _threshold(threshold))
-    return _evaluate(scene, scene.timeline, t, np.ones(len(scene), bool), factor), mask
-
-
-def _threshold(threshold: float | None) -> float:
-    """The visibility threshold to use (the format default when None)."""
-    return VISIBILITY_THRESHOLD if threshold is None else threshold
-
-
-def opacity_at(scene: Scene, t: float, threshold: float | None = None) -> npt.NDArray[np.float32]:
-    """Every Gaussian's opacity logit at ``t``, index-aligned with the scene and -inf where it
-    is not visible: what :func:`evaluate_at` gives the visible ones, evaluating nothing else
-    (a caller that keeps only the most opaque evaluates only those)."""
-    _check_time(t)
-    if scene.timeline is None:
-        return scene.gaussians.opacities
-    mask, factor = _visible(scene.timeline, t, _threshold(threshold))
-    index = np.flatnonzero(mask)
-    dt = t - reference_times(scene.timeline)[index]
-    out = np.full(len(scene), -np.inf, np.float32)
-    out[index] = _opacity(scene, index, dt, None if factor is None else factor[index])
-    return out
-
-
-def _evaluate(
-    scene: Scene, timeline: Timeline, t: float, index: npt.NDArray[np.bool_], factor: F64 | None
-) -> Gaussians:
-    """Attributes of the selected Gaussians at t; ``factor`` is their type-2 opacity factor."""
-    g = scene.gaussians.subset(index)
-    dt = t - reference_times(timeline)[index]
-    attrs = {
-        "means": g.means.astype(np.float64),
-        "scales": g.scales.astype(np.float64),
-        "quats": g.quats.astype(np.float64),
-        "sh0": g.sh0.astype(np.float64),
-    }
-    for attr, coeffs in scene.temporal.items():
-        if attr in attrs:
-            attrs[attr] = attrs[attr] + _polynomial(coeffs[index], dt)
-    quats = attrs["quats"]
-    norm = np.linalg.norm(quats, axis=1, keepdims=True)
-    quats = np.divide(quats, norm, out=np.tile([1.0, 0, 0, 0], (len(quats), 1)), where=norm > 0)
-    opacity = _opacity(scene, index, dt, factor)
-    return Gaussians.from_arrays(
-        attrs["means"], attrs["scales"], quats, opacity, attrs["sh0"], shN=g.shN
-    )
-
-
-def _opacity(
-    scene: Scene, index: npt.NDArray[np.bool_] | npt.NDArray[np.intp], dt: F64, factor: F64 | None
-) -> F64:
-    """Opacity logits at t of the selected Gaussians (``dt``: t minus their reference times)."""
-    logits = scene.gaussians.opacities[index].astype(np.float64)
-    coeffs = scene.temporal.get("opacity")
-    if coeffs is not None:
-        logits = logits + _polynomial(coeffs[index], dt)[:, 0]
-    return logits if factor is None else _scale_opacity(logits, factor)
-
-
-def _scale_opacity(logits: F64, factor: F64) -> F64:
-    """logit(sigmoid(logits) * factor), computed stably."""
-    with np.errstate(over="ignore", divide="ignore"):
-        alpha = factor / (1.0 + np.exp(-logits))
-        return np.log(alpha) - np.log1p(-np.minimum(alpha, 1.0 - 1e-12))
+__all__ = [
+    "lifespans",
+    "recentre",
+    "scale_cap",
+    "time_range",
+    "visibility_half_width",
+]

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import re
 import threading
 import time
@@ -664,8 +663,3 @@ def cmd_pack(args: argparse.Namespace, progress: Progress) -> int:
         size = reader.pack(args.output)
     print(f"{args.output}: {size} bytes")
     return 0
-
-
-def print_json(info: dict[str, Any]) -> None:
-    """Print a summary as indented JSON."""
-    print(json.dumps(info, indent=2))

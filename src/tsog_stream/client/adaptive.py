@@ -26,9 +26,9 @@ STARTUP_MIN_S = 2.0
 """After the first picture, playback waits for more layers at most max(STARTUP_MIN_S,
 STARTUP_FACTOR x the first picture's wait): a fast link starts at full quality, a slow one
 starts on the layers it can keep up with rather than freezing later. The base is a small share
-of what a frame needs (7-20 % of the Gaussians on the clips measured), so 4x its wait stays
-under what full quality alone takes to show anything; 1.5x left the generated 30 s clip
-playing its 26 dB base at half its bitrate where waiting 3.2x gave 33 dB without a stall."""
+of what a frame needs (docs/client.md), so 4x its wait stays under what full quality alone
+takes to show anything, and a much shorter wait left slow links on the base alone
+(docs/design/segmenter.md, "Quality layers")."""
 UPGRADE_MARGIN = 0.8
 """A layer is taken on while playing only when its missing bytes need at most this share of the
 playback left (kept while they need at most all of it): no flapping at the edge."""

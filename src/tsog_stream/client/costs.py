@@ -10,9 +10,8 @@ import numpy as np
 
 from ..container.ranges import coalesce
 from ..container.stream_index import StreamIndex
-from ..model import Scene
+from ..model import Scene, evaluate_all
 from ..schemas.manifest import ChunkEntry
-from ..temporal import evaluate_all
 
 
 @dataclass(frozen=True)

@@ -86,8 +86,8 @@ def encode_chunk(
     order in its own arrays (:meth:`Scene.reordered`) instead of a copy beside them, its
     moving attributes are re-expanded about the rounded reference times
     (:func:`~tsog_stream.temporal.recentre`: the same paths) and its SH bands are dropped
-    once the palette has read them (an 833k SH3 job: 210 + 143 MiB less at the encoder's
-    peak); only its count is left to rely on.
+    once the palette has read them (the encoder's peak then holds no second copy); only its
+    count is left to rely on.
     Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
     lossless WebP has at least one pixel, so SOG cannot hold it.
     """
@@ -127,7 +127,7 @@ def encode_chunk(
             images=images,
             given_up=given_up,
         )
-        del budgets  # what comes next needs only the slacks (a 500k window's budgets: 27 MiB)
+        del budgets  # what comes next needs only the slacks
         if given_up:
             ordered.gaussians.let_go("means", "quats")
         meta |= encode_appearance(
@@ -161,13 +161,10 @@ def _add_time_images(
     given_up: bool = False,
 ) -> dict[str, Any]:
     """The ``timeline`` and ``temporal`` meta keys of a chunk, their images handed to
-    ``images`` (a ``given_up`` scene's lifespans and motion then let go: 11 MiB of a 400k
-    window's 100 were held through the SH palette's fit). Made on a thread beside the
-    codebooks: made after them, they were an encode's last work (the spinach capture: 300 ->
-    208 ms at quality 100, 336 -> 225 ms at 90). The positions stay before the codebooks on
-    the calling thread: made beside them too, the encode was 7 % faster but its peak 25 %
-    higher (1M SH0 Gaussians: 2.35 -> 2.18 s, 420 -> 524 MB), both holding their working
-    arrays at once."""
+    ``images`` (a ``given_up`` scene's lifespans and motion then let go, not held through the
+    SH palette's fit). Made on a thread beside the codebooks, so they are not an encode's last
+    work; the positions stay before the codebooks on the calling thread, since made beside
+    them too they would hold both working sets at once (docs/design/chunk-codec.md)."""
     meta: dict[str, Any] = {}
     if ordered.timeline is not None and times is not None:
         made, meta["timeline"] = timeline_images(ordered.timeline, times, width, height)
@@ -202,7 +199,7 @@ def _refuse_non_finite(scene: Scene) -> None:
         parts[f"{attr} motion coefficients: a chunk cannot store them"] = coeffs
     for what, values in parts.items():
         finite = np.isfinite(values)
-        if finite.all():  # the usual case, without a reduction along rows (1M x 3: 15 ms)
+        if finite.all():  # the usual case, without a reduction along rows
             continue
         bad = int(np.count_nonzero(~np.all(finite.reshape(len(scene), -1), axis=1)))
         if bad:

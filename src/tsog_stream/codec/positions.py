@@ -18,12 +18,6 @@ def log_transform(v: npt.ArrayLike) -> F64:
     return np.sign(a) * np.log1p(np.abs(a))
 
 
-def inverse_log_transform(t: npt.ArrayLike) -> F64:
-    """Inverse of :func:`log_transform`."""
-    a = np.asarray(t, dtype=np.float64)
-    return np.sign(a) * np.expm1(np.abs(a))
-
-
 def quantize_u16(values: F64, mins: F64, maxs: F64) -> npt.NDArray[np.uint16]:
     """Round ``values`` (N, C) to 16-bit codes over per-channel [mins, maxs] (0 where max = min)."""
     span = maxs - mins
@@ -51,7 +45,7 @@ def join_u16(low: npt.NDArray[np.uint8], high: npt.NDArray[np.uint8]) -> npt.NDA
 def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
     """(mins, maxs, codes) of positions: mins/maxs in log space, codes (N, 3) rounded; a
     block of rows at a time (every value is its own: the same codes as all at once, without
-    float64 temporaries of every row, 46 MiB on 500k)."""
+    float64 temporaries of every row)."""
     if means.shape[0] == 0:
         zeros = np.zeros(3)
         return zeros, zeros.copy(), np.zeros((0, 3), np.uint16)
@@ -91,4 +85,4 @@ def decode_means_table(low: float, high: float) -> F32:
     np.add(logs, low, out=logs)
     values = np.abs(logs)
     np.expm1(values, out=values)
-    return np.copysign(values, logs, out=values).astype(np.float32)  # inverse_log_transform
+    return np.copysign(values, logs, out=values).astype(np.float32)  # the inverse of log_transform

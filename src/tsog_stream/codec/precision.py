@@ -4,7 +4,8 @@ while its error stays within a budget set by the quality.
 Sans-I/O. A coarsened code is still a 16-bit code over the chunk's ``[min, max]``: its dropped
 bits are zeros, which make the ``_l`` image's planes constant or nearly so (lossless WebP then
 spends almost nothing on them), and every SOG/TSOG reader decodes the chunk unchanged. What a
-quality level guarantees is stated in docs/spec.md §5.1.
+quality level guarantees is stated in docs/spec.md, Appendix A.2 (what a writer may round:
+§5.1).
 
 Budgets, per Gaussian, at quality q (``f = (1 - q/100)²``, 0 at 100: today's precision):
 - position: :func:`position_fraction` (about f down to quality 50, POSITION_AT_ZERO at 0)
@@ -52,9 +53,9 @@ from ..columns import across, row_blocks
 from ..constants import SH_C0, U16_MAX
 from ..errors import InputError
 from ..framing import dense_core, framing_sample
-from ..model import Gaussians, Scene, Timeline, TimelineType
+from ..model import Gaussians, Scene, Timeline, TimelineType, reference_times
 from ..opacity import logit_to_alpha
-from ..temporal import lifespans, reference_times, scale_cap, time_range
+from ..temporal import lifespans, scale_cap, time_range
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -86,48 +87,32 @@ LOGIT_PER_ALPHA = 4.0
 QUALITY_MAX = 100
 """Today's precision: every code keeps its 16 bits (the library's default)."""
 DEFAULT_QUALITY = 90
-"""``tsog encode`` and ``tsog segment``'s default, chosen by measurement (benchmarks/
-bench_rate.py, 2026-11-27 22:14; re-read 2026-11-28 13:33, with the faint Gaussians left
-out and the weighted scale codebook): on the FreeTimeGS donuts and the four captures its
-rendered PSNR is within 0.1 dB of quality 100's, worst view within 0.1 dB or better, for
-8.3-17 % fewer bytes (the guitar clips 0.1-0.2 dB below for 9.9-17 %); on the fireworks PLY
-frames 0.6 dB below (worst view 0.8) for 5.3 %. 75 costs up to 2.6 dB on those
-(coffeeshort2), 3.8-4.1 dB on the guitar clips and 9 dB on the fireworks (worst view
-12.5). With SH bands (benchmarks/bench_palette.py, 2026-11-28): the real alti and fruit-drops
-captures within 0.03 dB of 100 for 51 % and 6 % fewer bytes; generated random bands 1.5 dB
-below for 29 %."""
+"""``tsog encode`` and ``tsog segment``'s default: within about 0.1 dB of quality 100's
+rendered PSNR on the real scenes measured, for fewer bytes (docs/design/chunk-codec.md,
+"Default 90")."""
 CORE_AT_ZERO = 2.0**-9
 """At quality 0 an opaque Gaussian's position may move by this fraction of its chunk's
 dense-core radius (framing.dense_core; about a pixel of a 1080p view framing the core),
 whatever its size: a shift of d pixels adds the same squared error to a picture whether the
-Gaussian is wide or thin (a² c² pi/2 d², integrated over its footprint). Bounds from its
-sigmas (half the smallest, or this share up to half the largest) spent 4-16 % more bytes at
-`.4dgs`'s PSNR on every bench_rate scene with worst views no better (docs/design/
+Gaussian is wide or thin (a² c² pi/2 d², integrated over its footprint; docs/design/
 chunk-codec.md)."""
 CORE_SAMPLE = 8192
 """At most this many Gaussians of a chunk (evenly strided) measure its dense core."""
 POSITION_AT_ZERO = 16.0
 """At quality 0 the position budget is this many times CORE_AT_ZERO (16 pixels of a 1080p view
-framing the core, an opaque Gaussian): positions were the cheapest decibels on every
-bench_rate scene but the fireworks (where they cost as much as the rest), so the bottom of the
-scale reaches lower rates through them. At `.4dgs`'s PSNR: spinach < 0.94x -> 0.73x its bytes,
-coffee10 < 1.11x -> < 0.83x, the donuts 0.66-0.73x (docs/design/chunk-codec.md)."""
+framing the core, an opaque Gaussian): positions were the cheapest decibels measured, so the
+bottom of the scale reaches lower rates through them (docs/design/chunk-codec.md)."""
 MOTION_AT_ZERO = 8.0
 """At quality 0 the means' motion may take this many times its third of the position budget
 (:func:`stretch`: 1.03x at quality 50): on the .splatv captures the motion's codes were the
-cheapest decibels left at the bottom of the scale (coffee10 at quality 0: 11.8 -> 10.0 B/Gaussian
-for 24.0 -> 22.4 dB), the FreeTimeGS donuts' linear motion costs 0.01-0.02 of their ratio to
-`.4dgs`'s bytes at its PSNR (docs/design/chunk-codec.md)."""
+cheapest decibels left at the bottom of the scale (docs/design/chunk-codec.md)."""
 FAINT_MAX = 32.0
 """A Gaussian's position budget grows as 1 / alpha up to this many times an opaque one's
-(alpha 1/32 and fainter; 128 measured the same)."""
+(alpha 1/32 and fainter)."""
 TIME_AT_ZERO = 0.1
 """At quality 0 a lifespan's centre, start, scale or duration may move by this fraction of the
-Gaussian's temporal scale. 0.25 spent the bits where they did not show: on the short donut
-zeroing this budget at quality 50 gave 3.4 dB for 1.7 B/Gaussian where zeroing the positions'
-gave 0.1 dB for 5.4; 0.1 writes fewer bytes at quality 0 (a lifespan coarsened less leaves
-its motion more room) and 2-3 dB more at 0-50 on the FreeTimeGS donuts (0.05 measured the
-same)."""
+Gaussian's temporal scale: a lifespan coarsened less leaves its motion more room
+(docs/design/chunk-codec.md)."""
 
 
 def check_quality(quality: int) -> int:
@@ -158,7 +143,7 @@ def faint_at(scene: Scene, quality: int) -> npt.NDArray[np.bool_]:
     FAINT_AT_ZERO`` (twice the slack within which the opacity may move), or one its byte
     would store as zero anyway (ALPHA_BYTE_ZERO), at every time (a lifespan only scales it
     down): such a Gaussian changes the picture less than its position's error would (its
-    budget grows as 1 / alpha), and costs as many bytes as any other (spec §5.1).
+    budget grows as 1 / alpha), and costs as many bytes as any other (spec, Appendix A.2).
     None at 100, none whose opacity moves (temporal coefficients), and none when every one
     is (a chunk holds at least one Gaussian)."""
     none = np.zeros(len(scene), np.bool_)
@@ -201,7 +186,7 @@ def coarsen(codes: CodesT, tolerance: Tolerance, *, shared: bool = False) -> Cod
     code goes through the same few passes (gathering the moving ones and scattering them back
     took twice as long at low quality, where nearly all move). A block of rows at a time
     (``columns.row_blocks``): every row's temporaries at once were ~10 arrays of the codes'
-    rows (+68 MiB beside a 400k window's motion)."""
+    rows."""
     anchor = most_frequent(codes).astype(np.int32) if shared else None
     of_rows = tolerance if callable(tolerance) else _rows_of(tolerance, codes.shape)
     out = np.empty_like(codes)
@@ -560,13 +545,11 @@ def coarsen_motion(
 
     An error d in the coefficient moves the attribute by d |t - t_ref|^k; :meth:`Budgets.
     motion_span` bounds that over d (a root mean square where the lifespan inside the scene
-    holds t_ref, else the largest). Bounding the largest change everywhere spent 3-8 % more
-    bytes at quality 0-50 on the .splatv captures for no PSNR; leaving out g spent 4-6 % more
-    on the .splatv captures and the FreeTimeGS donuts at equal PSNR (docs/design/
-    chunk-codec.md)."""
+    holds t_ref, else the largest): either spends fewer bytes at equal PSNR than bounding the
+    largest change everywhere or leaving out g (docs/design/chunk-codec.md)."""
     shared = attr != "means"  # rates of turn, scale, colour, opacity: mostly one value (zero)
 
-    def tolerance(rows: slice) -> F64:  # a block's at a time: ~40 MiB of float64 at 400k
+    def tolerance(rows: slice) -> F64:  # a block's at a time, not every row's float64
         share = budgets.change_over_lifespan(attr, codes.shape[1], rows)
         share /= orders
         span = budgets.motion_span(order, rows)

@@ -63,8 +63,7 @@ def encode_quats(quats: F32) -> U8:
     """(N, 4) texels: the three smaller components as bytes, alpha = 252 + dropped index.
 
     Every component is made a byte, then each texel keeps the three beside the dropped one
-    (the same bytes as gathering them first; with canonical_factor's columns, 1M rotations
-    132 -> 83-91 ms)."""
+    (the same bytes as gathering them first, in less time)."""
     q, largest = canonical_quats(quats)
     codes = np.clip(np.rint(255.0 * (q * SQRT2 * 0.5 + 0.5)), 0, 255).astype(np.uint8)
     out = np.empty((q.shape[0], 4), np.uint8)
@@ -80,7 +79,7 @@ def decode_quats(texels: U8) -> F32:
     Built column by column from byte lookup tables, the values of the float64 formula, without
     a per-Gaussian gather over four components. Each column picks among its candidates by
     the bits of all-ones/zero masks of the tag (exact, and cheap where ``np.where`` over
-    booleans was not: 1M texels 25 -> 18 ms alone, a 1M chunk's decode 90 -> 78 ms).
+    booleans was not; docs/design/chunk-codec.md).
     """
     tag = texels[:, 3] - np.uint8(QUAT_TAG_BASE)  # a bad tag wraps above 3
     s0, s1, s2 = (np.take(_COMPONENT_BITS_OF_BYTE, texels[:, k]) for k in range(3))

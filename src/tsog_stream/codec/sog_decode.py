@@ -48,10 +48,10 @@ def decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
     rows, width = centroid_image.shape[:2]
     entries = centroid_image.reshape(rows * (width // coeffs), coeffs, 4)
     usable = max(0, min(int(shn.count), entries.shape[0]))  # the schema says count >= 1
-    # One gather over the palette's bytes (per-channel gathers over strided ones took 2.5x as
-    # long), then whole rows by label: a 100k SH3 chunk's SH 37 -> 24 ms (A/B in turns); each
-    # in two halves on both cores, which the last plane's decode leaves idle (100k SH3: 11 ->
-    # 6 ms). mode="clip" writes straight into ``out`` (bytes < 256 entries; labels checked).
+    # One gather over the palette's bytes (per-channel gathers over strided ones are slower),
+    # then whole rows by label, each in two halves on both cores, which the last plane's
+    # decode leaves idle. mode="clip" writes straight into ``out`` (bytes < 256 entries;
+    # labels checked).
     table = np.asarray(shn.codebook, dtype=np.float32)
     palette = entries[:usable, :, :3]
     values = np.empty(palette.shape, np.float32)

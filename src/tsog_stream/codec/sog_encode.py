@@ -88,7 +88,7 @@ def _vectors_for_fit(gaussians: Gaussians, given_up: bool) -> npt.NDArray[np.flo
     """(N, 3K) f_rest vectors in PLY order (channel-major: all R coefficients, then G, then
     B), the vectors the palette is fitted on. The SH bands of Gaussians their owner gave up
     are dropped from them and, when writable, rearranged so in their own memory and handed
-    to the fit (a transposed copy beside them was 86 MiB on a 500k SH3 job); else a copy."""
+    to the fit (a transposed copy would hold them twice); else a copy."""
     n, k, _ = gaussians.shN.shape
     bands = gaussians.shN
     if given_up:
@@ -159,7 +159,7 @@ def encode_geometry(
     """Positions and rotations of Gaussians already in texel order: their images handed to
     ``images``, their SOG keys of meta.json returned; with ``budgets`` (codec/precision.py)
     they keep only the bits they need. Made a block of rows at a time (all at once, their
-    temporaries were 78 MiB beside a 500k window's 120 and its budgets' 39; now 9)."""
+    temporaries were about two thirds of the window's own arrays)."""
     mins, maxs, codes = encode_means(gaussians.means)
     quats = np.empty((len(gaussians), 4), np.uint8)
     limits = (budgets.base_position(), budgets.rotation) if budgets is not None else None

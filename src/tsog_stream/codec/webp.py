@@ -37,11 +37,8 @@ T = TypeVar("T")
 WEBP_METHOD = 3
 """libwebp method 0-6 (effort)."""
 WEBP_QUALITY = 50
-"""For lossless WebP 'quality' is the compression effort too. Measured on real chunks
-(donut, spinach .splatv, wave flipbook): quality 50 / method 3 is within 1 % of the size of
-100 / 4 and 5-15x faster (docs/design/chunk-codec.md)."""
-MAX_DECODED_PIXELS = MAX_IMAGE_PIXELS
-"""Our own decompression-bomb limit: no WebP can legally hold more."""
+"""For lossless WebP 'quality' is the compression effort too: 50 with method 3 is within
+about 1 % of the size of 100 / 4, and much faster (docs/design/chunk-codec.md)."""
 Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS  # Pillow warns above this and refuses above twice it
 PILLOW_ERRORS = (
     OSError,
@@ -99,10 +96,10 @@ def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
 def _libwebp_rgba(data: bytes, size: Size) -> U8 | None:
     """The image's RGBA bytes as libwebp decodes them, through the decoder Pillow's WebP
     plugin opens every WebP with, without the three copies Pillow's public path makes (its
-    image memory, the RGBA conversion of an image without alpha, the array): a 1M-pixel plane
-    13.8 -> 11.8 ms, its RGB image 15.4 -> 12.4 ms. None where this Pillow's decoder answers
-    otherwise than expected (the public path then decodes it); corrupt data raises what
-    Pillow raises. The array is read-only: decoders read their planes, never write them."""
+    image memory, the RGBA conversion of an image without alpha, the array). None where this
+    Pillow's decoder answers otherwise than expected (the public path then decodes it);
+    corrupt data raises what Pillow raises. The array is read-only: decoders read their
+    planes, never write them."""
     decoder_type = getattr(_pillow_webp, "WebPAnimDecoder", None)
     if decoder_type is None:
         return None

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from functools import cached_property
 
 from ..errors import InputError, IntegrityError
+from ..model import TIME_EPSILON
 from ..schemas.manifest import ChunkEntry, Manifest, check_layout, parse_manifest
-from ..temporal import TIME_EPSILON
 from .header import INDEX_ZSTD, PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
 from .index import decode_index
 from .ranges import ByteRange

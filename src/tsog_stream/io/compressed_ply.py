@@ -34,7 +34,7 @@ from ..constants import ALPHA_EPS, SH_C0
 from ..errors import PlyError
 from ..model import Gaussians
 from ..opacity import alpha_to_logit
-from .ply import (
+from .ply_columns import (
     F_REST_COUNTS,
     PlyContents,
     gather_columns,

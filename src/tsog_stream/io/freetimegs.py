@@ -42,7 +42,8 @@ import numpy.typing as npt
 from ..errors import FormatError, InputError, UnsupportedError
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from .loaded import Loaded4D
-from .ply import PlyContents, parse_ply
+from .ply import parse_ply
+from .ply_columns import PlyContents
 from .ply_header import PlyHeader
 
 TIME_NAMES: Final = ("time", "t")

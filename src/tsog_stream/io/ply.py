@@ -38,13 +38,24 @@ import numpy.typing as npt
 from ..constants import GENERATOR
 from ..errors import InputError, PlyError
 from ..model import F32, Gaussians
+from .compressed_ply import is_compressed_ply, parse_compressed_ply
 from .files import Readable, atomic_write_bytes, open_regular, read_bytes, read_from
+from .ply_columns import (
+    F_REST_COUNTS,
+    GATHER_BLOCK_BYTES,
+    PlyContents,
+    extras_note,
+    gather_column_groups,
+    gather_rows,
+    nonfinite_notes,
+    sh_column_order,
+    unmapped_columns,
+)
 from .ply_header import (
     MAGICS,
     MAX_HEADER_BYTES,
     PlyFormat,
     PlyHeader,
-    Records,
     element_dtype,
     locate_binary,
     parse_header,
@@ -60,24 +71,12 @@ OPACITY: Final = "opacity"
 F_DC: Final = ("f_dc_0", "f_dc_1", "f_dc_2")
 REQUIRED: Final = (*POSITION, *SCALES, *ROTATION, OPACITY, *F_DC)
 """Required vertex properties, in the column order of the gathered matrix."""
-F_REST_COUNTS: Final = (0, 9, 24, 45)
-"""Allowed numbers of f_rest properties (SH degree 0, 1, 2, 3)."""
 
 _F_REST = re.compile(r"f_rest_(0|[1-9][0-9]*)")
 _PROPERTY_NAME = re.compile(r"[!-~]+")
 """A property name a PLY header can hold: printable ASCII, no whitespace."""
 
 PathLike = str | os.PathLike[str]
-
-
-@dataclass(frozen=True, slots=True)
-class PlyContents:
-    """What a PLY file held: Gaussians, unmapped vertex properties, warnings and the header."""
-
-    gaussians: Gaussians
-    extra: dict[str, npt.NDArray[np.generic]]
-    notes: list[str]
-    header: PlyHeader
 
 
 def sniff_ply(data: bytes | memoryview) -> bool:
@@ -88,10 +87,8 @@ def sniff_ply(data: bytes | memoryview) -> bool:
 def parse_ply(data: bytes | memoryview, *, name: str = "<bytes>") -> PlyContents:
     """Decode a 3DGS PLY (plain or PlayCanvas compressed) held in memory."""
     header = parse_header(data, name=name)
-    from . import compressed_ply  # noqa: PLC0415 -- compressed_ply imports this module
-
-    if compressed_ply.is_compressed_ply(header):
-        return compressed_ply.parse_compressed_ply(data, name=name)
+    if is_compressed_ply(header):
+        return parse_compressed_ply(data, name=name)
     vertex = header.element("vertex")
     if vertex is None:
         raise PlyError("the header declares no 'vertex' element", where=name)
@@ -150,13 +147,11 @@ def read_ply(path: Readable) -> PlyContents:
 def _by_blocks(header: PlyHeader) -> bool:
     """Whether a file of this header can be read a block of rows at a time: binary, every
     element of fixed size, a vertex element, not compressed."""
-    from . import compressed_ply  # noqa: PLC0415 -- compressed_ply imports this module
-
     return (
         header.format is not PlyFormat.ASCII
         and all(element.is_fixed for element in header.elements)
         and header.element("vertex") is not None
-        and not compressed_ply.is_compressed_ply(header)
+        and not is_compressed_ply(header)
     )
 
 
@@ -180,13 +175,13 @@ def _read_by_blocks(file: BinaryIO, header: PlyHeader, name: str) -> PlyContents
     for start in range(0, vertex.count, step):
         rows = min(step, vertex.count - start)
         block = np.frombuffer(_read_exactly(file, rows * dtype.itemsize, name), dtype)
-        _gather_rows(block, layout.groups, columns, start)
+        gather_rows(block, layout.groups, columns, start)
         for n, out in extra.items():
             out[start : start + rows] = block[n]
     notes = located.notes
     notes.extend(clamp_absurd(columns, layout.names, header.format, where=name))
     notes.extend(nonfinite_notes(columns, layout.names))
-    notes.extend(_extras_note(list(extra)))
+    notes.extend(extras_note(list(extra)))
     return PlyContents(layout.gaussians(columns), extra, notes, header)
 
 
@@ -223,69 +218,6 @@ def _sh_coefficients(names: Sequence[str], where: str) -> int:
     return len(indices) // 3
 
 
-def sh_column_order(k: int) -> tuple[str, ...]:
-    """f_rest names in (coefficient, channel) order: the file is channel-major, shN is not."""
-    return tuple(f"f_rest_{c * k + i}" for i in range(k) for c in range(3))
-
-
-GATHER_BLOCK_BYTES: Final = 1 << 20
-"""Bytes of the file's body :func:`gather_column_groups` takes columns from at once: numpy copies
-an unaligned body (a header whose length is not a multiple of 4) before taking from it, and
-a whole body's copy was as large as the file."""
-
-
-def gather_columns(records: Records, names: Sequence[str]) -> F32:
-    """Columns ``names`` as one (N, len(names)) float32 matrix."""
-    return gather_column_groups(records, [names])[0]
-
-
-def gather_column_groups(records: Records, groups: Sequence[Sequence[str]]) -> list[F32]:
-    """Each group of columns as its own (N, len(group)) float32 matrix, in one pass over the
-    rows, a block at a time when the fields share one type (each block copied once when the
-    body is unaligned, then every group taken from it)."""
-    outs = [np.empty((len(records), len(names)), np.float32) for names in groups]
-    step = max(1, GATHER_BLOCK_BYTES // max(1, records.dtype.itemsize))
-    for start in range(0, len(records), step):
-        _gather_rows(records[start : start + step], groups, outs, start)
-    return outs
-
-
-def _gather_rows(
-    records: Records, groups: Sequence[Sequence[str]], outs: Sequence[F32], start: int
-) -> None:
-    """Each group of columns of a block of rows into ``outs`` from row ``start`` on (the
-    block copied once if unaligned when the fields share one type, then every group taken
-    from it; else column by column)."""
-    stop = start + len(records)
-    base = _uniform_base(records.dtype)
-    if base is None:
-        for out, names in zip(outs, groups, strict=True):
-            for j, column in enumerate(names):
-                out[start:stop, j] = records[column]
-        return
-    fields = records.dtype.names or ()
-    position = {n: i for i, n in enumerate(fields)}
-    block = np.require(records.view(base).reshape(len(records), len(fields)), requirements="A")
-    for out, names in zip(outs, groups, strict=True):
-        pick = [position[n] for n in names]
-        if block.dtype == out.dtype:
-            np.take(block, pick, axis=1, out=out[start:stop])
-        else:
-            out[start:stop] = np.take(block, pick, axis=1)
-
-
-def _uniform_base(dtype: np.dtype[np.void]) -> np.dtype[np.generic] | None:
-    """The field type when a record is a packed run of one scalar type (viewable as 2-D)."""
-    if not dtype.names or dtype.fields is None:
-        return None
-    base: np.dtype[np.generic] = dtype.fields[dtype.names[0]][0]
-    for i, field_name in enumerate(dtype.names):
-        field_type, offset = dtype.fields[field_name][:2]
-        if field_type != base or offset != i * base.itemsize:
-            return None
-    return base if dtype.itemsize == base.itemsize * len(dtype.names) else None
-
-
 def _gaussians_of(columns: Sequence[F32], k: int) -> Gaussians:
     """Gaussians of the gathered columns of each attribute (POSITION, SCALES, ROTATION,
     OPACITY, F_DC, then f_rest in :func:`sh_column_order`), taken as they are: one matrix of
@@ -293,40 +225,6 @@ def _gaussians_of(columns: Sequence[F32], k: int) -> Gaussians:
     beside its bytes."""
     means, scales, quats, opacity, sh0, rest = columns
     return Gaussians(means, scales, quats, opacity.reshape(-1), sh0, rest.reshape(len(rest), k, 3))
-
-
-def nonfinite_notes(matrices: Sequence[F32], names: Sequence[str]) -> list[str]:
-    """A note counting NaN/inf per column of the matrices side by side (``names`` in that
-    order), or nothing when every value is finite."""
-    counts = np.concatenate([_nonfinite_per_column(matrix) for matrix in matrices])
-    where = [f"{n}: {int(c)}" for n, c in zip(names, counts, strict=True) if c]
-    if not where:
-        return []
-    total = int(counts.sum())
-    return [f"kept {total} non-finite values as read ({', '.join(where)})"]
-
-
-def _nonfinite_per_column(matrix: F32) -> npt.NDArray[np.intp]:
-    """NaN/inf in each column of ``matrix``; a sum first (cheap) when all are finite."""
-    with np.errstate(invalid="ignore", over="ignore"):  # inf + -inf is NaN: that is the test
-        if np.isfinite(matrix.sum(dtype=np.float64)):  # cheap test: no NaN/inf anywhere
-            return np.zeros(matrix.shape[1], np.intp)
-    return np.asarray(np.count_nonzero(~np.isfinite(matrix), axis=0), np.intp)
-
-
-def unmapped_columns(
-    records: Records, mapped: set[str], notes: list[str]
-) -> dict[str, npt.NDArray[np.generic]]:
-    """Native-order copies of the columns not in ``mapped`` (copies: they must not pin the
-    input buffer), noted by name."""
-    names = [n for n in records.dtype.names or () if n not in mapped]
-    notes.extend(_extras_note(names))
-    return {n: np.array(records[n], dtype=records.dtype[n].newbyteorder("=")) for n in names}
-
-
-def _extras_note(names: Sequence[str]) -> list[str]:
-    """The note naming the unknown properties kept as extras (none without them)."""
-    return [f"unknown properties kept as extras: {', '.join(names)}"] if names else []
 
 
 def standard_names(k: int) -> list[str]:
@@ -389,3 +287,15 @@ def _extra_columns(
             raise InputError(f"expected shape ({n},), got {array.shape}", where=f"extra.{key}")
         columns[key] = array
     return columns
+
+
+__all__ = [
+    "GATHER_BLOCK_BYTES",
+    "PlyContents",
+    "parse_ply",
+    "ply_bytes",
+    "read_ply",
+    "sniff_ply",
+    "standard_names",
+    "write_ply",
+]

@@ -11,7 +11,7 @@ So:
   :data:`REFUSE_SHARE` of its rows: a PlyError naming it and, for a binary file, its format.
 * **Clamped**: fewer (a diverged Gaussian here and there) are clamped to the bound and counted
   in a note, so later arithmetic (``exp`` of a log scale or a logit) stays finite.
-* **Kept**: non-finite values, as read and noted (``ply.nonfinite_notes``): -inf log scales
+* **Kept**: non-finite values, as read and noted (``ply_columns.nonfinite_notes``): -inf log scales
   are flat splats, NaN rotations the identity, and the encoder names NaN positions.
 """
 

@@ -76,12 +76,6 @@ def quat_to_rotmat(quats: npt.NDArray[np.floating]) -> F64:
     return r
 
 
-def covariances_3d(scales: npt.NDArray[np.floating], quats: npt.NDArray[np.floating]) -> F64:
-    """World covariances R S S^T R^T (N, 3, 3) from log-scales and quaternions."""
-    m = quat_to_rotmat(quats) * np.exp(scales.astype(np.float64))[:, None, :]
-    return np.asarray(m @ m.transpose(0, 2, 1), dtype=np.float64)
-
-
 def _screen_rows(p_view: F64, camera: Camera) -> tuple[F64, F64]:
     """The two rows (N, 3) of T = J W: the guard-banded projection Jacobian times the view."""
     z = p_view[:, 2]

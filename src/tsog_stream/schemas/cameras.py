@@ -9,7 +9,6 @@ docs/spec.md §9 ("cameras" and "view").
 
 from __future__ import annotations
 
-import math
 from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, model_validator
@@ -62,11 +61,6 @@ class CaptureCamera(BaseModel):
         cx = self.width / 2 if self.cx is None else self.cx
         cy = self.height / 2 if self.cy is None else self.cy
         return cx, cy
-
-    @property
-    def vertical_fov_deg(self) -> float:
-        """Field of view across the image height, degrees (what a player's camera takes)."""
-        return math.degrees(2 * math.atan(self.height / (2 * self.fy)))
 
 
 class HeaderCamera(CaptureCamera):

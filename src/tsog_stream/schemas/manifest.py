@@ -19,7 +19,6 @@ from ..errors import IntegrityError, MetaError
 from .cameras import CameraList, CaptureCamera
 from .sog_meta import to_meta_error
 
-MANIFEST_VERSION = 1
 POLICIES = ("duplicate", "hierarchy", "hybrid")
 Policy = Literal["duplicate", "hierarchy", "hybrid"]
 NonNegInt = Annotated[int, Field(ge=0, strict=True)]

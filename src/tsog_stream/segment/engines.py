@@ -50,12 +50,10 @@ QUIET_DASK: dict[str, object] = {
 }
 """Dask settings of the clusters tsog starts (``--cluster local``): no statistical profiler
 (it samples every thread's stack every 10 ms), the event-loop tick and the memory and system
-monitors at 1 s, 1 s and 5 s (20, 100 and 500 ms by default). Each takes the GIL from the
-encoding thread; 24 SH3 frames on two workers: 26.5-29.1 s with Dask's defaults, 22.9-26.0 s
-with these (bench_cluster; docs/design/cluster.md says how to set them on a cluster of yours).
-Its workers start with one malloc arena (:func:`tune_malloc` says why; set from the worker
-plugin it comes too late for the threads Dask has started: the 1M scene's largest job 433
-MiB that way, 364 from the start)."""
+monitors at 1 s, 1 s and 5 s (Dask's defaults: 20, 100 and 500 ms). Each takes the
+GIL from the encoding thread (measured, and how to set them on a cluster of yours:
+docs/design/cluster.md). Its workers start with one malloc arena (:func:`tune_malloc` says
+why; set from the worker plugin it comes too late for the threads Dask has started)."""
 WORKER_MEMORY: Final = 5 << 28
 """Memory (1.25 GiB) a local encoder process is allowed for when choosing how many to start: it
 holds one job at a time, of at most MAX_CHUNK_GAUSSIANS Gaussians (the 5M SH3 checkpoint's
@@ -187,8 +185,8 @@ def run_on_dask(token: int, job: Callable[..., T], *args: Any) -> T:
 
 def _reporting(job: Callable[..., T], args: tuple[Any, ...], send: Callable[[float], None]) -> T:
     """``job(*args)`` with its start and its reports sent by ``send``, on a heap the jobs
-    before it handed back: a worker kept ~100 MiB its last 500k window had freed (holes glibc
-    does not return by itself), and its next window peaked that much higher."""
+    before it handed back: a worker otherwise keeps what its last window freed (holes glibc
+    does not return by itself), and its next window peaks that much higher."""
     release_freed_memory()
     send(0.0)
     with reporting_to(send):

@@ -24,13 +24,13 @@ import numpy.typing as npt
 from ..codec.sh_bands import without_sh
 from ..constants import MAX_PSNR_DB
 from ..errors import InputError
-from ..model import Gaussians, Scene
+from ..model import Gaussians, Scene, count_at, shown_at
 from ..opacity import logit_to_alpha
 from ..render import render, to_uint8
 from ..render.camera import Camera, from_capture
 from ..render.metrics import mse, psnr_from_mse
 from ..schemas.cameras import CaptureCamera
-from ..temporal import count_at, shown_at, time_range
+from ..temporal import time_range
 
 LAYER_TARGETS_DB = (25.0, 33.0, 38.0, 42.0, 45.0, 48.0, 50.0)
 """PSNR (against all layers) that layers 0, 1, ... reach with the layers below them: the base

@@ -1,11 +1,11 @@
 """How far encoding has got and how long it has left, measured in work, not chunks.
 
-Chunks differ a lot in cost (a chunk with an SH3 palette costs ~7-8x one without, measured on
-400k Gaussians: 9.2-11.1 s against 1.4 s) and parallel jobs finish in bursts, so counting written
-chunks gave ETAs off by 2-3x (a 5M scene: 220 s announced after its first chunk, 85 s left in
-fact). The meter weighs each job by :func:`encode_work`, learns the rate of one worker slot
-from the work done (finished jobs, and the share running jobs report of themselves: a job's SH
-palette says how far it got), and credits the jobs still running with the time they have run.
+Chunks differ a lot in cost (an SH palette costs several times the rest) and parallel jobs
+finish in bursts, so counting written chunks gives ETAs off by 2-3x (docs/design/segmenter.md,
+"Parallel encoding"). The meter weighs each job by :func:`encode_work`, learns the rate of one
+worker slot from the work done (finished jobs, and the share running jobs report of
+themselves: a job's SH palette says how far it got), and credits the jobs still running with
+the time they have run.
 A job reports through :func:`report_progress`, wherever it runs (segment/engines.py carries a
 pool worker's reports back).
 """
@@ -23,13 +23,11 @@ from typing import Any
 SH_COST_PER_COEFF = 0.3
 """A Gaussian's encode cost per SH coefficient beyond DC (an RGB triple), in units of a
 Gaussian without SH: the palette's distance work grows with the vector's length (SH3, 15
-coefficients: 5.5x; measured 2026-11-28, random SH3: 6.1x on an 833k job at quality 90,
-4.5x on 400k at 100, the rest of the encode heavier since it makes the timeline and motion
-beside the codebooks; 6.8-8.1x on 400k on 2026-11-27, 14.6x before the palette's speed-up)."""
+coefficients: 5.5x; fitted to measured encodes, docs/design/segmenter.md)."""
 
 TICK_S = 5.0
 """Seconds between two :meth:`Meter.tick` calls of its ``on_tick`` (an ETA redrawn while no
-chunk is written: a 5M scene's first chunk takes ~40 s)."""
+chunk is written: a big scene's first chunk takes tens of seconds)."""
 
 POLL_S = 1.0
 """How often code waiting for jobs calls :meth:`Meter.tick`: a first ETA is drawn within a
@@ -75,10 +73,8 @@ def share_of(start: float, size: float) -> Iterator[None]:
 BEFORE_PALETTE = 0.7
 """The share of a part's other work done before its SH palette (ordering, positions,
 codebooks, timeline and motion); the rest comes after it (the last images' WebP and the
-bundle): 0.118 and 0.047 of an 833k SH3 job at quality 90, 0.121 and 0.101 of 400k at 100
-(2026-11-28; 0.064 and 0.076 before the encoder compressed its images as it made them). All
-of it counted before the palette, a job's first reports ran ahead of its time (0.217 said at
-0.14-0.17 of it); 0.5, they lagged behind it and the checkpoint's first ETA was 54 % long."""
+bundle). Fitted to measured jobs (docs/design/segmenter.md): all of it before the palette ran
+the first reports ahead of the job's time, half of it behind."""
 
 
 def palette_share(sh_coeffs: int) -> float:

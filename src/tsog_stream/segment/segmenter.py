@@ -42,12 +42,12 @@ from ..framing import FRAMING_SAMPLE, dense_core, framing_sample, opening_view, 
 from ..io.objects import size_of
 from ..io.sequence import FrameSequence, FrameStack, FrameWindow
 from ..machine import release_freed_memory
-from ..model import Gaussians, Scene
+from ..model import Gaussians, Scene, reference_times
 from ..morton import morton_parts
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node, Policy
 from ..sh_palette import palette_size
-from ..temporal import lifespans, reference_times, time_range
+from ..temporal import lifespans, time_range
 from .engines import Engine, HandOver, engine
 from .layers import (
     MEASURE_TIMES,
@@ -391,7 +391,7 @@ def _bounds(scene: Scene, start: float, end: float) -> Box:
     leaves their chord by at most h^2/8 max|x''|, so each Gaussian's samples are widened by
     that bound (|x''| bounded from its coefficients) and the box holds the whole path. A
     straight path (linear motion) needs only its ends: its evaluation is monotone in t, in
-    floating point too, so the box is the one all samples give (3.5x faster on 833k).
+    floating point too, so the box is the one all samples give, in less time.
     """
     means = scene.gaussians.means.astype(np.float64)
     coeffs = scene.temporal.get("means")
@@ -1165,8 +1165,8 @@ def _sampled_frames(seq: FrameSequence) -> tuple[Gaussians, _Measured]:
     look at colour) for the opening view (a first frame alone can be a launching rocket whose
     explosion fills the later frames), and the MEASURE_TIMES spread frames the layers are
     measured on. Each frame is read once and let go as it is sampled and, for the measured
-    ones, copied into the joined scene: with 500k SH3 frames all five were held, then the
-    measured three twice and 1M samples with their bands (the parent 1.8 -> 1.1 GB)."""
+    ones, copied into the joined scene, so no frame is held twice and no sample keeps its
+    bands."""
     picks = _spread(seq.count, VIEW_FRAMES)
     numbers = _spread(seq.count, MEASURE_TIMES)
     share = max(1, FRAMING_SAMPLE // max(len(picks), 1))
@@ -1188,9 +1188,8 @@ def _sampled_frames(seq: FrameSequence) -> tuple[Gaussians, _Measured]:
 
 COST_FRAMES = 3
 """Frames of a sequence whose costs the layout model averages: the first, the middle and the
-last. Frames of one sequence differ: the fireworks' first three cost 3.3 bytes a Gaussian at
-quality 90, the last three 8.2-8.9, and measured on the first alone the model took one chunk
-per frame for 17 % more file than one chunk in all (it is 3 % more)."""
+last. Frames of one sequence differ, and a model measured on the first alone chose a worse
+layout (docs/design/segmenter.md)."""
 
 
 def sequence_costs(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Costs:
