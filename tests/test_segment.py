@@ -19,11 +19,14 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+import tsog_stream as tsog
 from helpers import means_log_step
 from tsog_stream import Gaussians, InputError, Scene, Timeline, TimelineType
+from tsog_stream.cli.main import main as cli_main
 from tsog_stream.client import Stream, open_stream
 from tsog_stream.codec.bundle import read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk
+from tsog_stream.codec.precision import DEFAULT_QUALITY
 from tsog_stream.compare import rotation_angles_deg
 from tsog_stream.constants import DEFAULT_MAX_PIXELS
 from tsog_stream.io.ply import write_ply
@@ -32,19 +35,20 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.merge.check import frame_errors
 from tsog_stream.model import evaluate_all, reference_times
 from tsog_stream.schemas.manifest import Policy
-from tsog_stream.segment import layout, segmenter
+from tsog_stream.segment import encoding, layout
+from tsog_stream.segment import jobs as jobs_module
 from tsog_stream.segment import meter as meter_module
+from tsog_stream.segment import options as options_module
+from tsog_stream.segment import sequence as sequence_module
+from tsog_stream.segment.encoding import JobParts, encoded
+from tsog_stream.segment.jobs import ChunkJob, Part
 from tsog_stream.segment.layers import LAYERED_MIN_GAUSSIANS, LayerPlan
 from tsog_stream.segment.layout import chunk_counts
 from tsog_stream.segment.meter import Meter, encode_work, palette_progress
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
 from tsog_stream.segment.segmenter import (
-    ChunkJob,
-    JobParts,
-    Part,
     SegmentOptions,
     SegmentReport,
-    _encoded,
     segment_scene,
     segment_sequence,
 )
@@ -519,10 +523,10 @@ def test_jobs_are_encoded_costliest_first_and_written_in_order() -> None:
         return encode_work(job.indices.size, 0)
 
     options = SegmentOptions(workers=2)
-    parallel = list(_encoded(JobParts(jobs, make, by_size), plan, options, Meter(0.0)))
+    parallel = list(encoded(JobParts(jobs, make, by_size), plan, options, Meter(0.0)))
     assert started == [2, 1, 0]
     serial = list(
-        _encoded(JobParts(jobs, make, by_size), plan, replace(options, workers=1), Meter(0.0))
+        encoded(JobParts(jobs, make, by_size), plan, replace(options, workers=1), Meter(0.0))
     )
     assert [p for _, p in parallel] == [p for _, p in serial]
     assert [info.count for info, _ in parallel] == [20, 100, len(src) - 120]
@@ -530,7 +534,7 @@ def test_jobs_are_encoded_costliest_first_and_written_in_order() -> None:
     started.clear()
     with_bands = {1: 15}  # 100 Gaussians with SH3 weigh 775, more than the 280 without
     list(
-        _encoded(
+        encoded(
             JobParts(
                 jobs,
                 make,
@@ -686,11 +690,11 @@ def test_a_static_scene_s_layout_and_policy(tmp_path: Path) -> None:
     report = segment_scene(Scene(g), out, SegmentOptions(window_s=0.25, policy="duplicate"))
     with open_stream(out) as stream:
         m = stream.index.manifest
-    assert (m.window_s, m.policy) == (segmenter.STATIC_WINDOW_S, "duplicate")
+    assert (m.window_s, m.policy) == (options_module.STATIC_WINDOW_S, "duplicate")
     assert report.layout is None and report.dropped == 0 and report.windows == 1
     segment_scene(Scene(g), out, SegmentOptions(layers=1))  # replaces it: no policy given
     with open_stream(out) as stream:
-        assert stream.index.manifest.policy == segmenter.DEFAULT_POLICY
+        assert stream.index.manifest.policy == options_module.DEFAULT_POLICY
 
 
 def test_the_container_s_folder_is_made_and_removed_again_on_failure(
@@ -707,7 +711,7 @@ def test_the_container_s_folder_is_made_and_removed_again_on_failure(
     def broken(*args: Any, **kwargs: Any) -> bytes:
         raise InputError("the encoder broke")
 
-    monkeypatch.setattr(segmenter, "encode_job_payload", broken)
+    monkeypatch.setattr(encoding, "encode_job_payload", broken)
     failed = tmp_path / "made" / "for" / "it.tsogs"
     with pytest.raises(InputError, match="the encoder broke"):
         segment_scene(scene, failed, SegmentOptions(layers=1))
@@ -720,9 +724,12 @@ def test_no_chunk_holds_more_than_the_job_cap(
     """The pixel budget allows 8M Gaussians a chunk; a chunk holds at most
     MAX_CHUNK_GAUSSIANS so one job never holds most of a scene (a long-lived scene's whole-clip
     node is split into Morton runs, shared among the workers)."""
-    assert segmenter.max_gaussians_per_chunk(DEFAULT_MAX_PIXELS) == segmenter.MAX_CHUNK_GAUSSIANS
-    assert segmenter.max_gaussians_per_chunk(64 * 64) < segmenter.MAX_CHUNK_GAUSSIANS
-    monkeypatch.setattr(segmenter, "MAX_CHUNK_GAUSSIANS", 700)
+    assert (
+        options_module.max_gaussians_per_chunk(DEFAULT_MAX_PIXELS)
+        == options_module.MAX_CHUNK_GAUSSIANS
+    )
+    assert options_module.max_gaussians_per_chunk(64 * 64) < options_module.MAX_CHUNK_GAUSSIANS
+    monkeypatch.setattr(options_module, "MAX_CHUNK_GAUSSIANS", 700)
     scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
     report = segment_scene(scene, tmp_path / "s.tsogs", SegmentOptions(layers=1))
     with open_stream(tmp_path / "s.tsogs") as stream:
@@ -741,7 +748,7 @@ def test_a_big_node_is_cut_into_an_even_number_of_chunks(monkeypatch: pytest.Mon
     assert chunk_counts([300, 500], 100).tolist() == [3, 5]
     monkeypatch.setattr(layout, "EVEN_FROM", 700)
     scene = generate_scene(SceneSpec(background=2500, objects=2, per_object=200))
-    jobs = segmenter.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(2900))], 700)
+    jobs = jobs_module.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(2900))], 700)
     assert [job.indices.size for job in jobs] == [484] * 2 + [483] * 4
 
 
@@ -750,16 +757,16 @@ def test_a_job_s_work_is_known_before_its_part_is_made() -> None:
     weigh the same (a layered SH scene: bare bases, SH-band chunks, upper layers with bands)."""
     scene = generate_scene(SceneSpec(background=300, objects=2, per_object=50, sh_bands=2))
     layer_of = np.arange(len(scene)) % 2
-    jobs = segmenter.with_sh_jobs(
-        segmenter.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(len(scene)))], 100, layer_of)
+    jobs = jobs_module.with_sh_jobs(
+        jobs_module.chunk_jobs(scene, [(NodeKey(0, 0), np.arange(len(scene)))], 100, layer_of)
     )
     kinds = {(job.layer, job.sh_of is not None) for job in jobs}
     assert kinds == {(0, False), (1, True), (1, False)}
     for job in jobs:
-        part = segmenter.job_part(scene, job, True)
-        assert segmenter.job_work(scene, job, True) == segmenter.part_work(part)
+        part = jobs_module.job_part(scene, job, True)
+        assert jobs_module.job_work(scene, job, True) == jobs_module.part_work(part)
     bare = [j for j in jobs if j.layer == 0]
-    assert all(segmenter.job_work(scene, j, True) == j.indices.size for j in bare)
+    assert all(jobs_module.job_work(scene, j, True) == j.indices.size for j in bare)
 
 
 class _HeardMeter(Meter):
@@ -788,7 +795,7 @@ def test_running_jobs_report_their_palette_s_progress(workers: int) -> None:
     parts = JobParts(
         jobs, lambda job: Part(job.key, src.subset(job.indices)), lambda job: works[id(job)]
     )
-    list(_encoded(parts, plan, SegmentOptions(workers=workers), meter))
+    list(encoded(parts, plan, SegmentOptions(workers=workers), meter))
     tokens = sorted({token for token, _ in meter.heard})
     assert len(tokens) == 2
     start, end = palette_progress(coeffs, 0.0), palette_progress(coeffs, 1.0)
@@ -807,7 +814,7 @@ def test_the_eta_is_drawn_while_no_chunk_is_written(
     """Every tick of the meter while jobs run redraws the progress with the chunks written so
     far (0 before the first), never past the chunks finished."""
     monkeypatch.setattr(meter_module, "TICK_S", 0.001)
-    monkeypatch.setattr(segmenter, "POLL_S", 0.001)
+    monkeypatch.setattr(encoding, "POLL_S", 0.001)
     src = make_scene(TimelineType.START_DURATION, background=400, objects=2, per_object=60)
     calls: list[int] = []
     report = segment_scene(
@@ -845,14 +852,14 @@ def test_a_window_s_parts_cut_as_asked_hold_its_scene_once(
     own part, reordered in place (its worker held the window twice: as the scene and as the
     part)."""
     scene = _frames_scene(2, 1000, 2)
-    expected = segmenter.window_parts(scene, 3, max_count, layering)
+    expected = jobs_module.window_parts(scene, 3, max_count, layering)
     handed = _frames_scene(2, 1000, 2)
     gone = weakref.ref(handed)
     held = [handed]
-    jobs = segmenter.window_jobs(handed, 3, max_count, layering)
+    jobs = jobs_module.window_jobs(handed, 3, max_count, layering)
     assert (len(jobs) == 1) == (max_count == 100_000 and layering.layers == 1)
     del handed
-    parts = segmenter.parts_taking_over(held, jobs, layering.sh_apart)
+    parts = jobs_module.parts_taking_over(held, jobs, layering.sh_apart)
     got = []
     for number, part in enumerate(parts):
         assert (not held) == (number + 1 == len(jobs))
@@ -889,7 +896,7 @@ def test_sampled_frames_are_read_once_and_held_once(
         return loaded
 
     monkeypatch.setattr(type(seq), "read", read)
-    framing, measured = segmenter._sampled_frames(seq)
+    framing, measured = sequence_module.sampled_frames(seq)
     assert reads == sorted(set(reads)) and len(reads) == len(frames)
     assert all(frame() is None for frame in frames)
     assert framing.shN.shape[1] == 0 and len(framing) == sum(50 + k for k in reads)
@@ -899,3 +906,106 @@ def test_sampled_frames_are_read_once_and_held_once(
         alone = seq.read(number, number + 1).scene
         for joined, own in zip(measured.scene.subset(rows).arrays(), alone.arrays(), strict=True):
             np.testing.assert_array_equal(joined, own)
+
+
+# --- the library does all that tsog segment does (issue 56) -----------------------------------
+
+
+class Heard:
+    """A pipeline listener that keeps what it is told."""
+
+    def __init__(self) -> None:
+        self.stages: list[str] = []
+        self.notes: list[str] = []
+
+    def __call__(self, stage: str) -> None:
+        self.stages.append(stage)
+
+    def bar(self, stage: str, fraction: float) -> None:
+        self.stages.append(stage)
+
+    def done(self) -> None:
+        """Nothing to end."""
+
+    def note(self, text: str) -> None:
+        self.notes.append(text)
+
+    def warn(self, text: str) -> None:
+        self.notes.append(text)
+
+
+def _frames(folder: Path, count: int = 8) -> Path:
+    """A folder of numbered PLY frames sampled from a generated 4D scene."""
+    scene = generate_scene(SceneSpec(seed=5, background=200, objects=2, per_object=60, duration=1))
+    folder.mkdir()
+    for k in range(count):
+        write_ply(folder / f"frame_{k:04d}.ply", scene.at(k / 30))
+    return folder
+
+
+def test_segment_input_writes_what_tsog_segment_writes_and_reports_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One call: the same container and thumbnail bytes as the command, the merge probe's
+    outcome, the frame check of a stored merge, and the report the command prints."""
+    frames = _frames(tmp_path / "frames")
+    heard = Heard()
+    options = tsog.SegmentOptions(quality=DEFAULT_QUALITY, workers=1)
+    inputs = tsog.InputOptions(reading=tsog.ReadOptions(fps=30))
+    made = tsog.segment_input(frames, tmp_path / "lib.tsogs", options, inputs, heard)
+    by_cli = tmp_path / "cli.tsogs"
+    argv = ["segment", str(frames), "-o", str(by_cli), "--fps", "30", "--workers", "1", "-q"]
+    assert cli_main(argv) == 0
+    printed = capsys.readouterr().out.splitlines()
+    lib = tmp_path / "lib.tsogs"
+    assert lib.read_bytes() == by_cli.read_bytes()
+    assert made.thumbnail == f"{lib}.thumb.png"
+    assert Path(made.thumbnail).read_bytes() == Path(f"{by_cli}.thumb.png").read_bytes()
+    assert made.segment.bytes == lib.stat().st_size and made.fps == 30
+    assert made.input_bytes == sum(p.stat().st_size for p in frames.iterdir())
+    assert made.temporal is not None and made.temporal.mode == "fit"
+    assert made.temporal.frames == 8 and made.temporal.gaussians_in > 0
+    assert (made.frame_check is not None) == (made.temporal.declined is None)
+    if made.frame_check is not None:
+        assert made.frame_check.frames == [0, 2, 4, 5, 7]
+    assert heard.stages[-1] == "drawing the thumbnail"
+    assert any(stage.startswith("chunk ") for stage in heard.stages)
+    by_cli_line = f"{by_cli}: {made.segment.bytes} bytes, "
+    assert any(line.startswith(by_cli_line) for line in printed)
+    assert f"  thumbnail: {by_cli}.thumb.png" in printed
+
+
+@pytest.mark.parametrize(
+    ("inputs", "expected"),
+    [
+        (
+            tsog.InputOptions(window_frames=30),
+            "--window: a window in frames needs a frame rate (the input has none)",
+        ),
+        (
+            tsog.InputOptions(format="ply-sequence"),
+            "expected a folder of numbered frames or a glob pattern",
+        ),
+    ],
+)
+def test_segment_input_refuses_what_the_input_cannot_give(
+    tmp_path: Path, inputs: Any, expected: str
+) -> None:
+    """Options the input cannot honour are one error, and nothing is written."""
+    still = tmp_path / "still.ply"
+    write_ply(still, static_gaussians(40, seed=1))
+    out = tmp_path / "out.tsogs"
+    with pytest.raises(tsog.TsogError) as caught:
+        tsog.segment_input(still, out, inputs=inputs)
+    assert expected in str(caught.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["still.ply"]
+
+
+def test_segment_input_checks_its_output_before_reading(tmp_path: Path) -> None:
+    """An output that exists is refused (unless ``overwrite``) before the input is read: a
+    missing input is not even looked at."""
+    out = tmp_path / "out.tsogs"
+    out.write_bytes(b"kept")
+    with pytest.raises(tsog.SourceError, match="already exists"):
+        tsog.segment_input(tmp_path / "missing.ply", out)
+    assert out.read_bytes() == b"kept"

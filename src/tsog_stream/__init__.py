@@ -4,7 +4,8 @@ The public API is the names of ``__all__`` (pinned by a test); everything else i
 
 - Read a stream at any time: :func:`open_stream` (sync, any path or URL) or
   :class:`StreamClient` (async); ``frame_at(t)`` gives :class:`Gaussians`, ``write_ply`` saves them.
-- Make a stream: :func:`load_scene` reads any input, :func:`segment_scene` writes a ``.tsogs``.
+- Make a stream: :func:`segment_input` does all ``tsog segment`` does (any input to a ``.tsogs``
+  with its thumbnail); or :func:`load_scene` reads any input and :func:`segment_scene` writes it.
 - One chunk: :func:`encode_chunk` / :func:`decode_chunk` (file bytes by name), :func:`read_chunk`.
 - Errors: everything raised on purpose is a :class:`TsogError` (tree in ``tsog_stream.errors``).
 
@@ -26,6 +27,9 @@ _HOMES = {
     "HttpOptions": "client",
     "load_scene": "io.readers",
     "ReadOptions": "io.readers",
+    "segment_input": "pipeline",
+    "InputOptions": "pipeline",
+    "InputReport": "pipeline",
     "segment_scene": "segment.segmenter",
     "SegmentOptions": "segment.segmenter",
     "SegmentReport": "segment.segmenter",
@@ -56,6 +60,8 @@ __all__ = [
     "Gaussians",
     "HttpOptions",
     "InputError",
+    "InputOptions",
+    "InputReport",
     "IntegrityError",
     "MetaError",
     "PlyError",
@@ -77,6 +83,7 @@ __all__ = [
     "load_scene",
     "open_stream",
     "read_chunk",
+    "segment_input",
     "segment_scene",
     "write_ply",
 ]
@@ -100,6 +107,7 @@ if TYPE_CHECKING:
     from .io.ply import write_ply
     from .io.readers import ReadOptions, load_scene
     from .model import Gaussians, Scene, Timeline, TimelineType
+    from .pipeline import InputOptions, InputReport, segment_input
     from .segment.segmenter import SegmentOptions, SegmentReport, segment_scene
 
 

@@ -13,10 +13,10 @@ from ..client.http_options import DEFAULT_DEADLINE_S
 from ..errors import InputError, printable
 from ..io.chunks import chunk_folder
 from ..io.files import check_output, local_path
-from ..io.objects import ObjectPath, is_object_url
 from ..io.readers import FORMATS, LoadedScene, ReadOptions, detect_format, load_scene
 from ..io.sequence import DEFAULT_FPS
 from ..io.splatv import ASSUMED_DURATION, ASSUMED_DURATION_S
+from ..pipeline import input_bytes as input_bytes  # noqa: PLC0414 - the commands import it here
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -226,14 +226,26 @@ def check_time(t: float, span: tuple[float, float] | None) -> None:
         )
 
 
-def input_bytes(path: str) -> int:
-    """Size of an input file, or of the files in an input folder or store prefix (0 for a
-    pattern)."""
-    if is_object_url(path):
-        return 0 if any(c in path for c in "*?[") else ObjectPath.from_url(path).total_bytes()
-    p = Path(path)
-    if p.is_file():
-        return p.stat().st_size
-    if p.is_dir():
-        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
-    return 0
+class Told:
+    """The library's listener (pipeline.Listener) on the command line: phases and bars on the
+    progress line, notes and warnings on stderr (the assumed length of ``input`` said with the
+    flag that sets it)."""
+
+    def __init__(self, progress: Progress, input_name: str) -> None:
+        self.progress = progress
+        self.input_name = input_name
+
+    def __call__(self, stage: str) -> None:
+        self.progress(stage)
+
+    def bar(self, stage: str, fraction: float) -> None:
+        self.progress.bar(stage, fraction)
+
+    def done(self) -> None:
+        self.progress.done()
+
+    def note(self, text: str) -> None:
+        note(text)
+
+    def warn(self, text: str) -> None:
+        warn(assumed_duration(self.input_name) if text == ASSUMED_DURATION else text)

@@ -7,12 +7,9 @@ path, a ``file://`` URL or an http(s) URL of a ``.tsogs`` file or an unpacked fo
 from __future__ import annotations
 
 import argparse
-import contextlib
 import re
-import threading
-import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,34 +18,23 @@ import numpy as np
 from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
 from ..codec.precision import DEFAULT_QUALITY
-from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS, thumbnail_path
+from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
 from ..container.sources import ReadStats
-from ..errors import InputError, TsogError, printable
-from ..io.cameras import cameras_for_input
+from ..errors import InputError, printable
 from ..io.chunks import write_chunk_files
-from ..io.files import atomic_write_bytes, check_output, remove_stale_temp_files
+from ..io.files import atomic_write_bytes, check_output
 from ..io.objects import is_object_url
 from ..io.ply import write_ply
-from ..io.readers import detect_format
-from ..io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
-from ..machine import release_freed_memory
-from ..merge import TEMPORAL_MODES, Tolerance, merge_sequence
-from ..merge.check import frame_errors
-from ..merge.sequence import MAX_HELD
+from ..merge import TEMPORAL_MODES, TemporalMode, Tolerance
 from ..model import Gaussians, Scene
+from ..pipeline import FrameCheck, InputOptions, InputReport, TemporalOutcome, segment_input
 from ..schemas.cameras import CaptureCamera
 from ..schemas.manifest import Layer
 from ..segment.engines import WORKER_MEMORY, check_cluster, default_workers
 from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
 from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
-from ..segment.segmenter import (
-    SegmentOptions,
-    SegmentReport,
-    merge_or_frames,
-    segment_scene,
-    segment_sequence,
-)
+from ..segment.segmenter import SegmentOptions, SegmentReport
 from ..summary import cameras_summary, duration_text
 from .common import (
     QUALITY,
@@ -56,19 +42,18 @@ from .common import (
     SEED,
     Integer,
     Subparsers,
+    Told,
     add_cameras,
     add_common,
     add_input,
     add_timeout,
     check_time,
-    input_bytes,
-    load_input,
-    note,
+    read_options,
     warn,
 )
 from .progress import Progress
 
-DEFAULT_TEMPORAL = "fit"
+DEFAULT_TEMPORAL: TemporalMode = "fit"
 """--temporal default, chosen by measurement (docs/design/temporal-merge.md)."""
 
 STREAM_HELP = (
@@ -83,10 +68,7 @@ def check_segment_args(args: argparse.Namespace) -> None:
     """Refuse bad options and an output location that cannot be written before the
     (possibly long) input read."""
     check_output(args.output, overwrite=args.force)
-    if args.window != AUTO and not _WINDOW.match(args.window):
-        raise InputError(
-            f"expected seconds like 1s or frames like 30f, got {args.window!r}", where="--window"
-        )
+    parse_window(args.window)
     if args.workers < 1:
         raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
     if args.cluster is not None:
@@ -94,25 +76,20 @@ def check_segment_args(args: argparse.Namespace) -> None:
     tolerance_option(args)  # refuses a negative or non-finite tolerance now, not after a read
 
 
-def parse_window(text: str, fps: float | None) -> float | None:
-    """'1s', '0.5', '30f' -> seconds (frames need the scene's fps); 'auto' -> None."""
+def parse_window(text: str) -> tuple[float | None, float | None]:
+    """'1s', '0.5' -> (seconds, None); '30f' -> (None, frames), made seconds by the input's
+    frame rate once it is read; 'auto' -> (None, None)."""
     if text == AUTO:
-        return None
+        return None, None
     m = _WINDOW.match(text)
     if not m:
         raise InputError(
             f"expected seconds like 1s or frames like 30f, got {text!r}", where="--window"
         )
     value = float(m.group(1))
-    if m.group(2) == "f":
-        if not fps:
-            raise InputError(
-                "a window in frames needs a frame rate (the input has none)", where="--window"
-            )
-        value /= fps
     if value <= 0:
         raise InputError("must be positive", where="--window")
-    return value
+    return (None, value) if m.group(2) == "f" else (value, None)
 
 
 def add_stream_commands(sub: Subparsers) -> None:
@@ -239,60 +216,11 @@ def add_stream_commands(sub: Subparsers) -> None:
     add_common(p)
 
 
-def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
-    """tsog segment: frame sequences stream window by window, other inputs load whole."""
-    check_segment_args(args)
-    kind = args.format or detect_format(args.input)
-    assumed = False  # the input's length (a .splatv read without --duration-s)
-    if kind in ("ply-sequence", "sog-sequence"):
-        fps = args.fps if args.fps is not None else DEFAULT_FPS
-        seq = open_sequence(args.input, fps=fps, kind=kind.split("-")[0])
-        for text in seq.notes():
-            note(text)
-        source: Scene | FrameSequence = seq
-        found = cameras_for_input(args.input, explicit=args.cameras)
-        cameras = found.cameras if found is not None else []
-        for text in found.notes if found is not None else []:
-            note(text)
-        source_name = found.source if found is not None and found.cameras else ""
-    else:
-        loaded = load_input(args, progress)
-        source, cameras, source_name = loaded.scene, loaded.cameras, loaded.cameras_source
-        assumed = loaded.duration_assumed
-        del loaded
-    held = Held(source, duration_assumed=assumed)
-    del source  # held only by ``held`` from here: _segment drops it before the thumbnail
-    return _segment(args, progress, held, input_bytes(args.input), (cameras, source_name))
-
-
-@dataclass
-class Held:
-    """The input being segmented, dropped once the container is written: the thumbnail then
-    decodes and draws the whole scene again (a 5M-Gaussian scene held through it peaked the
-    process at 5.6x its arrays, 2.2x without)."""
-
-    source: Scene | FrameSequence | None
-    duration_assumed: bool = False
-    """The input's reader assumed its length (a ``.splatv`` without --duration-s)."""
-
-
-def _segment(
-    args: argparse.Namespace,
-    progress: Progress,
-    held: Held,
-    input_size: int,
-    capture: tuple[list[CaptureCamera], str],
-) -> int:
-    """Segment an opened or loaded input as the options say, and report the result."""
-    source = held.source
-    assert source is not None
-    warming = _RendererWarmUp()
-    if isinstance(source, FrameSequence):
-        fps: float | None = source.fps
-    else:
-        fps = source.timeline.fps if source.timeline is not None else None
+def segment_options(args: argparse.Namespace) -> tuple[SegmentOptions, InputOptions]:
+    """The library's options as the segment command line gives them."""
+    seconds, frames = parse_window(args.window)
     options = SegmentOptions(
-        window_s=parse_window(args.window, fps),
+        window_s=seconds,
         policy=args.policy,
         max_pixels=args.max_pixels,
         workers=max(1, args.workers),
@@ -301,77 +229,88 @@ def _segment(
         layers=args.layers,
         cluster=args.cluster,
     )
-    cameras, cameras_source = capture
-    for stale in remove_stale_temp_files(args.output):
-        note(f"removed {stale}, left by an interrupted run")
+    inputs = replace(
+        reading_options(args),
+        window_frames=frames,
+        temporal=args.temporal,
+        tolerance=tolerance_option(args),
+        overwrite=args.force,
+    )
+    return options, inputs
 
-    def on_chunk(done: int, total: int, eta_s: float | None) -> None:
-        if done >= total - options.workers:  # the last jobs run: their parts are sent
-            warming.start()
-        left = "ETA    ?" if eta_s is None else f"ETA {eta_s:4.0f}s"
-        progress.bar(f"chunk {done}/{total}, {left}", done / total)
 
-    def segment(what: Scene | FrameSequence, layout: Choice | None) -> SegmentReport:
-        """A frame sequence window by window, or a scene in memory, with the same options."""
-        if isinstance(what, FrameSequence):
-            return segment_sequence(
-                what,
-                args.output,
-                options,
-                layout=layout,
-                cameras=cameras,
-                on_chunk=on_chunk,
-                on_stage=progress,
-            )
-        return segment_scene(
-            what,
-            args.output,
-            options,
-            layout=layout,
-            cameras=cameras,
-            on_chunk=on_chunk,
-            on_stage=progress,
-            duration_assumed=held.duration_assumed,
-        )
+def reading_options(args: argparse.Namespace) -> InputOptions:
+    """How to read the INPUT, as its options (``add_input``, ``add_cameras``) give it; the
+    rest as ``tsog segment`` does by default."""
+    return InputOptions(format=args.format, reading=read_options(args), cameras=args.cameras)
 
-    merged: Scene | None = None
-    layout: Choice | None = None
-    if isinstance(source, FrameSequence) and args.temporal != "off":
-        merged = _merged(args, progress, source)
-        why, layout = (
-            merge_or_frames(source, merged, options) if merged is not None else (None, None)
-        )
-        if why is not None:
-            print(f"temporal: {why}; stored one per frame (type 0)")
-            merged = None
-    report = segment(merged if merged is not None else source, layout)
-    if merged is not None and isinstance(source, FrameSequence):
-        progress.done()
-        _report_frame_errors(source, args.output)
-    held.source = None  # the thumbnail below decodes and draws the scene again: drop ours
-    del source, merged
+
+def default_options() -> SegmentOptions:
+    """The segmenter's options of a segment command line that gives none (``tsog view``)."""
+    return SegmentOptions(workers=default_workers(), quality=DEFAULT_QUALITY)
+
+
+def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
+    """tsog segment: parse, segment the input (pipeline.segment_input), print the report."""
+    check_segment_args(args)
+    options, inputs = segment_options(args)
+    made = segment_input(args.input, args.output, options, inputs, Told(progress, args.input))
     progress.done()
-    print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, input_size)}")
+    print_segment_report(made, args.quality)
+    return 0
+
+
+def print_segment_report(made: InputReport, quality: int) -> None:
+    """What segmenting made, as ``tsog segment`` says it."""
+    if made.temporal is not None:
+        _print_temporal(made.temporal)
+    if made.frame_check is not None:
+        _print_frame_check(made.frame_check)
+    report = made.segment
+    print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, made.input_bytes)}")
     print(f"  {_duration_line(report)}")
     if report.layout is not None:
-        _print_layout(report.layout, fps)
+        _print_layout(report.layout, made.fps)
     print(f"  {report.windows} windows, {report.chunks} chunks")
-    faint = (
-        f" ({report.faint} too faint at quality {args.quality} left out)" if report.faint else ""
-    )
+    faint = f" ({report.faint} too faint at quality {quality} left out)" if report.faint else ""
     print(f"  {report.gaussians} Gaussians, {report.stored} stored copies{faint}")
     if not report.static:
         print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
-    print(f"  {_cameras_line(cameras, cameras_source, report)}")
+    print(f"  {_cameras_line(made.cameras, made.cameras_source, report)}")
     print(f"  {_layers_line(report)}")
-    warming.join()
-    _write_thumbnail(args.output, progress)
+    if made.thumbnail is not None:
+        print(f"  thumbnail: {made.thumbnail}")
     for level, size in sorted(report.bytes_per_level.items()):
         print(f"  level {level}: {size} bytes")
     shown = ", ".join(str(b) for b in report.bytes_per_window[:12])
     more = " ..." if len(report.bytes_per_window) > 12 else ""
     print(f"  bytes per window (level 0): {shown}{more}")
-    return 0
+
+
+def _print_temporal(outcome: TemporalOutcome) -> None:
+    """What merging the frames over time gave, and whether it was stored."""
+    if outcome.merged:
+        if outcome.note:
+            print(f"temporal: {outcome.note}")
+        share = 100.0 * outcome.gaussians_out / max(1, outcome.gaussians_in)
+        print(
+            f"temporal {outcome.mode}: {outcome.gaussians_in} Gaussians in {outcome.frames} "
+            f"frames -> {outcome.gaussians_out} ({share:.1f}%), {outcome.moving_out} with "
+            f"motion, {outcome.seconds:.1f} s"
+        )
+        worst = ", ".join(f"{k} {v:.3g}" for k, v in sorted(outcome.worst.items()))
+        print(f"  largest change from a source frame before encoding: {worst}")
+    if outcome.declined is not None:
+        print(f"temporal: {outcome.declined}")
+
+
+def _print_frame_check(check: FrameCheck) -> None:
+    """The worst error per attribute of a few decoded frames of a merged container."""
+    for frame, unpaired in check.unpaired:
+        print(f"  frame {frame}: {unpaired} Gaussians could not be paired with the source")
+    shown = ", ".join(f"{k} {v:.3g}" for k, v in sorted(check.worst.items()))
+    frames = ", ".join(map(str, check.frames))
+    print(f"  worst error after encoding (frames {frames}): {shown}")
 
 
 def _duration_line(report: SegmentReport) -> str:
@@ -390,54 +329,6 @@ def _layers_line(report: SegmentReport) -> str:
         return report.layers_why or "one layer"
     sizes = ", ".join(f"{layer.bytes}" for layer in report.layers)
     return f"{report.layers_why}; bytes per layer: {sizes}"
-
-
-class _RendererWarmUp:
-    """The renderer loaded on a thread while the last jobs are encoded (numba's import and its
-    kernel's cache: about 1 s and 200 MB), when this process mostly waits for its workers and
-    holds no job's part any more, so the thumbnail drawn at the end starts at once. Started
-    with the encoding it raised the 5M checkpoint's peak by 230 MB (the parts being sent);
-    started at once it slowed the serial start, whose Python work (merging frames) it held
-    the GIL from. A failure is left for the thumbnail to report."""
-
-    def __init__(self) -> None:
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        """Start loading, once."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=_load_renderer, name="tsog-warm", daemon=True)
-            self._thread.start()
-
-    def join(self) -> None:
-        """Wait until the renderer is loaded (it is loaded here when encoding never ran)."""
-        self.start()
-        assert self._thread is not None
-        self._thread.join()
-
-
-def _load_renderer() -> None:
-    """Load the renderer's compiled kernel (render.warm), ignoring any failure."""
-    with contextlib.suppress(Exception):
-        from ..render import warm  # noqa: PLC0415 - numba, only when segmenting
-
-        warm()
-
-
-def _write_thumbnail(container: str, progress: Progress) -> None:
-    """The scene list's picture beside the container; a failure is a note, not an error."""
-    from ..inputs import thumbnail_png  # noqa: PLC0415 - loads the renderer
-
-    progress("drawing the thumbnail")
-    release_freed_memory()  # what segmenting freed, before the picture is decoded and drawn
-    target = thumbnail_path(container)
-    try:
-        atomic_write_bytes(target, thumbnail_png(container))
-    except TsogError as exc:
-        note(f"no thumbnail: {exc}")
-        return
-    progress.done()
-    print(f"  thumbnail: {target}")
 
 
 def _cameras_line(cameras: list[CaptureCamera], source: str, report: SegmentReport) -> str:
@@ -488,52 +379,6 @@ def tolerance_option(args: argparse.Namespace) -> Tolerance | None:
         return None
     steps = args.tolerance_steps if args.tolerance_steps is not None else Tolerance().steps
     return Tolerance(position=args.tolerance, steps=steps)
-
-
-def _merged(args: argparse.Namespace, progress: Progress, seq: FrameSequence) -> Scene | None:
-    """The sequence merged as --temporal says, or None when merging saves nothing."""
-    started = time.monotonic()
-    scene, stats = merge_sequence(seq, args.temporal, tolerance_option(args), progress=progress)
-    progress.done()
-    seconds = time.monotonic() - started
-    if scene is None and stats.note:
-        print(f"temporal: {stats.note}; stored one per frame (type 0)")
-        return None
-    if scene is None:
-        print(
-            f"temporal: merging would hold over {MAX_HELD} Gaussians in memory after "
-            f"{stats.frames} frames; stored one per frame (type 0), window by window"
-        )
-        return None
-    if stats.gaussians_out >= stats.gaussians_in:
-        print("temporal: no Gaussian repeats across frames; stored one per frame (type 0)")
-        return None
-    if stats.note:
-        print(f"temporal: {stats.note}")
-    share = 100.0 * stats.gaussians_out / max(1, stats.gaussians_in)
-    print(
-        f"temporal {args.temporal}: {stats.gaussians_in} Gaussians in {stats.frames} frames -> "
-        f"{stats.gaussians_out} ({share:.1f}%), {stats.moving_out} with motion, {seconds:.1f} s"
-    )
-    worst = ", ".join(f"{k} {v:.3g}" for k, v in sorted(stats.worst.items()))
-    print(f"  largest change from a source frame before encoding: {worst}")
-    return scene
-
-
-def _report_frame_errors(seq: FrameSequence, path: str, samples: int = 5) -> None:
-    """Decode a few frames of the written container and print their worst error per attribute."""
-    frames = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(samples, seq.count))})
-    worst: dict[str, float] = {}
-    with open_stream(path) as reader:
-        for k in frames:
-            source = seq.read(k, k + 1).scene.gaussians
-            errors, unpaired = frame_errors(source, reader.frame_at(k / seq.fps))
-            if unpaired:
-                print(f"  frame {k}: {unpaired} Gaussians could not be paired with the source")
-            for name, value in errors.items():
-                worst[name] = max(worst.get(name, 0.0), value)
-    shown = ", ".join(f"{k} {v:.3g}" for k, v in sorted(worst.items()))
-    print(f"  worst error after encoding (frames {', '.join(map(str, frames))}): {shown}")
 
 
 def seek_table(reader: Stream, samples: int = 8) -> list[dict[str, Any]]:

@@ -13,7 +13,6 @@ import argparse
 import asyncio
 import contextlib
 import hashlib
-import io
 import json
 import os
 import webbrowser
@@ -27,21 +26,23 @@ from ..errors import InputError, TsogError, printable
 from ..inputs import STREAM_KINDS, input_kind, is_url
 from ..io.objects import is_object_url
 from ..io.sequence import list_frames
+from ..pipeline import segment_input
 from ..schemas.manifest import SceneInfo
 from ..summary import duration_text
 from .common import (
     Integer,
     Subparsers,
+    Told,
     add_cameras,
     add_common,
     add_input,
     assumed_duration,
-    input_bytes,
     local_file,
     note,
     warn,
 )
 from .progress import Progress
+from .stream_commands import default_options, print_segment_report, reading_options
 from .view_cache import (
     KEY_LENGTH,
     MAX_CACHE_BYTES,
@@ -232,31 +233,17 @@ def _scene_of(container: Path) -> SceneInfo:
 
 
 def _segment_into(args: argparse.Namespace, container: Path, progress: Progress) -> None:
-    """Run the segment command on the input, as typed, into ``container``; its report is
-    printed with ``-v``, else two lines: what was made, where, how big."""
-    from .main import build_parser  # noqa: PLC0415 - the segment command, as typed
-    from .stream_commands import cmd_segment  # noqa: PLC0415
-
-    argv = ["segment", args.input, "-o", str(container)]
-    for flag, value in (
-        ("--format", args.format),
-        ("--fps", args.fps),
-        ("--duration-s", args.duration_s),
-        ("--scene-length-s", args.scene_length_s),
-        ("--cameras", args.cameras),
-    ):
-        if value is not None:
-            argv += [flag, str(value)]
-    argv += ["--duration-mode", args.duration_mode]
-    report = contextlib.nullcontext() if args.verbose else contextlib.redirect_stdout(io.StringIO())
-    with report:
-        cmd_segment(build_parser().parse_args(argv), progress)
-    if not args.verbose:
-        progress.done()
-        print(
-            f"segmented {printable(args.input)} into {printable(str(container))} (-v: its layout)"
-        )
-        print(f"  {_copy_line(container, _scene_of(container), input_bytes(args.input))}")
+    """Segment the input into ``container`` as ``tsog segment`` would with the same reading
+    options; its report is printed with ``-v``, else two lines: what was made, where, how big."""
+    options = default_options()
+    told = Told(progress, args.input)
+    made = segment_input(args.input, container, options, reading_options(args), told)
+    progress.done()
+    if args.verbose:
+        print_segment_report(made, options.quality)
+        return
+    print(f"segmented {printable(args.input)} into {printable(str(container))} (-v: its layout)")
+    print(f"  {_copy_line(container, _scene_of(container), made.input_bytes)}")
 
 
 def _copy_line(container: Path, scene: SceneInfo, input_size: int = 0) -> str:
