@@ -250,9 +250,9 @@ def markdown(r: dict[str, Any], stamp: str) -> str:
     lines += [
         "",
         f"Average CPU use over the run: ours {o['cpu_s'] / r['seconds']:.2f} cores, nginx "
-        f"{n['cpu_s'] / r['seconds']:.2f}: ours spends its CPU in Python per request (on the "
-        "lean path: the request head, the file's checks and the response head; docs/http.md, "
-        "'The per-request path'), "
+        f"{n['cpu_s'] / r['seconds']:.2f}: ours spends its CPU in Python per request (aiohttp's "
+        "parser, routing, middleware and response; docs/http.md, 'The per-request path': raw "
+        "throughput is what nginx or a CDN in front is for), "
         "nginx is far from CPU-bound and limited by the load tool sharing the 2 cores (wrk "
         "receives and copies every body).",
         f"Goals: 0 errors (ours: {o['errors']}), RSS growth under 50 MB "

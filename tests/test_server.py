@@ -32,9 +32,6 @@ from tsog_stream.synthetic import small_scene
 
 SECRET = b"TOP-SECRET-OUTSIDE-THE-ROOT"
 DATA = bytes(range(256)) * 400 + b"tail"  # 102 404 bytes
-FULL_PATH = Limits(lean=False)
-"""Every request through the full aiohttp handler (tests of its sending; test_lean.py covers
-the lean path)."""
 
 
 @pytest.fixture(scope="module")
@@ -386,7 +383,7 @@ def spied(
     """A server on the tree whose loop's sendfile is spied on (the direct first attempt is
     off here: test_a_body_goes_out_directly_and_the_rest_by_the_loop covers it)."""
     monkeypatch.setattr(respond, "sendfile_now", lambda *_: 0)
-    server = ThreadedServer(make_app(tree, limits=FULL_PATH))
+    server = ThreadedServer(make_app(tree))
     spy = SendfileSpy(server.loop)
     server.loop.sendfile = spy  # type: ignore[method-assign]
     try:
@@ -431,7 +428,7 @@ def test_a_body_goes_out_directly_and_the_rest_by_the_loop(
 
     limit = [1 << 30]
     monkeypatch.setattr(respond, "sendfile_now", limited)
-    server = ThreadedServer(make_app(tree, limits=FULL_PATH))
+    server = ThreadedServer(make_app(tree))
     spy = SendfileSpy(server.loop)
     server.loop.sendfile = spy  # type: ignore[method-assign]
     try:

@@ -18,6 +18,7 @@ import pytest
 
 from helpers import ThreadedServer, fetch
 from serve_process import Served, tsog_serve
+from tsog_stream.container.stream_index import StreamIndex
 from tsog_stream.model import TimelineType
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app
@@ -619,17 +620,18 @@ def test_cold_etag_is_computed_once(tmp_path: Path, monkeypatch: pytest.MonkeyPa
 def test_cold_scene_is_opened_once_off_the_event_loop(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """40 first requests for a scene at once cost one opening, parsed in a worker thread:
-    meanwhile the event loop answers /healthz at once."""
+    """40 first requests for a scene at once cost one opening, read through the async reader
+    and described (manifest JSON, Gaussians per frame) in a worker thread: meanwhile the event
+    loop answers /healthz at once."""
     calls: list[str] = []
-    real = catalog_module._read_scene
+    real = catalog_module._describe
 
-    def slow_read(path: Path, packed: bool) -> tuple[object, bytes, int]:
+    def slow_describe(index: StreamIndex, manifest_json: bytes | None) -> tuple[bytes, int]:
         calls.append(threading.current_thread().name)
-        time.sleep(1.0)  # a big index: every request arrives while it is parsed
-        return real(path, packed)
+        time.sleep(1.0)  # a big index: every request arrives while it is described
+        return real(index, manifest_json)
 
-    monkeypatch.setattr(catalog_module, "_read_scene", slow_read)
+    monkeypatch.setattr(catalog_module, "_describe", slow_describe)
     scene = small_scene(TimelineType.CENTER_SCALE, sh_bands=0)
     segment_scene(scene, tmp_path / "clip.tsogs", SegmentOptions(window_s=0.5))
     srv = ThreadedServer(make_app(tmp_path))

@@ -27,7 +27,7 @@ from tsog_stream.io.readers import load_scene
 from tsog_stream.model import TimelineType
 from tsog_stream.schemas.manifest import Policy
 from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
-from tsog_stream.server import Limits, Privacy, make_app
+from tsog_stream.server import Privacy, make_app
 from tsog_stream.server.player import _scene_item
 from tsog_stream.server.shown import gaussians_per_frame
 from tsog_stream.synthetic import small_scene
@@ -109,23 +109,21 @@ def _thumbnails(root: Path, ids: list[str]) -> dict[str, bytes]:
     return out
 
 
-@pytest.mark.parametrize("lean", [True, False], ids=["lean", "full"])
-def test_a_folder_lists_thumbnails_that_answer_as_png(media: Path, lean: bool) -> None:
-    server = ThreadedServer(make_app(media, limits=Limits(lean=lean)))
+def test_a_folder_lists_thumbnails_that_answer_as_png(media: Path) -> None:
+    server = ThreadedServer(make_app(media))
     try:
         thumbnails = _thumbnails(media, ["fire", "loose", "monkey", "still"])
         _check_list_thumbnails(server.port, thumbnails)
-        for _ in range(2):  # the first teaches the lean path the file, the second is lean
+        for _ in range(2):  # the first computes the ETag, the second finds it known
             _check_png(server.port, "/files/monkey.tsogs.thumb.png", thumbnails["monkey"])
     finally:
         server.stop()
 
 
-@pytest.mark.parametrize("lean", [True, False], ids=["lean", "full"])
-def test_one_container_lists_its_thumbnail_and_exposes_no_sibling(media: Path, lean: bool) -> None:
+def test_one_container_lists_its_thumbnail_and_exposes_no_sibling(media: Path) -> None:
     """tsog serve FILE.tsogs (and tsog view, which serves one container so): its thumbnail
     is the scene's and answers; the siblings' files stay 404."""
-    server = ThreadedServer(make_app(media / "monkey.tsogs", limits=Limits(lean=lean)))
+    server = ThreadedServer(make_app(media / "monkey.tsogs"))
     try:
         _check_list_thumbnails(server.port, _thumbnails(media, ["monkey"]))
         for _ in range(2):
@@ -150,7 +148,7 @@ def test_a_private_scenes_thumbnail_needs_a_signed_url(media: Path) -> None:
     try:
         assert "monkey" not in _listed(server.port)
         for url in ("/files/monkey.tsogs.thumb.png", "/v1/scenes/monkey/thumbnail"):
-            for _ in range(2):  # the lean path never answers a private file either
+            for _ in range(2):  # refused alike with the file's ETag known
                 assert fetch(server.port, url).status == 403, url
         assert fetch(server.port, "/files/fire.tsogs.thumb.png").status == 200
     finally:

@@ -23,7 +23,6 @@ from ..errors import AccessError, InputError
 from ..io.objects import ObjectPath, is_object_url
 from .catalog import BusyError, Catalog, NotFoundError, SceneEntry
 from .conditional import Outcome, evaluate, http_date
-from .lean import LeanSite
 from .logs import log_out_of_fds, quiet_client_errors
 from .object_catalog import ObjectCatalog
 from .player import add_player_routes
@@ -268,11 +267,7 @@ async def start_server(
         shutdown_timeout=limits.shutdown_timeout_s,
     )
     await runner.setup()
-    site = (
-        LeanSite(runner, host, port, reuse_port=reuse_port)
-        if limits.lean and limits.sendfile and _local(app)
-        else web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
-    )
+    site = web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
     try:
         await site.start()
     except OSError as exc:
@@ -281,11 +276,6 @@ async def start_server(
             raise InputError(f"port {port} is in use; try --port 0", where=host) from exc
         raise InputError(f"cannot listen: {exc.strerror}", where=f"{host}:{port}") from exc
     return runner, int(runner.addresses[0][1])
-
-
-def _local(app: web.Application) -> bool:
-    """An app from make_app serving local files (the lean path sends files by descriptor)."""
-    return CATALOG in app and not isinstance(app[CATALOG], ObjectCatalog)
 
 
 async def serve_forever(

@@ -24,6 +24,7 @@ from typing import Any, BinaryIO, NamedTuple, TypeVar, cast
 from ..constants import is_container, thumbnail_path
 from ..container.header import HEADER_SIZE, Header
 from ..container.index import MAX_INDEX_BYTES
+from ..container.ranges import ByteRange
 from ..container.sources import ByteSource, FileSource, read_index
 from ..container.stream_index import MANIFEST, StreamIndex, unpacked_index
 from ..errors import InputError, SourceError, TsogError
@@ -114,8 +115,8 @@ def open_beneath(root: Path, path: Path) -> BinaryIO:
 
 
 def open_fd_beneath(root: str, rel: str) -> int:
-    """:func:`open_beneath` on strings, returning the descriptor: the lean path's open, without
-    building paths (``rel`` already passed :func:`check_relative`)."""
+    """:func:`open_beneath` on strings, returning the descriptor (``rel`` already passed
+    :func:`check_relative`)."""
     parts = rel.split("/")
     fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
     try:
@@ -203,15 +204,24 @@ def locate(root: Path, rel: str) -> tuple[Path, FileVersion]:
     return path, version_of(st, path.name)
 
 
+def container_etag(head: bytes, where: str) -> str | None:
+    """The ETag rule of every catalog, for a file whose first bytes are ``head``: a container's
+    identity (the index SHA-256 its header names), so the ETag changes exactly when the
+    container does; None for any other file (the catalog then tags its content)."""
+    if not is_container(head):
+        return None
+    try:
+        return f'"{Header.unpack(head[:HEADER_SIZE], where=where).index_sha256.hex()}"'
+    except TsogError:
+        return None
+
+
 def _content_etag(root: Path, path: Path) -> str:
-    """Strong ETag: a container's identity (index SHA-256) or the SHA-256 of the content."""
+    """Strong ETag of a local file: :func:`container_etag`, else the SHA-256 of the content."""
     with open_beneath(root, path) as f:
-        head = f.read(HEADER_SIZE)
-        if is_container(head):
-            try:
-                return f'"{Header.unpack(head, where=path.name).index_sha256.hex()}"'
-            except TsogError:
-                pass
+        identity = container_etag(f.read(HEADER_SIZE), path.name)
+        if identity is not None:
+            return identity
         f.seek(0)
         digest = hashlib.sha256()
         while block := f.read(_HASH_BLOCK):
@@ -242,24 +252,30 @@ class Catalog:
             raise NotFoundError("no such file", where=rel[:80])
 
     async def file(self, rel: str) -> Representation:
-        """The whole file at ``rel`` (relative to the root)."""
-        self.check_only(rel)
-        path, version = locate(self.root, rel)
+        """The whole file at ``rel`` (relative to the root), its ETag computed once per
+        version (:func:`container_etag`, else one of the content)."""
+        path, version = await self._find(rel)
         cached = self._etags.get(path)
         if cached is None or cached[0] != version:
-            cached = (version, await self._hash_once(path, version))
-            remember(self._etags, path, cached)
+            try:
+                tag = await self._once("etag", path, version, lambda: self._tag(path))
+            except OSError as exc:  # vanished or unreadable since the stat
+                raise unreadable(exc, "no such file", path.name) from exc
+            remember(self._etags, path, cached := (version, tag))
         return self._whole(path, version, cached[1])
 
-    def file_if_known(self, rel: str) -> Representation | None:
-        """:meth:`file` without waiting: None when the file's current ETag is not known yet
-        (the lean path then lets the full handler compute it). Raises as :meth:`file` does."""
+    async def _find(self, rel: str) -> tuple[Path, FileVersion]:
+        """The file ``rel`` names and its version (NotFoundError when there is none)."""
         self.check_only(rel)
-        path, version = locate(self.root, rel)
-        cached = self._etags.get(path)
-        if cached is None or cached[0] != version:
-            return None
-        return self._whole(path, version, cached[1])
+        return locate(self.root, rel)
+
+    async def _tag(self, path: Path) -> str:
+        """The ETag of the file at ``path``, read in a worker thread."""
+        return await asyncio.to_thread(_content_etag, self.root, path)
+
+    def source_of(self, path: Path) -> ByteSource:
+        """The bytes of the file at ``path`` (a path as :meth:`_find` gives), read async."""
+        return FileSource(path)
 
     def _whole(self, path: Path, version: FileVersion, etag: str) -> Representation:
         """The representation of a whole file under the root."""
@@ -280,63 +296,40 @@ class Catalog:
         # shielded: a client leaving does not cancel the others' wait; the kind keys the type
         return cast(_T, await asyncio.shield(task))
 
-    async def _hash_once(self, path: Path, version: FileVersion) -> str:
-        """The content ETag, computed once per file version (see :meth:`_once`)."""
-        try:
-            return await self._once(
-                "etag", path, version, lambda: asyncio.to_thread(_content_etag, self.root, path)
-            )
-        except OSError as exc:  # vanished or unreadable since the stat
-            raise unreadable(exc, "no such file", path.name) from exc
-
     async def scene(self, scene_id: str) -> SceneEntry:
         """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
-        path, version, packed = self._scene_file(scene_id)
+        path, version, packed = await self._scene_file(scene_id)
         cached = self._scenes.get(path)
         if cached is None or cached[0] != version:
             scene = await self._once(
-                "scene",
-                path,
-                version,
-                lambda: self._open(scene_id, path, packed, version.size, version.mtime_ns),
+                "scene", path, version, lambda: self._open(scene_id, path, packed, version)
             )
-            cached = (version, scene)
-            remember(self._scenes, path, cached)
+            remember(self._scenes, path, cached := (version, scene))
         return _named(cached[1], scene_id)
 
-    def scene_if_known(self, scene_id: str) -> SceneEntry | None:
-        """:meth:`scene` without waiting: None when the scene is not open at its current
-        version. Raises as :meth:`scene` does."""
-        path, version, _ = self._scene_file(scene_id)
-        cached = self._scenes.get(path)
-        return None if cached is None or cached[0] != version else _named(cached[1], scene_id)
-
-    def _scene_file(self, scene_id: str) -> tuple[Path, FileVersion, bool]:
+    async def _scene_file(self, scene_id: str) -> tuple[Path, FileVersion, bool]:
         """The container or manifest file of a scene, its version, and whether it is packed."""
-        self.check_only(scene_id + CONTAINER_SUFFIX)
         try:
-            path, version = locate(self.root, scene_id + CONTAINER_SUFFIX)
+            path, version = await self._find(scene_id + CONTAINER_SUFFIX)
             return path, version, True
         except NotFoundError:
-            path, version = locate(self.root, f"{scene_id}/{MANIFEST}")
+            path, version = await self._find(f"{scene_id}/{MANIFEST}")
             return path, version, False
 
     async def _open(
-        self, scene_id: str, path: Path, packed: bool, size: int, mtime_ns: int
+        self, scene_id: str, path: Path, packed: bool, version: FileVersion
     ) -> SceneEntry:
-        """Open a container or read an unpacked manifest, in a worker thread so that parsing a
-        large index never stalls the event loop (NotFoundError when unreadable)."""
+        """Open a container or read an unpacked manifest through the async reader
+        (NotFoundError when unreadable, BusyError when out of file descriptors)."""
         try:
-            index, manifest_json, per_frame = await asyncio.to_thread(_read_scene, path, packed)
+            index, manifest_json, per_frame = await _read_scene(
+                self.source_of(path), packed, version.size
+            )
         except TsogError as exc:
             raise unreadable(exc, f"not a readable scene: {exc.message}", scene_id) from exc
-        except OSError as exc:  # vanished or unreadable since the stat
-            raise unreadable(exc, "not a readable scene", scene_id) from exc
-        if not packed:
-            size = len(manifest_json) + index.manifest.payload_bytes
-        return SceneEntry(
-            scene_id, path, packed, index, manifest_json, mtime_ns / 1e9, size, per_frame
-        )
+        size = len(manifest_json) + index.manifest.payload_bytes if not packed else version.size
+        mtime = version.mtime_ns / 1e9
+        return SceneEntry(scene_id, path, packed, index, manifest_json, mtime, size, per_frame)
 
     def relative(self, path: Path) -> str:
         """The root-relative form of a resolved path under the root."""
@@ -372,12 +365,16 @@ class Catalog:
         return sorted(ids)
 
     def chunk(self, scene: SceneEntry, chunk_id: int) -> Representation:
-        """The bytes of one chunk: a slice of the container or a file of the unpacked layout."""
+        """The bytes of one chunk: a slice of the container or a file of the unpacked layout;
+        its ETag the chunk's SHA-256."""
         chunks = scene.index.manifest.chunks
         if not 0 <= chunk_id < len(chunks):
             raise NotFoundError(f"no chunk {chunk_id} (it has {len(chunks)})", where=scene.id)
         entry: ChunkEntry = chunks[chunk_id]
-        etag = f'"{entry.sha256}"'
+        return self._chunk(scene, entry, f'"{entry.sha256}"')
+
+    def _chunk(self, scene: SceneEntry, entry: ChunkEntry, etag: str) -> Representation:
+        """The representation of one chunk of ``scene`` (see :meth:`chunk`)."""
         if scene.packed:
             return Representation(
                 scene.path, entry.offset, entry.length, etag, scene.mtime, SOG_TYPE
@@ -387,20 +384,29 @@ class Catalog:
         return Representation(path, 0, version.size, etag, mtime, SOG_TYPE, self.root)
 
 
-def _read_scene(path: Path, packed: bool) -> tuple[StreamIndex, bytes, int]:
-    """The index, manifest JSON and Gaussians per frame of a container or an unpacked layout
-    (blocking: run it in a thread). An unpacked manifest over MAX_INDEX_BYTES is refused
-    before it is read."""
+async def _read_scene(
+    source: ByteSource, packed: bool, size: int
+) -> tuple[StreamIndex, bytes, int]:
+    """The index, manifest JSON and Gaussians per frame of a container or an unpacked manifest
+    of ``size`` bytes, read through ``source`` (the one async reader for files and stores); an
+    unpacked manifest over MAX_INDEX_BYTES is refused before it is read."""
     if packed:
-        index = asyncio.run(read_index(FileSource(path)))
-        manifest_json = dump_manifest(index.manifest)
+        index, manifest_json = await read_index(source), None
     else:
-        with open(path, "rb") as f:
-            manifest_json = f.read(MAX_INDEX_BYTES + 1)
-        if len(manifest_json) > MAX_INDEX_BYTES:
-            raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=str(path))
-        index = unpacked_index(manifest_json, where=str(path))
-    return index, manifest_json, gaussians_per_frame(index.manifest)
+        if size > MAX_INDEX_BYTES:
+            raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=source.name)
+        manifest_json = await source.read(ByteRange(0, size))
+        index = unpacked_index(manifest_json, where=source.name)
+    text, per_frame = await asyncio.to_thread(_describe, index, manifest_json)
+    return index, text, per_frame
+
+
+def _describe(index: StreamIndex, manifest_json: bytes | None) -> tuple[bytes, int]:
+    """The manifest JSON (``manifest_json`` when read from an unpacked layout) and the
+    Gaussians per frame of a scene: run in a worker thread, so a large index never stalls the
+    event loop."""
+    text = manifest_json if manifest_json is not None else dump_manifest(index.manifest)
+    return text, gaussians_per_frame(index.manifest)
 
 
 def _named(scene: SceneEntry, scene_id: str) -> SceneEntry:

@@ -12,21 +12,16 @@ from __future__ import annotations
 
 import asyncio
 import time
-from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from ..constants import is_container
-from ..container.header import HEADER_SIZE, Header
-from ..container.index import MAX_INDEX_BYTES
+from ..container.header import HEADER_SIZE
 from ..container.objects import ObjectSource
 from ..container.ranges import ByteRange
-from ..container.sources import read_index
-from ..container.stream_index import MANIFEST, unpacked_index
-from ..errors import SourceError, TsogError
+from ..container.stream_index import MANIFEST
 from ..io.objects import ObjectPath, store_errors
-from ..schemas.manifest import dump_manifest
+from ..schemas.manifest import ChunkEntry
 from .catalog import (
     CONTAINER_SUFFIX,
     CONTAINER_TYPE,
@@ -37,11 +32,11 @@ from .catalog import (
     Representation,
     SceneEntry,
     check_relative,
+    container_etag,
     guess_type,
     remember,
     servable,
 )
-from .shown import gaussians_per_frame
 
 REVALIDATE_S = 2.0
 """Seconds an object's version is trusted before the store is asked again."""
@@ -85,92 +80,42 @@ class ObjectCatalog(Catalog):
         remember(self._seen, rel, (now, info))
         return info
 
-    async def _locate(self, rel: str) -> FileVersion:
-        """The version of the object ``rel``, NotFoundError when there is none."""
+    async def _find(self, rel: str) -> tuple[Path, FileVersion]:
+        """The object ``rel`` (its name relative to the base) and its version, NotFoundError
+        when there is none."""
         check_relative(rel)
         self.check_only(rel)
         info = await asyncio.to_thread(self._info, rel)
         if info is None:
             raise NotFoundError("no such file", where=rel[:80])
-        return _version(info)
+        return Path(rel), _version(info)
 
     def source(self, rel: str) -> ObjectSource:
         """Ranged reads of the object ``rel``."""
         return ObjectSource(self.base / rel)
 
-    async def file(self, rel: str) -> Representation:
-        """The whole object at ``rel``, its ETag the container identity or the store's."""
-        version = await self._locate(rel)
-        path = Path(rel)
-        cached = self._etags.get(path)
-        if cached is None or cached[0] != version:
-            cached = (version, await self._etag(rel))
-            remember(self._etags, path, cached)
-        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else guess_type(path)
-        mtime = version.mtime_ns / 1e9
-        return Representation(
-            path, 0, version.size, cached[1], mtime, kind, source=self.source(rel)
-        )
+    def source_of(self, path: Path) -> ObjectSource:
+        """Ranged reads of the object named ``path`` (relative to the base)."""
+        return self.source(path.as_posix())
 
-    async def _etag(self, rel: str) -> str:
-        source = self.source(rel)
+    async def _tag(self, path: Path) -> str:
+        """:func:`~.catalog.container_etag`, else the store's ETag of the object."""
+        source = self.source_of(path)
         size = await source.size()
         head = await source.read(ByteRange(0, min(size, HEADER_SIZE)))
-        if is_container(head):
-            try:
-                return f'"{Header.unpack(head, where=rel).index_sha256.hex()}"'
-            except TsogError:
-                pass
-        info = await asyncio.to_thread(self._info, rel)
+        identity = container_etag(head, path.as_posix())
+        if identity is not None:
+            return identity
+        info = await asyncio.to_thread(self._info, path.as_posix())
         tag = str((info or {}).get("ETag") or "").strip('"')
         return f'"{tag}"' if tag else f'"{size}-{int(time.time())}"'
 
-    def file_if_known(self, rel: str) -> Representation | None:
-        """Never known without asking the store: the full handler answers."""
-        return None
-
-    def scene_if_known(self, scene_id: str) -> SceneEntry | None:
-        """Never known without asking the store: the full handler answers."""
-        return None
-
-    async def scene(self, scene_id: str) -> SceneEntry:
-        """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else ``<id>/manifest.json``."""
-        packed = True
-        rel = scene_id + CONTAINER_SUFFIX
-        try:
-            version = await self._locate(rel)
-        except NotFoundError:
-            packed, rel = False, f"{scene_id}/{MANIFEST}"
-            version = await self._locate(rel)
-        path = Path(rel)
-        cached = self._scenes.get(path)
-        if cached is None or cached[0] != version:
-            scene = await self._open_scene(scene_id, rel, packed, version)
-            cached = (version, scene)
-            remember(self._scenes, path, cached)
-        entry = cached[1]
-        return entry if entry.id == scene_id else replace(entry, id=scene_id)
-
-    async def _open_scene(
-        self, scene_id: str, rel: str, packed: bool, version: FileVersion
-    ) -> SceneEntry:
-        source = self.source(rel)
-        try:
-            if packed:
-                index = await read_index(source)
-                manifest_json = dump_manifest(index.manifest)
-                size = version.size
-            else:
-                if version.size > MAX_INDEX_BYTES:
-                    raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=rel)
-                manifest_json = await source.read(ByteRange(0, version.size))
-                index = unpacked_index(manifest_json, where=rel)
-                size = len(manifest_json) + index.manifest.payload_bytes
-        except TsogError as exc:
-            raise NotFoundError(f"not a readable scene: {exc.message}", where=scene_id) from exc
-        per_frame = await asyncio.to_thread(gaussians_per_frame, index.manifest)
+    def _whole(self, path: Path, version: FileVersion, etag: str) -> Representation:
+        """The representation of a whole object, read from the store."""
+        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else guess_type(path)
         mtime = version.mtime_ns / 1e9
-        return SceneEntry(scene_id, Path(rel), packed, index, manifest_json, mtime, size, per_frame)
+        source = self.source_of(path)
+        return Representation(path, 0, version.size, etag, mtime, kind, source=source)
 
     def relative(self, path: Path) -> str:
         """Names are already relative to the base."""
@@ -200,29 +145,17 @@ class ObjectCatalog(Catalog):
                 ids.add(rel.removesuffix(CONTAINER_SUFFIX))
         return sorted(ids)
 
-    def chunk(self, scene: SceneEntry, chunk_id: int) -> Representation:
+    def _chunk(self, scene: SceneEntry, entry: ChunkEntry, etag: str) -> Representation:
         """One chunk: a range of the container object, or an object of the unpacked layout."""
-        chunks = scene.index.manifest.chunks
-        if not 0 <= chunk_id < len(chunks):
-            raise NotFoundError(f"no chunk {chunk_id} (it has {len(chunks)})", where=scene.id)
-        entry = chunks[chunk_id]
-        etag = f'"{entry.sha256}"'
         if scene.packed:
             rel = scene.path.as_posix()
-            return Representation(
-                scene.path,
-                entry.offset,
-                entry.length,
-                etag,
-                scene.mtime,
-                SOG_TYPE,
-                source=self.source(rel),
-            )
-        rel = f"{scene.path.parent.as_posix()}/{entry.file}"
-        check_relative(rel)
-        return Representation(
-            Path(rel), 0, entry.length, etag, scene.mtime, SOG_TYPE, source=self.source(rel)
-        )
+            offset, length = entry.offset, entry.length
+        else:
+            rel = f"{scene.path.parent.as_posix()}/{entry.file}"
+            check_relative(rel)
+            offset, length = 0, entry.length
+        source = self.source(rel)
+        return Representation(Path(rel), offset, length, etag, scene.mtime, SOG_TYPE, source=source)
 
 
 __all__ = ["REVALIDATE_S", "ObjectCatalog"]

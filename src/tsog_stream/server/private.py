@@ -60,8 +60,12 @@ class Privacy:
         return any(fnmatchcase(c, p) for c in candidates for p in self.patterns)
 
     def admit(self, request: web.Request, rels: Iterable[str]) -> None:
-        """Let the request through, or raise AccessError when a path is private and unsigned."""
-        if not any(self.is_private(r) for r in rels):
+        """Let the request through, or raise AccessError when a path is private and unsigned.
+
+        The signature is verified once per request: it covers the request's own URL, so a
+        request already admitted by it (the path as asked) is admitted for the path it resolves
+        to without verifying again."""
+        if is_signed(request) or not any(self.is_private(r) for r in rels):
             return
         secret = self.secret or b""  # never empty here: __post_init__ demands one with patterns
         check_signed(decoded_path(request.raw_path), request.query, secret, self.clock())

@@ -59,9 +59,6 @@ class Limits:
     """Grace period for in-flight requests on shutdown."""
     sendfile: bool = True
     """Send large single-span bodies with zero-copy ``loop.sendfile`` when the transport can."""
-    lean: bool = True
-    """Answer plain range GETs of public files and chunks on the lean path (server/lean.py;
-    needs ``sendfile``); False sends every request through the full aiohttp handler."""
 
 
 LIMITS = web.AppKey("limits", Limits)
@@ -69,12 +66,12 @@ CORS = {
     "Access-Control-Allow-Origin": "*",
     "Access-Control-Expose-Headers": "Content-Range, ETag, Accept-Ranges, Content-Length",
 }
-"""Headers on every response (added by the app's ``on_response_prepare`` and the lean path)."""
+"""Headers on every response (added by the app's ``on_response_prepare``)."""
 
 
 @dataclass
 class Load:
-    """Requests being handled: in all and by client address (both paths of a worker)."""
+    """Requests being handled by one worker process: in all and by client address."""
 
     total: int = 0
     by_client: dict[str, int] = field(default_factory=dict)
@@ -183,20 +180,18 @@ async def sendfile_slices(
     *,
     counted: Callable[[int], None] = lambda _n: None,
     first: bool = False,
-    fallback: bool = False,
 ) -> bool:
     """Send ``span`` of ``file`` with ``loop.sendfile`` in SENDFILE_SLICE slices, each within
     ``stall_s``, passing each slice's byte count to ``counted``. False when sendfile is
     unavailable and ``first`` (no byte of the body sent yet: the caller copies instead);
     unavailable later, or the transport closing, is the client gone (ConnectionResetError),
-    a short slice a file that shrank (ConnectionAbortedError). ``fallback``: let asyncio read
-    and write when native sendfile is unavailable."""
+    a short slice a file that shrank (ConnectionAbortedError)."""
     loop = asyncio.get_running_loop()
     for start in range(span.start, span.end, SENDFILE_SLICE):
         count = min(SENDFILE_SLICE, span.end - start)
         try:
             sent = await within_stall(
-                loop.sendfile(transport, file, start, count, fallback=fallback), stall_s
+                loop.sendfile(transport, file, start, count, fallback=False), stall_s
             )
         except (NotImplementedError, asyncio.SendfileNotAvailableError) as exc:
             if first and start == span.start:
