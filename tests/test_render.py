@@ -18,6 +18,7 @@ from PIL import Image
 
 from conftest import SAMPLES
 from helpers import ThreadedServer
+from test_invalid_corpus import targets
 from tsog_stream.cli.main import main
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import FormatError, InputError, SourceError
@@ -446,18 +447,9 @@ SANE_ENTRY: dict[str, object] = {
     "fy": 500.0,
 }
 """A camera 4 units in front of the origin, looking at it along +z."""
-HOSTILE_SHAPES: dict[str, dict[str, object]] = {
-    "200x65536": {"width": 200, "height": 65536},
-    "1x65536": {"width": 1, "height": 65536},
-    "65536x1": {"width": 65536, "height": 1},
-    "65536x65536": {"width": 65536, "height": 65536},
-    "1x1": {"width": 1, "height": 1},
-    "focal 1e-30": {"fx": 1e-30, "fy": 1e-30},
-    "focal 1e30": {"fx": 1e30, "fy": 1e30},
-    "fx 1e-30, fy 1e30": {"fx": 1e-30, "fy": 1e30},
-    "principal point 1e300": {"cx": 1e300, "cy": -1e300},
-}
-"""Shapes the camera schema accepts (sides up to 65536, any finite positive focal length)."""
+HOSTILE_SHAPES = targets.HOSTILE_CAMERA_SHAPES
+"""Shapes the camera schema accepts (sides up to 65536, any finite positive focal length):
+the fuzz target's own, so the two cover the same cameras."""
 REFUSED_SHAPES: dict[str, tuple[dict[str, object], str]] = {
     "width 0": ({"width": 0}, "[0].width"),
     "height -5": ({"height": -5}, "[0].height"),
@@ -522,7 +514,7 @@ def test_any_camera_a_file_declares_draws_a_bounded_image(shape: str, tmp_path: 
 def test_a_tall_camera_keeps_its_width_and_field_of_view_within_the_limits() -> None:
     """200x65536 is narrowed to 1:8 (the vertical field of view kept), then the 640-wide
     default shrunk to 1280x720's pixel count; a 178-degree view is held to 175."""
-    entry = {**SANE_ENTRY, **HOSTILE_SHAPES["200x65536"]}
+    entry = {**SANE_ENTRY, **HOSTILE_SHAPES["tall-200x65536"]}
     for focal, fy in ((50000.0, 50000.0 * 2712 / 65536), (500.0, FOCAL_PER_SIDE[0] * 2712)):
         raw = json.dumps([{**entry, "fx": focal, "fy": focal}]).encode()
         capture = parse_cameras_json(raw, where="c")[0]

@@ -27,7 +27,7 @@ from .inputs import thumbnail_png
 from .io.cameras import cameras_for_input
 from .io.files import atomic_write_bytes, check_output, remove_stale_temp_files
 from .io.objects import ObjectPath, is_object_url
-from .io.readers import ReadOptions, detect_format, load_scene
+from .io.readers import LoadedScene, ReadOptions, detect_format, load_scene
 from .io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
 from .io.splatv import ASSUMED_DURATION
 from .machine import release_freed_memory
@@ -226,23 +226,34 @@ def _opened(
 def _loaded(
     path: str, kind: str, inputs: InputOptions, told: Listener
 ) -> tuple[_Held, list[CaptureCamera], str]:
-    """Any other input read whole, its notes told: an assumption about time first (a
-    ``.splatv`` without its length), before the read, as it changes everything shown of it."""
-    said = kind == "splatv" and inputs.reading.duration_s is None
+    """Any other input read whole (:func:`load_told`)."""
+    loaded = load_told(path, kind, inputs.reading, told, cameras=inputs.cameras)
+    held = _Held(loaded.scene, duration_assumed=loaded.duration_assumed)
+    return held, loaded.cameras, loaded.cameras_source
+
+
+def load_told(
+    path: str,
+    kind: str,
+    reading: ReadOptions,
+    told: Listener,
+    *,
+    cameras: str | os.PathLike[str] | None = None,
+) -> LoadedScene:
+    """Read an input whole, its notes told: an assumption about time first (a ``.splatv``
+    without its length), before the read, as it changes everything shown of it."""
+    said = kind == "splatv" and reading.duration_s is None
     if said:
         told.warn(ASSUMED_DURATION)
     told(f"reading {path}")
-    loaded = load_scene(
-        path, format=kind, options=inputs.reading, progress=told, cameras=inputs.cameras
-    )
+    loaded = load_scene(path, format=kind, options=reading, progress=told, cameras=cameras)
     for text in loaded.notes:  # what the read assumed is said once, first
         if text == ASSUMED_DURATION and not said:
             told.warn(text)
     for text in loaded.notes:
         if text != ASSUMED_DURATION:
             told.note(text)
-    held = _Held(loaded.scene, duration_assumed=loaded.duration_assumed)
-    return held, loaded.cameras, loaded.cameras_source
+    return loaded
 
 
 def _segment(

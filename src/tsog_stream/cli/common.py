@@ -13,10 +13,11 @@ from ..client.http_options import DEFAULT_DEADLINE_S
 from ..errors import InputError, printable
 from ..io.chunks import chunk_folder
 from ..io.files import check_output, local_path
-from ..io.readers import FORMATS, LoadedScene, ReadOptions, detect_format, load_scene
+from ..io.readers import FORMATS, LoadedScene, ReadOptions, detect_format
 from ..io.sequence import DEFAULT_FPS
 from ..io.splatv import ASSUMED_DURATION, ASSUMED_DURATION_S
 from ..pipeline import input_bytes as input_bytes  # noqa: PLC0414 - the commands import it here
+from ..pipeline import load_told
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -164,23 +165,12 @@ def assumed_duration(input_name: str) -> str:
 
 
 def load_input(args: argparse.Namespace, progress: Progress) -> LoadedScene:
-    """Load the INPUT (and its capture cameras) with progress and reader notes on stderr. An
-    assumption the read will make about time (a ``.splatv`` without --duration-s) is the
-    first line said, before the read: it changes everything shown of the file."""
+    """Load the INPUT (and its capture cameras) with progress and reader notes on stderr, an
+    assumption about time said first (:func:`pipeline.load_told`)."""
     kind = args.format or detect_format(args.input)
-    said = kind == "splatv" and args.duration_s is None
-    if said:
-        warn(assumed_duration(args.input))
-    progress(f"reading {args.input}")
-    loaded = load_scene(
-        args.input,
-        format=kind,
-        options=read_options(args),
-        progress=progress,
-        cameras=getattr(args, "cameras", None),
-    )
-    print_reader_notes([n for n in loaded.notes if not (said and n == ASSUMED_DURATION)])
-    return loaded
+    told = Told(progress, args.input)
+    cameras = getattr(args, "cameras", None)
+    return load_told(args.input, kind, read_options(args), told, cameras=cameras)
 
 
 def print_reader_notes(notes: list[str]) -> None:
