@@ -49,10 +49,7 @@ from tsog_stream.codec.precision import DEFAULT_QUALITY
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.model import Scene
-from tsog_stream.segment.engines import local_cluster
-from tsog_stream.segment.layers import LayerPlan
-from tsog_stream.segment.plan import Plan
-from tsog_stream.segment.segmenter import (
+from tsog_stream.segment import (
     SegmentOptions,
     SegmentReport,
     WindowJob,
@@ -60,6 +57,9 @@ from tsog_stream.segment.segmenter import (
     segment_scene,
     segment_sequence,
 )
+from tsog_stream.segment.engines import local_cluster
+from tsog_stream.segment.layers import LayerPlan
+from tsog_stream.segment.plan import Plan
 from tsog_stream.synthetic import freetime_scene, static_gaussians
 
 MiB = 1 << 20

@@ -29,7 +29,7 @@ from tsog_stream.demo import errors_over_time, extended_ply_size
 from tsog_stream.io.fourdgs import encode_4dgs, parse_4dgs
 from tsog_stream.io.readers import ReadOptions, load_scene
 from tsog_stream.model import Scene
-from tsog_stream.segment.segmenter import segment_scene
+from tsog_stream.segment import segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.temporal import time_range
 

@@ -34,7 +34,7 @@ from tsog_stream.codec.chunk import decode_chunk, encode_chunk, read_meta
 from tsog_stream.codec.precision import QUALITY_MAX, without_faint
 from tsog_stream.io.readers import load_scene
 from tsog_stream.model import Scene
-from tsog_stream.render.camera import Camera, scene_orbit
+from tsog_stream.render import Camera, scene_orbit
 from tsog_stream.sh_palette import fit_palette
 from tsog_stream.synthetic import static_gaussians
 

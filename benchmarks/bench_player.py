@@ -35,7 +35,7 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import TimelineType
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene
 

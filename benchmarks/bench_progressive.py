@@ -41,8 +41,8 @@ from common import DOC, sample, write_section
 from tsog_stream.io.splatv import read_splatv
 from tsog_stream.model import Scene, TimelineType
 from tsog_stream.render.plot import Series, line_chart, write_png
-from tsog_stream.schemas.cameras import CaptureCamera
-from tsog_stream.segment.segmenter import SegmentOptions, SegmentReport, segment_scene
+from tsog_stream.schemas.cameras import Camera
+from tsog_stream.segment import SegmentOptions, SegmentReport, segment_scene
 from tsog_stream.server.link import LinkShape
 from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.throttled_play import play_through_link
@@ -80,9 +80,7 @@ class Clip:
         return self.layered_bytes * 8 / self.length_s
 
 
-def _segment(
-    name: str, scene: Scene, cameras: list[CaptureCamera], length: float, work: Path
-) -> Clip:
+def _segment(name: str, scene: Scene, cameras: list[Camera], length: float, work: Path) -> Clip:
     """The clip with measured layers and with one."""
     layered, single = work / f"{name}.tsogs", work / f"{name}-1.tsogs"
     report = segment_scene(scene, layered, SegmentOptions(workers=2), cameras=cameras)

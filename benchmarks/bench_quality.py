@@ -36,11 +36,10 @@ from tsog_stream.io.readers import load_scene
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.merge import merge_sequence
 from tsog_stream.model import Gaussians, Scene, evaluate_at
-from tsog_stream.render import render, to_uint8
-from tsog_stream.render.camera import Camera, scene_orbit
+from tsog_stream.render import Camera, render, scene_orbit, to_uint8
 from tsog_stream.render.evaluate import mean_psnr
 from tsog_stream.render.metrics import psnr, ssim
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene
 from tsog_stream.temporal import time_range
 

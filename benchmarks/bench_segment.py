@@ -38,7 +38,7 @@ from tsog_stream.io.fourdgs import encode_4dgs
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.readers import ReadOptions, load_scene
 from tsog_stream.model import Scene
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, freetime_scene, generate_scene, static_gaussians
 from tsog_stream.temporal import time_range
 

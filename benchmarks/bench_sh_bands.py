@@ -34,7 +34,7 @@ from tsog_stream.client import open_stream
 from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import (
+from tsog_stream.segment import (
     SegmentOptions,
     SegmentReport,
     segment_scene,

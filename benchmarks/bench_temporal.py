@@ -34,7 +34,7 @@ from tsog_stream.io.sequence import FrameSequence, open_sequence
 from tsog_stream.merge import merge_sequence
 from tsog_stream.merge.check import frame_errors
 from tsog_stream.model import Gaussians, Scene
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import static_gaussians
 
 REPO = Path(__file__).resolve().parents[1]

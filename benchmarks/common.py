@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from tsog_stream.model import Gaussians, TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
 REPO = Path(__file__).resolve().parents[1]

@@ -45,7 +45,7 @@ from tsog_stream.io.splatv import MAGIC, RECORD, parse_splatv
 from tsog_stream.model import Gaussians, TimelineType
 from tsog_stream.render import render
 from tsog_stream.render.camera import from_capture, stretched
-from tsog_stream.schemas.cameras import CaptureCamera
+from tsog_stream.schemas.cameras import Camera
 from tsog_stream.schemas.manifest import check_layout, dump_manifest, parse_manifest
 from tsog_stream.schemas.validate import parse_meta
 from tsog_stream.server.conditional import evaluate, if_range_allows
@@ -211,7 +211,7 @@ def fuzz_cameras_render(data: bytes) -> object:
     if not data:
         return None
     read = CAMERA_READERS[data[0] % len(CAMERA_READERS)]
-    cameras: list[CaptureCamera] = read(data[1:])  # type: ignore[assignment]
+    cameras: list[Camera] = read(data[1:])  # type: ignore[assignment]
     for camera in cameras[:MAX_CAMERAS_DRAWN]:
         drawn = (
             (from_capture(camera, None, budget=RENDER_BUDGET), RENDER_BUDGET),

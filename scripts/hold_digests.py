@@ -2,9 +2,13 @@
 when to rewrite them are in tests/test_bytes_held.py's docstring: only after an intended
 format change, with a changelog entry in docs/spec.md).
 
-Usage: ``.venv/bin/python scripts/hold_digests.py [--check]``. Each case is made in a fresh
-temporary folder; with ``--check`` nothing is written and the exit status is 1 when any case's
-digests differ from the file (each differing case is named, with its old and new sizes).
+Usage: ``.venv/bin/python scripts/hold_digests.py [--check | --add]``. Each case is made in a
+fresh temporary folder. The file holds digests per machine numerics (``numerics()``); a plain
+run replaces every machine's with this one's (after a format change: the other machines'
+digests are then recorded on them with ``--add``); ``--add`` records this machine's beside the
+others (run it in a worktree of a commit whose digests held); with ``--check`` nothing is
+written and the exit status is 1 when any case's digests differ from this machine's in the file
+(each differing case is named, with its old and new sizes).
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from test_bytes_held import CASES, DIGESTS, Digests, held_digests, recorded
+from test_bytes_held import CASES, DIGESTS, Digests, held_digests, numerics, recorded_all
 
 
 def made() -> dict[str, Digests]:
@@ -51,18 +55,22 @@ def differences(old: dict[str, Digests], new: dict[str, Digests]) -> list[str]:
 def main() -> int:
     """Make the digests, then write them or compare them with the file."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="compare with the file, write nothing")
+    how = parser.add_mutually_exclusive_group()
+    how.add_argument("--check", action="store_true", help="compare with the file, write nothing")
+    how.add_argument("--add", action="store_true", help="add this machine's, keep the others'")
     args = parser.parse_args()
     new = made()
+    every = recorded_all() if DIGESTS.exists() else {}
     if args.check:
-        old = recorded() if DIGESTS.exists() else {}
+        old = every.get(numerics(), {})
         lines = differences(old, new)
         for line in lines:
             print(line, file=sys.stderr)
         print(f"{len(new)} cases made, {len(lines)} differences from {DIGESTS.name}")
         return 1 if lines else 0
-    DIGESTS.write_text(json.dumps(new, indent=1, sort_keys=True) + "\n")
-    print(f"wrote {DIGESTS.relative_to(DIGESTS.parents[2])}: {len(new)} cases")
+    every = {**every, numerics(): new} if args.add else {numerics(): new}
+    DIGESTS.write_text(json.dumps(every, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {DIGESTS.relative_to(DIGESTS.parents[2])}: {len(new)} cases for {numerics()}")
     return 0
 
 

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from browser import COVERED, HIDE_UI, chromium
 from helpers import ThreadedServer
 from tsog_stream.cli.main import main as tsog
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene, rig_cameras
 

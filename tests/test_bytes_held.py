@@ -15,6 +15,12 @@ quality 50, and two encoder processes (which must give the bytes of one). Each c
 states what its container must hold (timeline type, layers, SH-band chunks), so that a case
 cannot keep its digest by quietly covering less.
 
+The digests are recorded per machine numerics (:func:`numerics`): the SH palette's matrix
+products go through the BLAS kernel for the CPU (AVX2 and AVX-512 round differently), the layer
+choice through NumPy's SIMD loops, so the same code writes other palette bytes on another kind
+of CPU. A machine whose numerics have no digests fails here with the way to record them: from a
+git worktree of the last commit whose digests held, ``scripts/hold_digests.py --add``.
+
 After an intended format change (a new byte in the container, its index or a chunk), and only
 then: add an entry to the changelog of ``docs/spec.md`` saying what changed and why, rewrite
 the digests with ``.venv/bin/python scripts/hold_digests.py`` and commit the file with the
@@ -28,12 +34,16 @@ import contextlib
 import hashlib
 import io
 import json
+import platform
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from PIL import features
+from threadpoolctl import threadpool_info
 
 from conftest import REPO, SAMPLES
 from fixtures_4d import freetime_npz, freetime_ply, freetime_truth
@@ -221,10 +231,33 @@ def held_digests(name: str, out: Path) -> Digests:
     return {artifact: digest(data) for artifact, data in CASES[name].make(out).items()}
 
 
-def recorded() -> dict[str, Digests]:
-    """The digests in tests/data/held_digests.json."""
-    data: dict[str, Digests] = json.loads(DIGESTS.read_text())
+def numerics() -> str:
+    """What decides this machine's rounding where the encoder's floats depend on the CPU: the
+    architecture, NumPy's SIMD level, OpenBLAS's kernel, and the libwebp and zlib that write
+    the images."""
+    simd = np.show_config(mode="dicts")["SIMD Extensions"]["found"]
+    blas = [i.get("architecture") for i in threadpool_info() if i.get("internal_api") == "openblas"]
+    parts = [platform.machine(), "simd:" + "+".join(simd or ["baseline"])]
+    parts += [f"blas:{'+'.join(map(str, blas)) or 'none'}"]
+    parts += [f"{lib}:{features.version(lib)}" for lib in ("webp", "zlib")]
+    return " ".join(parts)
+
+
+def recorded_all() -> dict[str, dict[str, Digests]]:
+    """Every machine numerics' digests in tests/data/held_digests.json."""
+    data: dict[str, dict[str, Digests]] = json.loads(DIGESTS.read_text())
     return data
+
+
+def recorded() -> dict[str, Digests]:
+    """This machine's digests (the test fails, saying how to record them, when there are none)."""
+    found = recorded_all().get(numerics())
+    if found is None:
+        pytest.fail(
+            f"no digests recorded for this machine's numerics ({numerics()}): from a git worktree "
+            "of the last commit whose digests held, run scripts/hold_digests.py --add"
+        )
+    return found
 
 
 def test_the_file_holds_every_case_and_no_other() -> None:

@@ -36,14 +36,14 @@ from tsog_stream.io.readers import load_scene
 from tsog_stream.model import Gaussians, Scene, Timeline, TimelineType
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
-from tsog_stream.schemas.cameras import CaptureCamera, HeaderCamera
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.schemas.cameras import Camera, HeaderCamera
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 
 HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"
 
 
-def ring_cameras(count: int = 3) -> list[CaptureCamera]:
+def ring_cameras(count: int = 3) -> list[Camera]:
     """Cameras on a circle around (5, 0, 0) (where blob_with_floaters is), y down (COLMAP
     style), looking at it."""
     cameras = []
@@ -52,7 +52,7 @@ def ring_cameras(count: int = 3) -> list[CaptureCamera]:
         eye = np.array([5 + 4 * math.sin(phi), -1.0, -4 * math.cos(phi)])
         c2w = look_at(eye, [5, 0, 0], [0, -1, 0])[:3, :3].T
         cameras.append(
-            CaptureCamera(
+            Camera(
                 name=f"img_{k:03d}.png",
                 width=800,
                 height=600,
@@ -89,7 +89,7 @@ def _qvec(m: np.ndarray) -> tuple[float, float, float, float]:
 Pose = tuple[int, tuple[float, float, float, float], list[float], int]
 
 
-def _poses(cameras: list[CaptureCamera]) -> list[Pose]:
+def _poses(cameras: list[Camera]) -> list[Pose]:
     """(image id, qvec, tvec, camera id) per camera, ids in reverse name order."""
     out: list[Pose] = []
     for k, c in enumerate(cameras):
@@ -98,7 +98,7 @@ def _poses(cameras: list[CaptureCamera]) -> list[Pose]:
     return out
 
 
-def write_colmap_text(folder: Path, cameras: list[CaptureCamera]) -> None:
+def write_colmap_text(folder: Path, cameras: list[Camera]) -> None:
     """cameras.txt (PINHOLE) and images.txt with a 2D-points line per image."""
     folder.mkdir(parents=True, exist_ok=True)
     lines = ["# Camera list with one line of data per camera:"]
@@ -112,7 +112,7 @@ def write_colmap_text(folder: Path, cameras: list[CaptureCamera]) -> None:
     (folder / "images.txt").write_text("\n".join(lines) + "\n")
 
 
-def write_colmap_binary(folder: Path, cameras: list[CaptureCamera]) -> None:
+def write_colmap_binary(folder: Path, cameras: list[Camera]) -> None:
     """cameras.bin (OPENCV: 8 parameters, distortion ignored) and images.bin with 2D points."""
     folder.mkdir(parents=True, exist_ok=True)
     data = struct.pack("<Q", len(cameras))
@@ -127,7 +127,7 @@ def write_colmap_binary(folder: Path, cameras: list[CaptureCamera]) -> None:
     (folder / "images.bin").write_bytes(data)
 
 
-def assert_same_cameras(got: list[CaptureCamera], want: list[CaptureCamera]) -> None:
+def assert_same_cameras(got: list[Camera], want: list[Camera]) -> None:
     assert [c.name for c in got] == [c.name for c in want]
     for a, b in zip(got, want, strict=True):
         assert (a.width, a.height) == (b.width, b.height)
@@ -173,7 +173,7 @@ def test_a_cameras_json_round_trips_and_draws_as_the_player_shows_it(tmp_path: P
     camera = from_capture(got[0], 640, 480)
     assert camera.fy == pytest.approx(705.0 * 480 / 600) and camera.fx == pytest.approx(560.0)
     point = np.array([*got[0].position, 1.0]) + np.append(np.array(got[0].rotation)[:, 2], 0)
-    x, y, z, _ = camera.world_to_camera @ point  # one unit straight ahead
+    x, y, z, _ = world_to_camera(camera) @ point  # one unit straight ahead
     assert (x, y, z) == pytest.approx((0.0, 0.0, 1.0))
 
 
@@ -316,9 +316,10 @@ def test_the_framing_fits_the_dense_core_not_the_floaters() -> None:
     view = default_view(gaussians, [])
     assert view is not None and view.name == FRAMING_NAME
     camera = from_capture(view, 320, 240)
-    points = np.c_[gaussians.means[:2000], np.ones(2000)] @ camera.world_to_camera.T
-    x = camera.fx * points[:, 0] / points[:, 2] + camera.cx
-    y = camera.fy * points[:, 1] / points[:, 2] + camera.cy
+    points = np.c_[gaussians.means[:2000], np.ones(2000)] @ world_to_camera(camera).T
+    cx, cy = camera.principal_point
+    x = camera.fx * points[:, 0] / points[:, 2] + cx
+    y = camera.fy * points[:, 1] / points[:, 2] + cy
     inside = (points[:, 2] > 0) & (x >= 0) & (x < 320) & (y >= 0) & (y < 240)
     assert inside.mean() > 0.95 and (np.abs(x - 160) < 80).mean() > 0.5
     # Up is -y without cameras (COLMAP captures), the capture cameras' own up with them.
@@ -528,9 +529,7 @@ MACABURGUERA = {
 most of the first three; it looks past yellow_clip2's core, a corner."""
 
 
-def ring_around_core(
-    gaussians: Gaussians, count: int = 12, radii: float = 1.0
-) -> list[CaptureCamera]:
+def ring_around_core(gaussians: Gaussians, count: int = 12, radii: float = 1.0) -> list[Camera]:
     """``count`` 1280x720 cameras (50-degree vertical view) on a circle of ``radii`` core
     radii around the dense core, a little above it (y down), each looking at its centre: a
     360-degree capture whose cameras stand inside the scene."""
@@ -543,7 +542,7 @@ def ring_around_core(
         eye = centre + radius * np.array([math.cos(phi), -0.2, math.sin(phi)])
         c2w = look_at(eye, centre, [0, -1, 0])[:3, :3].T
         cameras.append(
-            CaptureCamera(
+            Camera(
                 name=f"ring_{k:02d}.jpg",
                 width=1280,
                 height=720,
@@ -556,7 +555,7 @@ def ring_around_core(
     return cameras
 
 
-def write_cameras_json(path: Path, cameras: list[CaptureCamera]) -> None:
+def write_cameras_json(path: Path, cameras: list[Camera]) -> None:
     """A 3DGS cameras.json of ``cameras`` (img_name, no principal point)."""
     entries = [
         {"id": k, "img_name": c.name, **c.model_dump(exclude={"name", "cx", "cy"})}
@@ -631,7 +630,7 @@ def test_the_header_camera_opens_only_the_captures_it_shows(
         return
     assert view.name == FRAMING_NAME and why.startswith("capture camera 0 sees only ")
     assert not looks_at_core(camera, dense_core(first))
-    trusted = CaptureCamera.model_validate(camera.model_dump())
+    trusted = Camera.model_validate(camera.model_dump())
     assert opening_view(first, [trusted])[0].name == FRAMING_NAME
 
 

@@ -35,7 +35,7 @@ from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.codec.webp import encode_webp
 from tsog_stream.io.ply import write_ply
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import small_scene, static_gaussians
 
 PROBE = Path(__file__).with_name("cli_probe.py")

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from aiohttp import web
 
-from peers import Peer, drip, silent, unavailable
+from peers import Behaviour, Peer, drip, http_error, silent, unavailable
 from tsog_stream.cli.client_commands import add_client_commands, cmd_fetch, cmd_play
 from tsog_stream.cli.main import main
 from tsog_stream.cli.progress import Progress
@@ -26,12 +26,12 @@ from tsog_stream.client import (
     StreamClient,
     open_stream,
 )
-from tsog_stream.client.stream import scene_nbytes
+from tsog_stream.client.cache import scene_nbytes
 from tsog_stream.container.header import PREFIX_SIZE
 from tsog_stream.container.ranges import ByteRange, coalesce
 from tsog_stream.errors import InputError, IntegrityError, SourceError
 from tsog_stream.model import Gaussians, TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import small_scene
 
 TIMES = (0.0, 0.3, 0.7, 1.2, 1.9, 5.0)
@@ -307,6 +307,26 @@ def test_slow_answers_time_out(origin: Origin) -> None:
         open_stream(origin.url(), http=options)
 
 
+@pytest.mark.parametrize(
+    ("behaviour", "tries", "message"),
+    [(unavailable, 3, "failed after 3 attempts: HTTP 503"), (http_error, 1, "expected HTTP 206")],
+)
+def test_a_5xx_is_retried_with_capped_doubling_waits_and_a_4xx_never(
+    behaviour: Behaviour, tries: int, message: str
+) -> None:
+    """retries=2: a 503 is asked three times, after waits of 0.2 then 0.3 s (0.4 capped); a
+    400 once. Either way one line naming the URL."""
+    options = HttpOptions(retries=2, backoff_s=0.2, max_backoff_s=0.3)
+    with Peer(behaviour) as peer:
+        began = time.monotonic()
+        with pytest.raises(SourceError, match=message) as caught:
+            open_stream(f"http://127.0.0.1:{peer.port}/s.tsogs", http=options)
+        took = time.monotonic() - began
+        assert peer.accepted == tries
+    assert (0.5 <= took < 0.5 + SLACK) if tries > 1 else took < 0.2
+    assert "\n" not in str(caught.value) and "s.tsogs" in str(caught.value)
+
+
 @pytest.mark.parametrize("size", [0, 10])
 def test_tiny_files(origin: Origin, size: int) -> None:
     origin.reset(bytes(range(size)))
@@ -406,6 +426,26 @@ def test_the_cache_evicts_least_recently_used(container: Path) -> None:
     assert cache.get(0) is scenes[0]
     cache.put(2, scenes[2])
     assert 0 in cache and 1 not in cache and cache.nbytes <= cache.max_bytes
+
+
+def test_a_chunk_over_the_whole_cache_budget_is_returned_but_not_kept(container: Path) -> None:
+    """The byte bound holds: a chunk larger than the whole budget evicts nothing and is not
+    kept, yet every frame that needs it still comes (fetched again when needed again)."""
+    with open_stream(container) as reader:
+        chunks = reader.index.manifest.chunks
+        scenes = sorted((reader.chunk_scene(c.id) for c in chunks), key=scene_nbytes)
+    small, big = scenes[0], scenes[-1]
+    assert scene_nbytes(small) < scene_nbytes(big)
+    cache = SceneCache(scene_nbytes(small))
+    cache.put(0, small)
+    cache.put(1, big)
+    assert 1 not in cache and cache.get(0) is small and cache.nbytes == scene_nbytes(small)
+    want = local_frames(container, TIMES)
+    with open_stream(container, cache_bytes=scene_nbytes(small) - 1) as reader:
+        for _ in range(2):
+            assert all(same(reader.frame_at(t), w) for t, w in zip(TIMES, want, strict=True))
+        assert reader.client.cache.nbytes == 0
+        assert reader.client.cache_stats.hits == 0
 
 
 DEADLINE = 2.0

@@ -23,7 +23,7 @@ from tsog_stream.client import HttpOptions, Stream, StreamClient, open_stream
 from tsog_stream.container.ranges import coalesce
 from tsog_stream.errors import IntegrityError, SourceError
 from tsog_stream.model import Gaussians, TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server.app import make_app
 from tsog_stream.synthetic import small_scene
 

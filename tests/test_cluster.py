@@ -22,7 +22,6 @@ from distributed import Client, LocalCluster
 
 from helpers import reporting_job, wait_until
 from peers import Behaviour, Peer, claims, closes, http_error, random_bytes, silent
-from tsog_stream import machine
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes
@@ -34,9 +33,8 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.machine import usable_cores
 from tsog_stream.model import Scene
 from tsog_stream.schemas.manifest import ChunkEntry
-from tsog_stream.segment import engines
+from tsog_stream.segment import SegmentOptions, engines, segment_scene, segment_sequence
 from tsog_stream.segment.scheduler import client_handshake, parse_address, probe_scheduler
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 
 OPTIONS = SegmentOptions(window_s=1.0, policy="hybrid", max_pixels=64 * 64, layers=2)
@@ -87,22 +85,6 @@ def test_cli_segment_on_a_cluster_writes_the_same_container(
     assert paths["cluster"].read_bytes() == paths["one"].read_bytes()
 
 
-def _plugins(dask_worker: Any) -> list[str]:
-    return sorted(dask_worker.plugins)
-
-
-def test_every_worker_gets_glibc_s_usual_malloc_thresholds(scheduler: str, tmp_path: Path) -> None:
-    """Dask starts workers with MALLOC_TRIM_THRESHOLD_ set (encoding ran 1.6x slower): the
-    engine registers a worker plugin that sets the thresholds back, on every worker."""
-    assert machine.tune_malloc()  # glibc here: the call itself works
-    scene = generate_scene(SceneSpec(background=400, objects=1, per_object=100))
-    segment_scene(scene, tmp_path / "o.tsogs", replace(OPTIONS, layers=1, cluster=scheduler))
-    with Client(scheduler, timeout=10) as client:  # type: ignore[no-untyped-call]
-        found = client.run(_plugins)
-    assert len(found) == 2
-    assert all(engines.MALLOC_PLUGIN in names for names in found.values()), found
-
-
 def test_a_local_cluster_is_started_for_the_run(
     scene: Scene, reference: bytes, tmp_path: Path
 ) -> None:
@@ -121,19 +103,22 @@ def test_a_local_cluster_s_workers_leave_the_gil_to_the_encoding(
 ) -> None:
     """The cluster tsog starts runs its workers without the statistical profiler and with
     the event-loop tick and memory and system monitors at 1 s, 1 s and 5 s (each call takes
-    the GIL from the job), and its scheduler ticks at 1 s too. Its workers have one malloc
-    arena from their start (the worker plugin sets it after Dask's threads have theirs); the
-    process that starts them keeps its own environment, while the cluster runs and after."""
-    for name in ("MALLOC_ARENA_MAX", "MALLOC_TRIM_THRESHOLD_"):
+    the GIL from the job), and its scheduler ticks at 1 s too. Its workers start with glibc's
+    allocator set by environment (one arena, blocks mapped from 4 MiB, trimmed above 64 MiB);
+    the process that starts them keeps its own environment, while the cluster runs and after."""
+    for name in ("MALLOC_ARENA_MAX", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_"):
         monkeypatch.delenv(name, raising=False)
     before = dict(os.environ)
     with engines.local_cluster(1) as cluster, Client(cluster) as client:  # type: ignore[no-untyped-call]
         (worker,) = client.run(_callback_ms).values()
         scheduler = client.run_on_scheduler(_callback_ms_of_scheduler)
-        (arenas,) = client.run(_variable, "MALLOC_ARENA_MAX").values()
+        allocator = [
+            next(iter(client.run(_variable, name).values()))
+            for name in ("MALLOC_ARENA_MAX", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
+        ]
         assert dict(os.environ) == before
     assert dict(os.environ) == before
-    assert arenas == "1"
+    assert allocator == ["1", str(4 << 20), str(64 << 20)]
     assert "profile" not in worker and "profile-cycle" not in worker
     assert (worker["tick"], worker["memory_monitor"], worker["monitor"]) == (1000, 1000, 5000)
     assert scheduler["tick"] == 1000

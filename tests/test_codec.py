@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from helpers import check_decoded_at, log_space_error, means_log_step
-from tsog_stream import Scene, SogError, TimelineType, TsogError, inplace
+from tsog_stream import Scene, SogError, TimelineType, TsogError
 from tsog_stream.codec import webp
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
 from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
@@ -70,37 +70,6 @@ def test_encoding_is_deterministic(sh3_scene: Scene) -> None:
     assert a == b
     assert bundle_bytes(a) == bundle_bytes(b)
     assert list(a)[-1] == "meta.json"
-
-
-def _dynamic_scene() -> Scene:
-    return small_scene(TimelineType.START_DURATION, sh_bands=2, seed=6)
-
-
-@pytest.mark.parametrize("writable", [True, False])
-def test_a_scene_given_up_is_ordered_in_its_own_arrays_into_the_same_files(
-    writable: bool, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """``given_up``: the job's part is put in texel order in place (no second scene beside
-    it, a few rows a step), its SH bands, rearranged in place, handed to the palette and its
-    other arrays (Gaussian attributes, lifespans, motion) let go once their images are made
-    (zeros of their shapes that hold no memory); the files are the ones a copy gives. A scene
-    with a read-only array is copied and left as it was."""
-    scene = _dynamic_scene()
-    before = [a.copy() for a in scene.arrays()]
-    if not writable:
-        scene.temporal["means"].flags.writeable = False
-    expected = encode_chunk(_dynamic_scene(), seed=2, quality=80)
-    monkeypatch.setattr(inplace, "BLOCK_BYTES", 7 * 96)  # rows moved 7 at a time
-    assert encode_chunk(scene, seed=2, quality=80, given_up=True) == expected
-    now = scene.arrays()
-    assert len(now) == len(before) == 9  # six Gaussian arrays, two of lifespans, one motion
-    if writable:
-        assert before[5].shape[1] == 8 and now[5].shape == (len(scene), 0, 3)  # bands dropped
-        for was, got in zip(before[:5] + before[6:], now[:5] + now[6:], strict=True):
-            assert got.shape == was.shape and not got.any() and not any(got.strides)
-        return
-    for was, got in zip(before, now, strict=True):
-        np.testing.assert_array_equal(got, was)
 
 
 def test_bundle_round_trip_and_layout(sh3_scene: Scene) -> None:
@@ -535,3 +504,27 @@ def test_the_scale_codebook_serves_the_gaussians_a_view_draws() -> None:
     plain = np.abs(by_count[assign_codebook(source, by_count)] - source)[drawn[order]]
     assert error.mean() < 0.25 * plain.mean(), (error.mean(), plain.mean())
     assert error.max() <= plain.max()
+
+
+@pytest.mark.parametrize(
+    "kind", [TimelineType.FRAME, TimelineType.START_DURATION, TimelineType.CENTER_SCALE]
+)
+def test_a_scene_already_in_texel_order_is_encoded_without_a_copy_and_left_as_it_was(
+    kind: TimelineType,
+) -> None:
+    """The segmenter hands the encoder its rows in texel order (the order of which is then the
+    identity), so the encoder orders nothing; it writes none of the caller's arrays (all
+    read-only here), and the files are those of the same scene in any other order."""
+    scene = small_scene(kind, sh_bands=2, seed=8)
+    ordered = scene.subset(texel_order(scene))
+    np.testing.assert_array_equal(texel_order(ordered), np.arange(len(ordered)))
+    arrays = ordered.arrays()
+    for array in arrays:
+        array.flags.writeable = False
+    before = [a.copy() for a in arrays]
+    held = [ordered.gaussians.means, ordered.timeline, *ordered.temporal.values()]
+    assert encode_chunk(ordered, seed=4, quality=80) == encode_chunk(scene, seed=4, quality=80)
+    for was, array in zip(before, ordered.arrays(), strict=True):
+        np.testing.assert_array_equal(was, array)
+    after = [ordered.gaussians.means, ordered.timeline, *ordered.temporal.values()]
+    assert all(a is b for a, b in zip(held, after, strict=True))  # no attribute replaced

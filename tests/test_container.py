@@ -49,7 +49,7 @@ from tsog_stream.io.chunks import read_chunk
 from tsog_stream.io.ply import read_ply
 from tsog_stream.io.sequence import read_ply_sequence
 from tsog_stream.schemas.manifest import Manifest, parse_manifest
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
 HANABI = "4d/splatv/tztechno_hanabi2_synthetic.splatv"

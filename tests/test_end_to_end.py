@@ -10,7 +10,7 @@ import numpy as np
 from tsog_stream import Gaussians, TimelineType
 from tsog_stream.client import open_stream
 from tsog_stream.client.stream import StreamClient
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server.app import make_app, start_server
 from tsog_stream.synthetic import SceneSpec, generate_scene
 

@@ -2,23 +2,17 @@
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-import multiprocessing
 import os
 import pickle
 import signal
-import tempfile
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 from typing import cast
 
 import numpy as np
 import pytest
 
-from helpers import heap_holes_left, reporting_job, resident_here
+from helpers import reporting_job, resident_here
 from tsog_stream.segment import engines
 
 
@@ -75,14 +69,38 @@ def test_pool_jobs_reports_reach_the_listener_with_their_tokens() -> None:
     assert len(heard) == 15
 
 
-def test_a_worker_s_job_starts_on_the_heap_the_last_one_freed_handed_back() -> None:
-    """A worker kept ~100 MiB its last 500k window had freed (heap holes glibc does not
-    return by itself) under its next window's peak: each job starts after they are handed
-    back to the system."""
+_HELD: list[np.ndarray] = []
+
+
+def _holding(mib: int) -> float:
+    """Run on a worker: hold ``mib`` MiB (touched) past the job's end; the resident MiB."""
+    _HELD.append(np.ones(mib << 17))
+    return resident_here()
+
+
+def test_each_job_runs_in_a_process_of_its_own_that_leaves_with_its_memory() -> None:
+    """Memory by process: a worker is replaced after its job, so what a job held (here 120
+    MiB it never let go) goes back to the system with it, and the next job starts in another
+    process on a fresh heap."""
     with engines.engine(1, None) as running:
-        kept = running.submit(1, heap_holes_left, 120).result(timeout=60)
+        kept = running.submit(1, _holding, 120).result(timeout=60)
         after = running.submit(2, resident_here).result(timeout=60)
-    assert after < kept - 80  # measured: 120 MiB less (without the release: none)
+        pids = {running.submit(3 + n, reporting_job, 1).result(timeout=60) for n in range(3)}
+    assert after < kept - 80
+    assert len(pids) == 3 and os.getpid() not in pids
+
+
+def test_small_jobs_share_a_process_until_they_held_enough() -> None:
+    """A process start costs about a second of a core: jobs much smaller than
+    REPLACE_AFTER_GAUSSIANS share a worker until together they held about that many."""
+    assert engines.jobs_per_process(engines.REPLACE_AFTER_GAUSSIANS * 3) == 1
+    assert engines.jobs_per_process(engines.REPLACE_AFTER_GAUSSIANS) == 1
+    assert engines.jobs_per_process(engines.REPLACE_AFTER_GAUSSIANS // 4) == 4
+    assert engines.jobs_per_process(0) == engines.REPLACE_AFTER_GAUSSIANS
+    largest = engines.REPLACE_AFTER_GAUSSIANS // 2  # two jobs per process
+    with engines.engine(1, None, largest_job=largest) as running:
+        pids = [running.submit(n, reporting_job, 1).result(timeout=60) for n in range(4)]
+    assert pids[0] == pids[1] != pids[2] == pids[3]
 
 
 def test_jobs_run_here_report_nothing_without_a_listener() -> None:
@@ -123,45 +141,3 @@ def test_workers_are_one_per_core_as_far_as_memory_holds_them() -> None:
     assert engines.workers_for(8, 3 * gib + gib // 2) == 3  # three workers fit, not four
     assert engines.workers_for(8, 0) == 1  # one at least, to do the work at all
     assert engines.workers_for(1, 100 * gib) == 1
-
-
-def _arenas_after_threads(threads: int = 4) -> int:
-    """Run in a fresh process: glibc's arenas once ``threads`` threads have each allocated
-    small arrays at the same time (``malloc_info`` writes one <heap> per arena)."""
-    ready = threading.Barrier(threads)
-
-    def allocate() -> None:
-        held = [np.ones(2048) for _ in range(64)]  # 16 KiB each: from an arena, not mmap
-        ready.wait(timeout=30)
-        del held
-
-    started = [threading.Thread(target=allocate) for _ in range(threads)]
-    for thread in started:
-        thread.start()
-    for thread in started:
-        thread.join()
-    libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-    libc.fopen.restype = ctypes.c_void_p
-    libc.fopen.argtypes = [ctypes.c_char_p, ctypes.c_char_p]
-    libc.malloc_info.argtypes = [ctypes.c_int, ctypes.c_void_p]
-    libc.fclose.argtypes = [ctypes.c_void_p]
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "malloc.xml"
-        stream = libc.fopen(str(path).encode(), b"w")
-        libc.malloc_info(0, stream)
-        libc.fclose(stream)
-        return path.read_text().count("<heap nr=")
-
-
-def test_pool_workers_keep_freed_memory_in_one_arena(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Each thread of a worker (the job's, the codec's pools) kept freed memory in an arena
-    of its own that the others could not reuse (the 1M scene's largest job: 382 against 338
-    MiB): pool workers start with one arena, which a plain spawned process does not have.
-    (A Dask nanny leaves its workers' variables in the environment of the process that
-    started it, MALLOC_ARENA_MAX among them.)"""
-    monkeypatch.delenv("MALLOC_ARENA_MAX", raising=False)
-    plain = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-    with plain:
-        assert plain.submit(_arenas_after_threads).result(timeout=60) > 1
-    with engines.engine(1, None) as running:
-        assert running.executor.submit(_arenas_after_threads).result(timeout=60) == 1

@@ -35,7 +35,7 @@ from tsog_stream.render.metrics import (
     ssim,
     ssim_map,
 )
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server.app import make_app
 from tsog_stream.synthetic import small_scene
 
@@ -317,8 +317,8 @@ def test_cameras_json_gives_the_views_it_describes(
             "img_name": c.name,
             "width": c.width,
             "height": c.height,
-            "position": c.position.tolist(),
-            "rotation": c.world_to_camera[:3, :3].T.tolist(),  # camera-to-world
+            "position": list(c.position),
+            "rotation": [list(r) for r in c.rotation],  # camera-to-world
             "fx": c.fx,
             "fy": c.fy,
         }

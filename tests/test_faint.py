@@ -4,14 +4,12 @@ in worker processes) store every other Gaussian and none of them."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from helpers import write_ply_frames
-from tsog_stream import inplace
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.codec.bundle import bundle_bytes, read_bundle
@@ -27,7 +25,7 @@ from tsog_stream.io.ply import write_ply
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Gaussians, Scene
 from tsog_stream.opacity import alpha_to_logit, logit_to_alpha
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import freetime_scene, static_gaussians
 
 ALPHAS = np.array([0.0005, 0.0015, 0.005, 0.02, 0.05, 0.5])
@@ -74,35 +72,6 @@ def test_none_is_faint_when_opacity_moves_or_every_one_is() -> None:
     all_faint = Scene(_with_alphas(static_gaussians(20, seed=4), np.array([0.001])))
     assert not faint_at(all_faint, 0).any()  # a chunk holds at least one Gaussian
     assert without_faint(all_faint, 0) is all_faint
-
-
-@pytest.mark.parametrize("writable", [True, False])
-def test_a_scene_given_up_keeps_its_rows_in_its_own_arrays(
-    writable: bool, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """``given_up``: the Gaussians kept are gathered to the front of the scene's own arrays (a
-    few rows a step; a window job held the window twice, as read and without the faint): the
-    scene a copy gives, every array a view of the one read. A read-only array: a copy."""
-    monkeypatch.setattr(inplace, "BLOCK_BYTES", 5 * 60)  # a few rows at a time
-    g = _with_alphas(static_gaussians(300, sh_bands=1, seed=5), ALPHAS)
-    scene = freetime_scene(g, duration_s=4.0, lifespan=(0.6, 1.0), seed=5)
-    expected = without_faint(scene, 60)
-    copies = Scene(
-        Gaussians(*(a.copy() for a in scene.arrays()[:6])),
-        replace(scene.timeline, t0=scene.timeline.t0.copy(), t1=scene.timeline.t1.copy())
-        if scene.timeline is not None
-        else None,
-        {k: v.copy() for k, v in scene.temporal.items()},
-    )
-    if not writable:
-        copies.gaussians.sh0.flags.writeable = False
-    read = copies.arrays()
-    got = without_faint(copies, 60, given_up=True)
-    assert 0 < len(got) < len(scene) and len(got) == len(expected)
-    for ours, theirs, was in zip(got.arrays(), expected.arrays(), read, strict=True):
-        np.testing.assert_array_equal(ours, theirs)
-        assert np.shares_memory(ours, was) == writable
-    assert list(got.temporal) == list(expected.temporal)
 
 
 def test_encode_leaves_the_faint_out_and_stores_the_rest_as_the_library_does(

@@ -33,7 +33,7 @@ from tsog_stream.container.header import HEADER_SIZE, PREFIX_SIZE
 from tsog_stream.container.sources import MemorySource, read_index
 from tsog_stream.errors import FormatError, IntegrityError, SourceError, TsogError
 from tsog_stream.model import Gaussians
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.server.catalog import Catalog
 from tsog_stream.synthetic import small_scene

@@ -35,7 +35,7 @@ from tsog_stream.container.header import PREFIX_SIZE
 from tsog_stream.errors import SourceError
 from tsog_stream.io.chunks import write_chunk_files
 from tsog_stream.model import Gaussians
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
 TSOG = [sys.executable, "-m", "tsog_stream.cli.main"]
@@ -368,7 +368,7 @@ def test_a_full_disk_when_finishing_fails_cleanly(
     monkeypatch.setattr(os, "fsync", no_space)  # the writer's os
     with (
         pytest.raises(SourceError, match="No space left on device") as err,
-        writer.ContainerFile(out) as w,
+        writer.container_file(out) as w,
     ):
         w.add(b"x" * 100)
     assert str(out) in str(err.value)

@@ -7,8 +7,9 @@ import re
 import struct
 import tracemalloc
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
+from typing import IO, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -23,6 +24,7 @@ from fixtures_4d import (
     freetime_truth,
 )
 from tsog_stream import FormatError, InputError, UnsupportedError
+from tsog_stream.codec.bundle import MAX_ENTRIES
 from tsog_stream.io.freetimegs import (
     MIN_DURATION,
     is_freetimegs_ply,
@@ -382,3 +384,82 @@ def test_a_member_declaring_gigabytes_past_its_array_is_read_in_bounded_memory(
     finally:
         tracemalloc.stop()
     assert peak < 16 << 20, peak
+
+
+def _with_member(data: bytes, member: str, write: Callable[[IO[bytes]], None]) -> bytes:
+    """``data`` (an npz) with ``member`` rewritten by ``write``, deflated."""
+    with zipfile.ZipFile(io.BytesIO(data)) as src:
+        members = {n: src.read(n) for n in src.namelist()}
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as zf:
+        for name, content in members.items():
+            if name == member:
+                with zf.open(zipfile.ZipInfo(name), "w") as f:
+                    write(f)
+            else:
+                zf.writestr(name, content)
+    return buffer.getvalue()
+
+
+def test_npz_negative_dimension_is_a_format_error_naming_the_array() -> None:
+    """A header may declare (-4, 3): its product is negative, under any size check."""
+    header = {"descr": "<f4", "fortran_order": False, "shape": (-4, 3)}
+
+    def lying(f: IO[bytes]) -> None:
+        np.lib.format.write_array_header_1_0(f, header)
+        f.write(b"\0" * 48)
+
+    data = _with_member(freetime_npz(TRUTH), "means.npy", lying)
+    with pytest.raises(FormatError, match="means: negative dimension"):
+        parse_freetimegs_npz(data, name="neg.npz")
+
+
+def test_npz_zip_bomb_is_refused_before_inflating() -> None:
+    """A deflated member claiming 4 GB from a few kB (past deflate's 1032:1), its header
+    declaring an array of that size: refused by its claim, nothing allocated."""
+    header = {"descr": "<f4", "fortran_order": False, "shape": (10**9,)}
+
+    def bomb(f: IO[bytes]) -> None:
+        np.lib.format.write_array_header_1_0(f, header)
+        f.write(b"\0" * (1 << 16))
+
+    with zipfile.ZipFile(io.BytesIO(freetime_npz(TRUTH))) as src:
+        members = {n: src.read(n) for n in src.namelist()}
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, content in members.items():
+            if name == "shN.npy":
+                with zf.open(name, "w") as f:
+                    bomb(f)
+            else:
+                zf.writestr(name, content)
+    data = bytearray(buffer.getvalue())
+    entry = data.find(b"shN.npy", data.find(b"PK\x01\x02"))
+    start = data.rfind(b"PK\x01\x02", 0, entry)
+    struct.pack_into("<I", data, start + 24, 4 * 10**9 + 200)  # uncompressed size
+    tracemalloc.start()
+    try:
+        with pytest.raises(FormatError, match=r"bomb.npz: shN: claims 4000000200 bytes"):
+            parse_freetimegs_npz(bytes(data), name="bomb.npz")
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 4 * len(data) + (1 << 20), peak
+
+
+def test_npz_with_too_many_members_is_refused_by_count() -> None:
+    buffer = io.BytesIO(freetime_npz(TRUTH))
+    with zipfile.ZipFile(buffer, "a") as zf:
+        for i in range(MAX_ENTRIES):
+            zf.writestr(f"pad{i}.npy", b"")
+    with pytest.raises(FormatError, match="members, more than"):
+        parse_freetimegs_npz(buffer.getvalue(), name="many.npz")
+
+
+def test_npz_without_a_length_says_it_was_assumed() -> None:
+    """Like a .splatv: the note first and ``duration_assumed``, so tsog info, the player's
+    list and the index say "(assumed)"."""
+    loaded = parse_freetimegs_npz(freetime_npz(TRUTH))
+    assert loaded.duration_assumed and "--scene-length-s" in loaded.notes[0]
+    assert not parse_freetimegs_npz(freetime_npz(TRUTH), scene_length_s=1.0).duration_assumed
+    assert parse_freetimegs_ply(freetime_ply(TRUTH)).duration_assumed

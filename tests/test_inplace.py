@@ -8,7 +8,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from tsog_stream.inplace import compact_rows, permute_rows, swap_row_axes
+from tsog_stream.inplace import compact_rows, permute_rows
 
 
 @pytest.mark.parametrize("block_rows", [1, 3, 64, 10_000])
@@ -32,15 +32,6 @@ def test_rows_kept_are_gathered_to_the_front(block_rows: int) -> None:
         front = compact_rows(array, kept, block_bytes=block_rows * 24)
         assert np.shares_memory(front, array) and len(front) == len(kept)
         np.testing.assert_array_equal(front, expected)
-
-
-@pytest.mark.parametrize("block_rows", [1, 5, 10_000])
-def test_each_rows_axes_are_swapped_in_its_memory(block_rows: int) -> None:
-    array = np.random.default_rng(block_rows).normal(size=(333, 15, 3)).astype(np.float32)
-    expected = np.ascontiguousarray(array.transpose(0, 2, 1))
-    swapped = swap_row_axes(array, block_bytes=block_rows * 180)
-    assert np.shares_memory(swapped, array) and swapped.shape == (333, 3, 15)
-    np.testing.assert_array_equal(swapped, expected)
 
 
 def test_integer_rows_and_a_sort_by_labels() -> None:

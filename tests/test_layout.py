@@ -16,6 +16,7 @@ from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.container.header import PREFIX_SIZE
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.segment.layout import (
     FILE_SLACK,
     SEEK_TARGET,
@@ -26,7 +27,6 @@ from tsog_stream.segment.layout import (
     sample_times,
     why_not_merged,
 )
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
 from tsog_stream.synthetic import freetime_scene, static_gaussians
 
 FIREWORKS = "4d/tztechno_fireworks_frames"

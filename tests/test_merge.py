@@ -29,7 +29,7 @@ from tsog_stream.merge.fit import fit_tracks
 from tsog_stream.merge.runs import FrameMerger
 from tsog_stream.merge.sequence import TemporalMode, merge_frames, merge_sequence, probe_merge
 from tsog_stream.model import Gaussians, Scene, TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import static_gaussians
 
 FPS = 10.0

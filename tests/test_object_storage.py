@@ -47,7 +47,7 @@ from tsog_stream.io.objects import ObjectPath, is_object_url
 from tsog_stream.io.readers import load_scene
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.schemas.manifest import Manifest
-from tsog_stream.segment.segmenter import SegmentOptions, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_sequence
 from tsog_stream.server import make_app
 
 s3fs = pytest.importorskip("s3fs")  # extra tsog-stream[s3]

@@ -23,7 +23,7 @@ import pytest
 from helpers import ThreadedServer
 from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.server.catalog import open_beneath, safe_path
 from tsog_stream.synthetic import small_scene

@@ -20,7 +20,7 @@ import pytest
 from helpers import ThreadedServer, fetch
 from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import Privacy, make_app
 from tsog_stream.server.player import ENGINE_ENV, PACKAGED_ENGINE, PLAYER_DIR
 from tsog_stream.signing import sign_url

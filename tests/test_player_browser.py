@@ -27,7 +27,7 @@ from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Scene, TimelineType, evaluate_all
 from tsog_stream.schemas.manifest import ChunkEntry
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import Privacy, make_app
 from tsog_stream.signing import sign_url
 from tsog_stream.synthetic import SceneSpec, generate_scene

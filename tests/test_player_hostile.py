@@ -20,7 +20,7 @@ from browser import VIEWPORT, chromium, served
 from helpers import free_port
 from tsog_stream.client import open_stream
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene
 

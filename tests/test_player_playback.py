@@ -24,7 +24,7 @@ from browser import HIDE_UI, VIEWPORT, chromium, served
 from tsog_stream.cli.main import main
 from tsog_stream.client import open_stream
 from tsog_stream.io.sequence import open_sequence
-from tsog_stream.segment.segmenter import SegmentOptions, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_sequence
 from tsog_stream.server import make_app
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow]

@@ -21,7 +21,7 @@ import pytest
 from browser import HIDE_UI, VIEWPORT, chromium
 from tsog_stream.client import open_stream
 from tsog_stream.io.splatv import read_splatv
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app, start_server
 from tsog_stream.server.link import LinkShape, ThrottledRelay
 

@@ -25,8 +25,8 @@ from tsog_stream.client import open_stream
 from tsog_stream.framing import FRAMING_NAME
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import mse, psnr_from_mse
-from tsog_stream.schemas.cameras import CaptureCamera
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.schemas.cameras import Camera
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene, rig_cameras
 
@@ -46,8 +46,8 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 @dataclass(frozen=True)
 class Scenes:
     root: Path
-    views: dict[str, CaptureCamera]
-    cameras: dict[str, list[CaptureCamera]]
+    views: dict[str, Camera]
+    cameras: dict[str, list[Camera]]
     cpu: dict[str, np.ndarray]  # the CPU render of each opening view at T, 640x480
 
 
@@ -172,7 +172,7 @@ def test_keys_move_the_time_and_the_camera(base: str, open_page: Any) -> None:
     assert page.js("!document.getElementById('keys').hidden")  # (the test page hides it)
 
 
-def page_position(page: PlayerPage, camera: CaptureCamera) -> list[float]:
+def page_position(page: PlayerPage, camera: Camera) -> list[float]:
     """Where the page's world puts a capture camera's centre (the scene is turned up)."""
     return page.js(  # type: ignore[no-any-return]
         """([x, y, z]) => { const pc = tsogPlayer.pc;

@@ -9,12 +9,14 @@ import json
 import logging
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs, quote, urlsplit
 
 import numpy as np
 import pytest
+from aiohttp import web
 
 from helpers import ThreadedServer, nginx_origin
 from tsog_stream import signing
@@ -22,7 +24,8 @@ from tsog_stream.cli.main import main
 from tsog_stream.client import HttpOptions, open_stream
 from tsog_stream.errors import AccessError, InputError
 from tsog_stream.model import Gaussians, TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
+from tsog_stream.server import private
 from tsog_stream.server.app import make_app
 from tsog_stream.server.private import Privacy
 from tsog_stream.signing import check_signed, covers, redact_url, sign_url
@@ -220,6 +223,43 @@ def test_chunk_list_carries_the_signature_to_chunk_urls(server: ThreadedServer, 
         assert headers["Cache-Control"] == "private, max-age=31536000, immutable"
         unsigned = c["url"].split("&")[0]
         assert get(server.port, unsigned)[0] == 403
+
+
+def test_each_request_is_decided_once(
+    server: ThreadedServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One privacy decision a request, and one signature check when a private path is asked
+    for, whatever route and answer: public, private, signed, missing, a public symlink."""
+    decided: list[str] = []
+    checked: list[str] = []
+    real_admit, real_check = Privacy.admit, check_signed
+
+    def admit(self: Privacy, request: web.Request, rels: Iterable[str]) -> None:
+        decided.append(request.path)
+        real_admit(self, request, rels)
+
+    def check(path: str, *args: Any) -> None:
+        checked.append(path)
+        real_check(path, *args)
+
+    monkeypatch.setattr(Privacy, "admit", admit)
+    monkeypatch.setattr(private, "check_signed", check)
+    scope = "/v1/scenes/paid/show/"
+    cases = {
+        f"/v1/scenes/free/chunks?t={T}": (200, 0),
+        f"/v1/scenes/paid/show/chunks?t={T}": (403, 1),
+        signed(f"{scope}chunks", scope=scope) + f"&t={T}": (200, 1),
+        "/v1/scenes/paid/nothing/chunks?t=0": (403, 1),
+        signed("/files/paid/show.tsogs"): (200, 1),
+        "/files/free/alias.tsogs": (403, 1),
+        "/files/free.tsogs": (200, 0),
+        "/files/missing.tsogs": (404, 0),
+    }
+    for target, (status, checks) in cases.items():
+        decided.clear()
+        checked.clear()
+        assert get(server.port, target)[0] == status, target
+        assert (len(decided), len(checked)) == (1, checks), target
 
 
 def test_a_scene_scope_opens_that_scene_and_no_scene_below_its_id(server: ThreadedServer) -> None:

@@ -37,9 +37,9 @@ from tsog_stream.model import Gaussians, Scene
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
 from tsog_stream.schemas.manifest import Manifest, dump_manifest, parse_manifest
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.segment import layers as quality_layers
 from tsog_stream.segment.layers import LAYER_TARGETS_DB, LayerPlan, importance, top_share
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.server import make_app, start_server
 from tsog_stream.server.link import (
     DELAYED_PIECES,

@@ -18,9 +18,7 @@ from PIL import Image
 
 from tsog_stream import columns
 from tsog_stream.cli.main import main
-from tsog_stream.codec.bundle import bundle_bytes
-from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
-from tsog_stream.codec.precision import (
+from tsog_stream.codec.budgets import (
     ALPHA_AT_ZERO,
     COLOUR_AT_ZERO,
     CORE_AT_ZERO,
@@ -33,12 +31,12 @@ from tsog_stream.codec.precision import (
     TURN_SURFACE,
     Budgets,
     budget_fraction,
-    coarsen,
-    most_frequent,
     rms_room,
     stretch,
-    to_codes,
 )
+from tsog_stream.codec.bundle import bundle_bytes
+from tsog_stream.codec.chunk import decode_chunk, encode_chunk, texel_order
+from tsog_stream.codec.coarsen import coarsen, most_frequent, to_codes
 from tsog_stream.codec.sh_bands import encode_sh_bands
 from tsog_stream.codec.tsog_images import quantize_timeline
 from tsog_stream.constants import SH_C0

@@ -152,7 +152,7 @@ def _whole_band_centroids(centers: F64, weights: F64, target: int) -> npt.NDArra
     reference's loops as one (band x band) minimum per row."""
     h = centers.size
     groups = min(target, int(np.count_nonzero(weights)))
-    pw, pwx, pwxx, _ = quantize._group_costs(centers, weights)
+    pw, pwx, pwxx = quantize._group_costs(centers, weights)
     cost = quantize._cost_matrix(pw, pwx, pwxx)
     band = h - groups + 1
     row = cost[:band, 0].copy()

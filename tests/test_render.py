@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 from PIL import Image
+from pydantic import ValidationError
 
 from conftest import SAMPLES
 from helpers import ThreadedServer
@@ -51,19 +52,39 @@ from tsog_stream.render.camera import (
 from tsog_stream.render.evaluate import RenderStyle, opening_camera, scene_source
 from tsog_stream.render.plot import Series, line_chart
 from tsog_stream.render.sh import SH_C1, sh_basis, sh_colors
-from tsog_stream.segment import segmenter
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene, segmenter
 from tsog_stream.server import make_app
 
 project_module = importlib.import_module("tsog_stream.render.project")  # shadowed by project()
 SIZE = 63  # odd: the principal point cx = 31.5 lands on pixel index 31
 FOCAL = 100.0
 BG = (0.1, 0.2, 0.3)
+IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 
 
 def head_on_camera(size: int = SIZE) -> Camera:
     """Camera at the origin looking down +z (identity world-to-camera)."""
-    return Camera(size, size, FOCAL, FOCAL, size / 2, size / 2, np.eye(4))
+    return Camera(
+        width=size, height=size, fx=FOCAL, fy=FOCAL, position=(0.0, 0.0, 0.0), rotation=IDENTITY
+    )
+
+
+def aimed(
+    size: tuple[int, int], fx: float, eye: list[float], target: list[float], **more: float
+) -> Camera:
+    """A camera of ``size`` pixels at ``eye`` looking at ``target``, -y up; ``more``: fy, cx,
+    cy (by default fx and the image centre)."""
+    c2w = look_at(eye, target, [0, -1, 0])[:3, :3].T
+    return Camera(
+        width=size[0],
+        height=size[1],
+        fx=fx,
+        fy=more.get("fy", fx),
+        cx=more.get("cx"),
+        cy=more.get("cy"),
+        position=tuple(map(float, eye)),
+        rotation=tuple(tuple(row) for row in c2w.tolist()),
+    )
 
 
 def logit(p: float) -> float:
@@ -192,7 +213,7 @@ def test_sh_basis_is_orthonormal_on_the_sphere() -> None:
 def test_numpy_batches_equal_the_sequential_loop(monkeypatch: pytest.MonkeyPatch) -> None:
     """Batch size 1 is the reference loop literally; other sizes give the same image."""
     scene = random_scene(400, seed=4)
-    camera = Camera(48, 40, 45.0, 45.0, 24.0, 20.0, look_at([0, 0, 0], [0, 0, 6.0], [0, -1, 0]))
+    camera = aimed((48, 40), 45.0, [0, 0, 0], [0, 0, 6.0])
     images = []
     for batch in (1, 7, 32):
         monkeypatch.setattr(raster, "BATCH", batch)
@@ -204,7 +225,7 @@ def test_numpy_batches_equal_the_sequential_loop(monkeypatch: pytest.MonkeyPatch
 def test_blocked_projection_equals_one_block(monkeypatch: pytest.MonkeyPatch) -> None:
     """Projecting in blocks (big scenes) gives the same rows, indices into the whole input."""
     scene = random_scene(300, seed=5)
-    camera = Camera(64, 48, 50.0, 50.0, 32.0, 24.0, look_at([0, 0, 3.0], [0, 0, 6.0], [0, -1, 0]))
+    camera = aimed((64, 48), 50.0, [0, 0, 3.0], [0, 0, 6.0])
     whole = project(scene, camera, antialiased=True)
     monkeypatch.setattr(project_module, "BLOCK", 64)
     blocked = project(scene, camera, antialiased=True)
@@ -216,16 +237,14 @@ def test_blocked_projection_equals_one_block(monkeypatch: pytest.MonkeyPatch) ->
 def test_translating_scene_and_camera_together_changes_nothing() -> None:
     """Same image when the scene and the camera move by the same vector (SH degree 3)."""
     scene = random_scene(300, seed=1)
-    camera = Camera(
-        80, 60, 70.0, 72.0, 41.0, 29.0, look_at([0.5, -0.3, 0.0], [0.0, 0.0, 6.0], [0, -1, 0])
-    )
+    camera = aimed((80, 60), 70.0, [0.5, -0.3, 0.0], [0.0, 0.0, 6.0], fy=72.0, cx=41.0, cy=29.0)
     shift = np.array([3.0, -7.0, 11.0])
     moved = Gaussians(
         scene.means + shift, scene.scales, scene.quats, scene.opacities, scene.sh0, scene.shN
     )
-    undo = np.eye(4)
-    undo[:3, 3] = -shift
-    moved_camera = Camera(80, 60, 70.0, 72.0, 41.0, 29.0, camera.world_to_camera @ undo)
+    moved_camera = Camera.model_validate(
+        {**camera.model_dump(), "position": np.add(camera.position, shift).tolist()}
+    )
     a = render(scene, camera, background=BG, backend="numpy")
     b = render(moved, moved_camera, background=BG, backend="numpy")
     assert np.abs(a - b).max() <= 1e-5
@@ -238,9 +257,7 @@ def test_numba_matches_numpy(antialiased: bool) -> None:
     if not numba_available():
         pytest.skip("numba is not installed (pip install 'tsog-stream[render]')")
     scene = random_scene(2000, seed=2)
-    camera = Camera(
-        96, 72, 80.0, 80.0, 48.0, 36.0, look_at([0.0, 0.0, 0.0], [0.1, 0.0, 6.0], [0, -1, 0])
-    )
+    camera = aimed((96, 72), 80.0, [0.0, 0.0, 0.0], [0.1, 0.0, 6.0])
     a = render(scene, camera, background=BG, antialiased=antialiased, backend="numpy")
     b = render(scene, camera, background=BG, antialiased=antialiased, backend="numba")
     assert np.abs(a - b).max() <= 1e-5
@@ -302,9 +319,9 @@ def test_orbit_cameras_look_at_the_centre() -> None:
     cams = orbit_cameras(centre, 4.0, 5, 64, 48, fov_deg=60, elevation_deg=30)
     assert len(cams) == 5
     for cam in cams:
-        p = cam.world_to_camera @ np.append(centre, 1.0)
+        p = world_to_camera(cam) @ np.append(centre, 1.0)
         np.testing.assert_allclose(p[:3], [0.0, 0.0, 4.0], atol=1e-9)
-        np.testing.assert_allclose(np.linalg.norm(cam.position - centre), 4.0)
+        np.testing.assert_allclose(np.linalg.norm(np.subtract(cam.position, centre)), 4.0)
     assert cams[0].fy == pytest.approx(24 / math.tan(math.radians(30)))
 
 
@@ -343,7 +360,7 @@ def test_cameras_json_is_scaled_and_checked(tmp_path: Path) -> None:
     )
     np.testing.assert_allclose(cam.position, [1.0, 2.0, 3.0], atol=1e-12)
     np.testing.assert_allclose(
-        cam.world_to_camera @ [0, 0, 0, 1.0], [0, 0, math.sqrt(14), 1], atol=1e-12
+        world_to_camera(cam) @ [0, 0, 0, 1.0], [0, 0, math.sqrt(14), 1], atol=1e-12
     )
     assert cam.name == "a"
     path.write_text(json.dumps([{k: v for k, v in entry.items() if k != "fx"}]))
@@ -362,26 +379,28 @@ def test_cameras_json_is_scaled_and_checked(tmp_path: Path) -> None:
 
 
 def test_bad_arguments_raise_input_errors() -> None:
-    """Unknown backend, bad background, bad camera."""
+    """Unknown backend, bad background; a camera that is none is refused where it is made."""
     scene = gaussian((0.0, 0.0, 5.0), 0.1, 0.5, (1, 1, 1))
     with pytest.raises(InputError):
         render(scene, head_on_camera(), backend="cuda")  # type: ignore[arg-type]
     with pytest.raises(InputError):
         render(scene, head_on_camera(), background=(0.0, 1.0))  # type: ignore[arg-type]
-    with pytest.raises(InputError):
-        Camera(0, 10, 1.0, 1.0, 0.0, 0.0, np.eye(4))
-    with pytest.raises(InputError, match="last row"):
-        Camera(10, 10, 1.0, 1.0, 5.0, 5.0, np.zeros((4, 4)))
+    fields = head_on_camera().model_dump()
+    with pytest.raises(ValidationError, match="width"):
+        Camera.model_validate({**fields, "width": 0})
+    with pytest.raises(ValidationError, match="not orthonormal"):
+        Camera.model_validate({**fields, "rotation": [[0.0] * 3] * 3})
 
 
 def test_cameras_compare_by_value() -> None:
-    """Equal fields make equal, hashable cameras; the matrix is read-only."""
+    """Equal fields make equal, hashable cameras; they cannot be changed."""
     a, b = orbit_cameras([0, 0, 0], 3.0, 2, 10, 10), orbit_cameras([0, 0, 0], 3.0, 2, 10, 10)
     assert a == b
     assert a[0] != a[1]
     assert len({a[0], b[0], a[1]}) == 2
-    assert not a[0].world_to_camera.flags.writeable
-    assert a[0].scaled(20, 40).fy == 4 * a[0].fy
+    with pytest.raises(ValidationError, match="frozen"):
+        a[0].width = 20  # type: ignore[misc]
+    assert stretched(a[0], 20, 40).fy == 4 * a[0].fy
 
 
 def test_to_uint8_and_save_png(tmp_path: Path) -> None:
@@ -416,13 +435,12 @@ def test_warming_loads_the_kernel_a_picture_then_uses() -> None:
         pytest.skip("numba is not installed (pip install 'tsog-stream[render]')")
     code = (
         "import numpy as np\n"
-        "from tsog_stream.render import Camera, look_at, raster_numba, render, warm\n"
+        "from tsog_stream.render import orbit_cameras, raster_numba, render, warm\n"
         "from tsog_stream.synthetic import static_gaussians\n"
         "assert raster_numba._KERNEL is None\n"
         "warm()\n"
         "loaded = list(raster_numba._KERNEL.signatures)\n"
-        "eye = look_at([0.0, 0.0, 0.0], [0.1, 0.0, 6.0], [0, -1, 0])\n"
-        "camera = Camera(64, 48, 60.0, 60.0, 32.0, 24.0, eye)\n"
+        "camera = orbit_cameras([0.0, 0.0, 0.0], 6.0, 1, 64, 48)[0]\n"
         "image = render(static_gaussians(500, seed=1), camera)\n"
         "assert len(loaded) == 1 and list(raster_numba._KERNEL.signatures) == loaded\n"
         "print('ok')\n"
@@ -435,7 +453,6 @@ def test_warming_loads_the_kernel_a_picture_then_uses() -> None:
 
 # --- cameras of any shape a file may declare: bounded before the renderer allocates ----------
 
-IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 SANE_ENTRY: dict[str, object] = {
     "id": 0,
     "img_name": "hostile",
@@ -486,7 +503,8 @@ def assert_bounded(camera: Camera, budget: int) -> None:
     assert 1 <= w * h <= budget and max(w, h) <= MAX_ASPECT * min(w, h), (w, h)
     lo, hi = FOCAL_PER_SIDE
     assert lo * w <= camera.fx <= hi * w and lo * h <= camera.fy <= hi * h
-    assert 0 <= camera.cx <= w and 0 <= camera.cy <= h
+    cx, cy = camera.principal_point
+    assert 0 <= cx <= w and 0 <= cy <= h
 
 
 @pytest.mark.parametrize("shape", sorted(HOSTILE_SHAPES))
@@ -524,7 +542,15 @@ def test_a_tall_camera_keeps_its_width_and_field_of_view_within_the_limits() -> 
         assert camera.fy == pytest.approx(fy)
     sane = parse_cameras_json(json.dumps([SANE_ENTRY]).encode(), where="c")[0]
     assert from_capture(sane, 640, 480) == Camera(
-        640, 480, 500.0, 500.0, 320.0, 240.0, world_to_camera(sane), "hostile"
+        name="hostile",
+        width=640,
+        height=480,
+        fx=500.0,
+        fy=500.0,
+        cx=320.0,
+        cy=240.0,
+        position=sane.position,
+        rotation=sane.rotation,
     )
 
 
@@ -537,17 +563,20 @@ def test_a_tall_camera_keeps_its_width_and_field_of_view_within_the_limits() -> 
     ],
 )
 def test_explicit_sizes_beyond_the_limits_are_refused(size: tuple[int, int], message: str) -> None:
+    scene = small_blob()
+    width, height = size
+    camera = head_on_camera().model_copy(update={"width": width, "height": height})
     with pytest.raises(InputError) as raised:
-        Camera(*size, 100.0, 100.0, 0.0, 0.0, np.eye(4))
+        render(scene, camera)  # refused before a pixel is allocated
     assert str(raised.value) == message
     source = scene_source(Scene(small_blob()))
     with pytest.raises(InputError) as raised:
         opening_camera(source, None, *size)
     assert str(raised.value) == f"--width/--height: {message}"
     with pytest.raises(InputError, match=r"focal lengths must be 0\.02 to 50 times"):
-        Camera(64, 64, 1e-30, 100.0, 32.0, 32.0, np.eye(4))
-    with pytest.raises(InputError, match="principal point must be finite"):
-        Camera(64, 64, 64.0, 64.0, math.nan, 32.0, np.eye(4))
+        render(scene, head_on_camera(64).model_copy(update={"fx": 1e-30}))
+    with pytest.raises(ValidationError, match="cx"):
+        Camera.model_validate({**head_on_camera(64).model_dump(), "cx": math.nan})
 
 
 def _colmap_text_model(folder: Path, shape: str) -> Path:

@@ -20,7 +20,6 @@ from tsog_stream.errors import MetaError
 from tsog_stream.model import TimelineType
 from tsog_stream.schemas import (
     ChunkMeta,
-    TemporalAttributeMeta,
     TimelineMeta,
     check_image_sizes,
     dump_meta,
@@ -276,8 +275,13 @@ def test_type0_with_nonzero_g_channel() -> None:
         parse_meta(doc)
     assert info.value.field == "timeline.maxs[1]"
     doc["timeline"]["maxs"][1] = 0.0
-    assert parse_meta(doc).timeline == TimelineMeta.build(
-        0, [0, 0], [299, 0], fps=30, scene_length=10
+    assert parse_meta(doc).timeline == TimelineMeta(
+        type=TimelineType.FRAME,
+        fps=30.0,
+        scene_length=10.0,
+        mins=(0.0, 0.0),
+        maxs=(299.0, 0.0),
+        files=("timeline_l.webp", "timeline_u.webp"),
     )
 
 
@@ -313,28 +317,29 @@ def test_bom_is_tolerated() -> None:
     assert parse_meta(raw).count == 100
 
 
-# --- builders --------------------------------------------------------------------------------
+# --- temporal entries ------------------------------------------------------------------------
 
 
-def test_builders_match_parsed_meta() -> None:
+def test_temporal_entries_keep_their_rows_and_files() -> None:
     doc = tsog_doc()
-    meta = parse_meta(doc)
-    timeline = TimelineMeta.build(2, [0.0, 0.05], [10.0, 2.5], scene_length=10)
-    quats = TemporalAttributeMeta.build(
-        "quats", doc["temporal"]["quats"]["mins"], doc["temporal"]["quats"]["maxs"]
-    )
-    assert meta.timeline == timeline
-    assert meta.temporal is not None and meta.temporal["quats"] == quats
-    assert quats.order_files(2) == ("temporal_quats_2_l.webp", "temporal_quats_2_u.webp")
+    temporal = parse_meta(doc).temporal
+    assert temporal is not None
+    quats = temporal["quats"]
+    assert (quats.orders, quats.channels) == (2, 4)
+    assert quats.mins == tuple(tuple(row) for row in doc["temporal"]["quats"]["mins"])
+    assert quats.files[2:] == ("temporal_quats_2_l.webp", "temporal_quats_2_u.webp")
 
 
-def test_builders_raise_meta_error() -> None:
+def test_a_temporal_entry_of_another_channel_count_is_refused_by_path() -> None:
+    doc = tsog_doc()
+    doc["temporal"]["opacity"] = {
+        "mins": [[0.0, 0.0]],
+        "maxs": [[1.0, 1.0]],
+        "files": ["temporal_opacity_1_l.webp", "temporal_opacity_1_u.webp"],
+    }
     with pytest.raises(MetaError) as info:
-        TemporalAttributeMeta.build("opacity", [[0.0, 0.0]], [[1.0, 1.0]])
+        parse_meta(doc)
     assert info.value.field == "temporal.opacity.mins[0]"
-    with pytest.raises(MetaError) as info:
-        TimelineMeta.build(1, [0.0, 0.0], [1.0, math.nan])
-    assert info.value.field == "timeline.maxs[1]"
 
 
 # --- files and image sizes -------------------------------------------------------------------

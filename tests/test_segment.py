@@ -35,23 +35,24 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.merge.check import frame_errors
 from tsog_stream.model import evaluate_all, reference_times
 from tsog_stream.schemas.manifest import Policy
-from tsog_stream.segment import encoding, layout
+from tsog_stream.segment import (
+    SegmentOptions,
+    SegmentReport,
+    encoding,
+    layout,
+    segment_scene,
+    segment_sequence,
+)
 from tsog_stream.segment import jobs as jobs_module
 from tsog_stream.segment import meter as meter_module
 from tsog_stream.segment import options as options_module
 from tsog_stream.segment import sequence as sequence_module
 from tsog_stream.segment.encoding import JobParts, encoded
 from tsog_stream.segment.jobs import ChunkJob, Part
-from tsog_stream.segment.layers import LAYERED_MIN_GAUSSIANS, LayerPlan
+from tsog_stream.segment.layers import LAYERED_MIN_GAUSSIANS
 from tsog_stream.segment.layout import chunk_counts
 from tsog_stream.segment.meter import Meter, encode_work, palette_progress
 from tsog_stream.segment.plan import NodeKey, Plan, window_count
-from tsog_stream.segment.segmenter import (
-    SegmentOptions,
-    SegmentReport,
-    segment_scene,
-    segment_sequence,
-)
 from tsog_stream.summary import chunk_summary
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 from tsog_stream.temporal import lifespans, time_range, visibility_half_width
@@ -833,47 +834,6 @@ def _frames_scene(frames: int, per_frame: int, bands: int) -> Scene:
     ids = np.repeat(np.arange(frames, dtype=np.float64), per_frame)
     timeline = Timeline(TimelineType.FRAME, ids, np.zeros_like(ids), fps=30.0, scene_length=1.0)
     return Scene(g, timeline)
-
-
-@pytest.mark.parametrize(
-    ("max_count", "layering"),
-    [
-        (100_000, LayerPlan.single()),
-        (700, LayerPlan.single()),
-        (100_000, LayerPlan((0.3, 1.0), (30.0, None), sh_apart=True)),
-    ],
-    ids=["one chunk", "chunks", "layers, SH bands apart"],
-)
-def test_a_window_s_parts_cut_as_asked_hold_its_scene_once(
-    max_count: int, layering: LayerPlan
-) -> None:
-    """A window job's parts, cut one at a time from a scene handed over, are the parts cut all
-    at once; the scene is let go as the last part is cut, and a window of one chunk is its
-    own part, reordered in place (its worker held the window twice: as the scene and as the
-    part)."""
-    scene = _frames_scene(2, 1000, 2)
-    expected = jobs_module.window_parts(scene, 3, max_count, layering)
-    handed = _frames_scene(2, 1000, 2)
-    gone = weakref.ref(handed)
-    held = [handed]
-    jobs = jobs_module.window_jobs(handed, 3, max_count, layering)
-    assert (len(jobs) == 1) == (max_count == 100_000 and layering.layers == 1)
-    del handed
-    parts = jobs_module.parts_taking_over(held, jobs, layering.sh_apart)
-    got = []
-    for number, part in enumerate(parts):
-        assert (not held) == (number + 1 == len(jobs))
-        got.append(part)
-    assert len(got) == len(expected) == len(jobs)
-    for ours, theirs in zip(got, expected, strict=True):
-        assert (ours.key, ours.layer, ours.sh_of) == (theirs.key, theirs.layer, theirs.sh_of)
-        for mine, same in zip(ours.scene.arrays(), theirs.scene.arrays(), strict=True):
-            np.testing.assert_array_equal(mine, same)
-    if len(jobs) == 1:
-        assert got[0].scene is gone()  # the scene itself, reordered in place
-    else:
-        del got, part
-        assert gone() is None
 
 
 def test_sampled_frames_are_read_once_and_held_once(

@@ -25,7 +25,7 @@ from tsog_stream.client import open_stream
 from tsog_stream.container.ranges import ByteRange
 from tsog_stream.errors import InputError
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app, respond
 from tsog_stream.server.respond import LOAD
 from tsog_stream.synthetic import small_scene

@@ -20,7 +20,7 @@ from helpers import ThreadedServer, fetch
 from serve_process import Served, tsog_serve
 from tsog_stream.container.stream_index import StreamIndex
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import Limits, make_app
 from tsog_stream.server import catalog as catalog_module
 from tsog_stream.synthetic import small_scene

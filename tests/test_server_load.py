@@ -20,7 +20,7 @@ import pytest
 from serve_process import tsog_serve
 from tsog_stream.container.sources import FileSource, read_index
 from tsog_stream.container.stream_index import StreamIndex
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import SceneSpec, generate_scene
 
 CLIENTS = 50

@@ -26,7 +26,7 @@ from tsog_stream.container.stream_index import StreamIndex
 from tsog_stream.io.readers import load_scene
 from tsog_stream.model import TimelineType
 from tsog_stream.schemas.manifest import Policy
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import Privacy, make_app
 from tsog_stream.server.player import _scene_item
 from tsog_stream.server.shown import gaussians_per_frame

@@ -16,7 +16,7 @@ import pytest
 
 from helpers import ThreadedServer, fetch
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.server.private import Privacy
 from tsog_stream.synthetic import small_scene

@@ -29,7 +29,7 @@ from tsog_stream.model import Scene, TimelineType
 from tsog_stream.render import from_capture, render, to_uint8
 from tsog_stream.render.metrics import psnr
 from tsog_stream.schemas.manifest import dump_manifest, parse_manifest
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene, segment_sequence
+from tsog_stream.segment import SegmentOptions, segment_scene, segment_sequence
 from tsog_stream.synthetic import SceneSpec, generate_scene, small_scene
 
 
@@ -47,15 +47,6 @@ def test_an_sh_band_chunk_restores_its_hosts_bands_texel_for_texel(host: Scene) 
     for name in ("means", "scales", "quats", "opacities", "sh0", "shN"):
         assert np.array_equal(getattr(joined.gaussians, name), getattr(whole.gaussians, name))
     assert bands.shN.shape == (len(host), 15, 3) and np.abs(bands.shN).max() > 0
-
-
-def test_a_host_given_up_gives_the_same_sh_band_chunk() -> None:
-    """``given_up``: the host is ordered in its own arrays and its bands handed to the fit,
-    and the SH-band chunk is the one a host left as it was gives."""
-    expected = encode_sh_bands(small_scene(TimelineType.CENTER_SCALE, sh_bands=3), quality=90)
-    given = small_scene(TimelineType.CENTER_SCALE, sh_bands=3)
-    assert encode_sh_bands(given, quality=90, given_up=True) == expected
-    assert given.gaussians.shN.shape[1] == 0  # the bands went to the palette's fit
 
 
 def test_sh_bands_of_another_count_are_refused(host: Scene) -> None:

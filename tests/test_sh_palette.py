@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tsog_stream import inplace, sh_palette
+from tsog_stream import palette_kernels, sh_palette
 from tsog_stream.errors import InputError
 from tsog_stream.render.sh import sh_basis
 from tsog_stream.sh_palette import (
@@ -114,17 +114,17 @@ def test_exact_when_palette_holds_every_distinct_vector() -> None:
     np.testing.assert_array_equal(centroids[labels], points)
 
 
-@pytest.mark.parametrize("in_place", [False, True])
 @pytest.mark.parametrize("hashes", ["real", "colliding"])
 def test_distinct_rows_are_found_by_bytes_even_when_hashes_collide(
-    hashes: str, in_place: bool, monkeypatch: pytest.MonkeyPatch
+    hashes: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Identical vectors (-0.0 and 0.0 are different bytes) collapse to one weighted row; a
     hash shared by distinct rows (forced here: every row hashes alike) falls back to the
-    rows' bytes, with the same distinct rows and counts. ``in_place``: the same rows in the
-    same order, at the front of the vectors' own memory (moved a few rows a step)."""
+    rows' bytes, with the same distinct rows and counts."""
     if hashes == "colliding":
-        monkeypatch.setattr(sh_palette, "_row_hashes", lambda data: np.zeros(len(data), np.uint64))
+        monkeypatch.setattr(
+            palette_kernels, "row_hashes", lambda data: np.zeros(len(data), np.uint64)
+        )
     rng = np.random.default_rng(21)
     distinct = rng.normal(0, 0.05, (40, 9)).astype(np.float32)
     distinct[1] = 0.0
@@ -132,39 +132,13 @@ def test_distinct_rows_are_found_by_bytes_even_when_hashes_collide(
     pick = rng.integers(0, 40, 700)
     points = distinct[pick]
     given = points.copy()
-    monkeypatch.setattr(sh_palette, "BLOCK_BYTES", 4 * 9 * 3)
-    monkeypatch.setattr(inplace, "BLOCK_BYTES", 4 * 9 * 5)
-    unique, inverse, weights = sh_palette._unique_rows(given, in_place=in_place)
-    assert np.shares_memory(unique, given) == in_place
+    monkeypatch.setattr(palette_kernels, "BLOCK_BYTES", 4 * 9 * 3)
+    unique, inverse, weights = palette_kernels.unique_rows(given)
     expected = np.unique(points.view(np.uint32), axis=0)
     assert len(unique) == len(expected) == len(np.unique(pick))
     np.testing.assert_array_equal(unique[inverse].view(np.uint32), points.view(np.uint32))
-    if in_place:
-        copied = sh_palette._unique_rows(points.copy())
-        np.testing.assert_array_equal(unique.view(np.uint32), copied[0].view(np.uint32))
-        np.testing.assert_array_equal(inverse, copied[1])
     assert weights.sum() == len(points)
     np.testing.assert_array_equal(np.bincount(inverse, minlength=len(unique)), weights)
-
-
-@pytest.mark.parametrize("slack", [0.0, 0.05])
-def test_vectors_given_up_give_the_palette_a_copy_gives(
-    slack: float, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """``given_up``: the fit keeps its distinct rows in the vectors' memory (compacted, then
-    put in label order there a few rows a step), and the palette and labels are the ones the
-    caller's vectors, left untouched, give."""
-    rng = np.random.default_rng(31)
-    distinct = rng.normal(0, 0.05, (1500, 9)).astype(np.float32)
-    vectors = distinct[rng.integers(0, 1500, 4000)]
-    kept = vectors.copy()
-    expected = fit_palette(vectors, 256, seed=3, slack=slack)
-    np.testing.assert_array_equal(vectors, kept)
-    monkeypatch.setattr(inplace, "BLOCK_BYTES", 4 * 9 * 7)  # the label order made in steps
-    given = fit_palette(vectors, 256, seed=3, slack=slack, given_up=True)
-    np.testing.assert_array_equal(given[0], expected[0])
-    np.testing.assert_array_equal(given[1], expected[1])
-    assert not np.array_equal(vectors, kept)  # its memory held the fit's rows
 
 
 def test_small_k_gives_the_weighted_mean() -> None:
@@ -287,28 +261,30 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
     rng = np.random.default_rng(3)
     mass = rng.random(2000) + 0.5
     partner = rng.integers(0, 2000, 2000)
-    movers = sh_palette._pick_moves(partner, rng.random(2000), 600)
-    leaves = sh_palette._leaves(points[:, :4].T.copy(), 64)
+    movers = palette_kernels.pick_moves(partner, rng.random(2000), 600)
+    leaves = palette_kernels.leaves(points[:, :4].T.copy(), 64)
     repeated = points[rng.integers(0, 2000, 2000)]
-    axes = sh_palette._principal_axes(points, mass)
+    axes = palette_kernels.principal_axes(points, mass)
     centroids = points[:300].copy()
     labels = rng.integers(0, 299, 2000)  # the last centroid has no point: it moves
 
     def run() -> list[npt.NDArray[np.generic]]:
-        merged = sh_palette._merge(points, mass, movers, partner, own=False)
-        compacted = sh_palette._merge(points.copy(), mass, movers, partner, own=True)
-        near = sh_palette._leaf_neighbours(points, *leaves, 3)
-        coords = sh_palette._tree_coords(points, axes, 1, np.random.default_rng(2))
-        means = sh_palette._update(points, mass, centroids, labels)
-        summed = sh_palette._principal_axes(points, mass)  # its own blocks: COVARIANCE_BLOCK_BYTES
+        merged = palette_kernels.merge(points, mass, movers, partner, own=False)
+        compacted = palette_kernels.merge(points.copy(), mass, movers, partner, own=True)
+        near = palette_kernels.leaf_neighbours(points, *leaves, 3)
+        coords = palette_kernels.tree_coords(points, axes, 1, np.random.default_rng(2))
+        means = palette_kernels.update(points, mass, centroids, labels)
+        summed = palette_kernels.principal_axes(
+            points, mass
+        )  # its own blocks: COVARIANCE_BLOCK_BYTES
         found: list[npt.NDArray[np.generic]] = [*merged, *compacted, near, coords, *means]
-        return [*found, *summed, *sh_palette._unique_rows(repeated)]
+        return [*found, *summed, *palette_kernels.unique_rows(repeated)]
 
     whole = run()
     for copied, in_place in zip(whole[:3], whole[3:6], strict=True):
         np.testing.assert_array_equal(copied, in_place)
     fitted = sh_palette.fit_palette(points, 256, seed=2)
-    monkeypatch.setattr(sh_palette, "BLOCK_BYTES", 1024)
+    monkeypatch.setattr(palette_kernels, "BLOCK_BYTES", 1024)
     for fit, again in zip(fitted, sh_palette.fit_palette(points, 256, seed=2), strict=True):
         np.testing.assert_array_equal(fit, again)  # the whole fit: only the covariance's blocks
     blocked = run()
@@ -320,9 +296,9 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
     )
     _, first, inverse = np.unique(repeated, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
-    assert sh_palette._each_matches(repeated, first, inverse)
+    assert palette_kernels._each_matches(repeated, first, inverse)
     inverse[-1] = (inverse[-1] + 1) % len(first)  # the last row matched to another row
-    assert not sh_palette._each_matches(repeated, first, inverse)
+    assert not palette_kernels._each_matches(repeated, first, inverse)
 
 
 def test_cluster_means_are_each_clusters_weighted_mean() -> None:
@@ -334,7 +310,7 @@ def test_cluster_means_are_each_clusters_weighted_mean() -> None:
     weights = rng.random(3000) + 0.5
     labels = rng.integers(0, 199, 3000)
     centroids = points[:200].copy()
-    moved, relabelled = sh_palette._update(points, weights, centroids, labels)
+    moved, relabelled = palette_kernels.update(points, weights, centroids, labels)
     mass = np.bincount(labels, weights, minlength=200)
     for coordinate in (0, 17, 44):
         sums = np.bincount(labels, weights * points[:, coordinate], minlength=200)
@@ -361,11 +337,11 @@ def test_merged_means_are_each_hosts_weighted_mean_with_its_movers_in_order() ->
     total = mass.copy()
     np.add.at(total, target[movers], mass[movers])
     expected = (expected / total[:40, None]).astype(np.float32)
-    for block_bytes in (sh_palette.BLOCK_BYTES, 1024):
+    for block_bytes in (palette_kernels.BLOCK_BYTES, 1024):
         with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(sh_palette, "BLOCK_BYTES", block_bytes)
+            patch.setattr(palette_kernels, "BLOCK_BYTES", block_bytes)
             for own in (False, True):
-                merged, _, _ = sh_palette._merge(points.copy(), mass, movers, partner, own=own)
+                merged, _, _ = palette_kernels.merge(points.copy(), mass, movers, partner, own=own)
                 np.testing.assert_array_equal(merged, expected)
 
 

@@ -33,7 +33,7 @@ from tsog_stream.cli.main import build_parser, main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.container.header import Header
 from tsog_stream.model import Gaussians, Scene, evaluate_all
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
 from tsog_stream.synthetic import SceneSpec, generate_scene, static_gaussians
 

@@ -17,7 +17,7 @@ from conftest import REPO
 from helpers import free_port
 from serve_process import _wait_listening
 from tsog_stream.model import TimelineType
-from tsog_stream.segment.segmenter import SegmentOptions, segment_scene
+from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.synthetic import small_scene
 
 REFERENCE = re.compile(

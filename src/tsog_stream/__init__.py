@@ -108,7 +108,7 @@ if TYPE_CHECKING:
     from .io.readers import ReadOptions, load_scene
     from .model import Gaussians, Scene, Timeline, TimelineType
     from .pipeline import InputOptions, InputReport, segment_input
-    from .segment.segmenter import SegmentOptions, SegmentReport, segment_scene
+    from .segment import SegmentOptions, SegmentReport, segment_scene
 
 
 def __getattr__(name: str) -> Any:

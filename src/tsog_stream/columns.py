@@ -1,8 +1,5 @@
-"""Reductions over the short axis of (N, C) arrays, done column by column or pairwise: numpy
-reduces an (N, 3) array along either axis a few values at a time, far slower than each
-column's own reduction (docs/design/chunk-codec.md), and these paths run on every chunk
-encoded. And
-rows a block at a time, for work whose temporaries would otherwise be many times its input."""
+"""Reductions of (N, C) arrays column by column or pairwise (numpy reduces a short axis far
+slower: docs/design/quantizers.md), and rows a block at a time."""
 
 from __future__ import annotations
 
@@ -16,8 +13,7 @@ import numpy.typing as npt
 Array = npt.NDArray[Any]
 
 BLOCK_ROWS: Final = 1 << 16
-"""Rows worked on at a time by row-wise work done in blocks (a few MiB of float64 temporaries,
-not ~10 arrays of every row's)."""
+"""Rows worked on at a time by row-wise work done in blocks (bounds its temporaries)."""
 
 
 def down(pick: Any, values: Array, **options: Any) -> Array:
@@ -37,6 +33,3 @@ def row_blocks(count: int) -> Iterator[slice]:
     """Slices of ``count`` rows, BLOCK_ROWS at a time."""
     for start in range(0, count, BLOCK_ROWS):
         yield slice(start, min(count, start + BLOCK_ROWS))
-
-
-__all__ = ["BLOCK_ROWS", "across", "down", "row_blocks"]

@@ -72,8 +72,7 @@ def attribute_errors(reference: Gaussians, candidate: Gaussians) -> AttributeErr
     return AttributeErrors(
         len(reference),
         *_abs_stats(reference.means, candidate.means),
-        float(angles.max()) if angles.size else 0.0,
-        float(angles.mean()) if angles.size else 0.0,
+        *((float(angles.max()), float(angles.mean())) if angles.size else (0.0, 0.0)),
         *_abs_stats(reference.scales, candidate.scales),
         *_abs_stats(reference.sh0, candidate.sh0),
         *_abs_stats(logit_to_alpha(reference.opacities), logit_to_alpha(candidate.opacities)),

@@ -49,11 +49,7 @@ TEMPORAL_CHANNELS: Final[dict[str, int]] = {
     "sh0": 3,
     "opacity": 1,
 }
-"""Attributes that may carry temporal polynomial coefficients, and their channel counts.
-
-``means`` are world units, ``scales`` log-scale, ``quats`` raw (w, x, y, z) components
-renormalised on evaluation, ``sh0`` f_dc values, ``opacity`` the logit.
-"""
+"""Attributes that may carry temporal polynomial coefficients, and their channel counts."""
 STORED_CHANNELS: Final[dict[str, tuple[int, ...]]] = {
     "means": (3,),
     "scales": (3,),
@@ -62,16 +58,13 @@ STORED_CHANNELS: Final[dict[str, tuple[int, ...]]] = {
     "opacity": (1,),
 }
 """Channel counts a ``temporal.<attr>`` entry of ``meta.json`` may have (docs/spec.md §6), the
-first being the one written. ``quats``: 4 = (w, x, y, z), or 3 = (x, y, z) as in the paper's
-example, w's coefficient being 0. ``sh0``: 3 = R, G, B, or 4 = R, G, B and opacity in A, the
-channel mapping of SOG's ``sh0.webp`` (written whenever opacity is dynamic). ``opacity``: a
-separate one-channel attribute, written by spec 0.2 and still read."""
+first being the one written."""
 OPACITY_IN_SH0: Final = 3
 """Channel (A) of a 4-channel ``temporal.sh0`` entry that holds the opacity coefficients."""
 MAX_TEMPORAL_ORDER: Final = 8
 
 SCALE_CAP_SPANS: Final = 20.0
-"""Type-2 scales are stored clamped to this many scene spans (exp(-1/2 (1/20)^2) > 0.998)."""
+"""Type-2 scales are stored clamped to this many scene spans."""
 
 ALPHA_EPS: Final = 1e-6
 """Alpha is clamped to [ALPHA_EPS, 1 - ALPHA_EPS] before taking its logit (see opacity.py)."""
@@ -97,16 +90,15 @@ def is_container(head: bytes) -> bool:
 
 # --- Limits on untrusted input (docs/reliability.md) ---------------------------------------
 DEFAULT_MAX_PIXELS: Final = 4096 * 4096
-"""Pixels per image: the segmenter's budget for every image of a chunk, and the default
-budget of what a reader decodes (:func:`pixel_budget`)."""
+"""Pixels per image: the segmenter's budget per chunk image, and a reader's by default."""
 MAX_PIXELS_ENV: Final = "TSOG_MAX_PIXELS"
 """Environment variable raising (or lowering) the read budget, in pixels per image."""
 
 
 def pixel_budget() -> int:
-    """Largest image (and Gaussian count) a reader decodes: ``$TSOG_MAX_PIXELS`` when set to a
-    positive integer (at most MAX_IMAGE_PIXELS), else DEFAULT_MAX_PIXELS. Checked before any
-    pixel is decoded, so a small hostile file cannot make a reader allocate gigabytes."""
+    """Largest image (and Gaussian count) a reader decodes, checked before decoding:
+    ``$TSOG_MAX_PIXELS`` when a positive integer (at most MAX_IMAGE_PIXELS), else
+    DEFAULT_MAX_PIXELS."""
     text = os.environ.get(MAX_PIXELS_ENV, "").strip()
     if text.isdigit() and int(text) > 0:
         return min(int(text), MAX_IMAGE_PIXELS)
@@ -116,25 +108,20 @@ def pixel_budget() -> int:
 MAX_IMAGE_PIXELS: Final = WEBP_MAX_SIDE * WEBP_MAX_SIDE
 """Largest image any reader decodes; Pillow's decompression-bomb limit is set to this."""
 IMAGE_SLACK_TEXELS: Final = 4096
-"""A per-Gaussian image may hold at most 2 * count + this many texels: more is padding no
-writer produces, and refusing it keeps decoded memory proportional to the declared count."""
+"""A per-Gaussian image may hold at most 2 * count + this many texels."""
 MAX_INDEX_RATIO: Final = 256
 """A zstd index may declare at most this many raw bytes per compressed byte (plus 64 KiB)."""
 MAX_GAUSSIANS_PER_IMAGE_BYTE: Final = 64
-"""A chunk may declare at most this many Gaussians per byte of its WebP files (beyond
-:data:`FREE_GAUSSIANS`): trained data never compresses that far, and the bound keeps a tiny
-file from making a reader decode gigabytes of pixels (lossless WebP reaches 10^5:1)."""
+"""A chunk may declare at most this many Gaussians per byte of its WebP files beyond
+FREE_GAUSSIANS (trained data never compresses that far)."""
 FREE_GAUSSIANS: Final = 65536
-"""Counts up to this are accepted whatever the image bytes (a 256x256 image per attribute)."""
 
 RENDER_MAX_SIDE: Final = 16384
-"""Largest image side ``render``/``eval`` draw (a 16384² float image is already 3 GiB)."""
+"""Largest image side ``render``/``eval`` draw."""
 RENDER_MAX_VIEWS: Final = 1000
-"""Most orbit cameras per time: past it a typo would render for days."""
 EVAL_MAX_TIMES: Final = 1000
-"""Most times ``eval`` samples, for the same reason."""
 MAX_CAMERAS: Final = 4096
-"""Most capture cameras a scene carries in its index (a large COLMAP capture has ~2000)."""
+"""Most capture cameras a scene carries in its index."""
 MAX_CAMERA_SIDE: Final = 65536
 """Largest image side a capture camera may declare."""
 MAX_CAMERA_FILE_BYTES: Final = 64 * 1024 * 1024
@@ -143,9 +130,8 @@ MAX_CAMERA_FILE_BYTES: Final = 64 * 1024 * 1024
 MAX_LAYERS_READ: Final = 16
 """Most quality layers an index may list (writers make at most 8): a reader refuses more."""
 MAX_PSNR_DB: Final = 200.0
-"""Above any PSNR a layer can measure: a non-zero mean squared error of 8-bit pictures in
-[0, 1] is at least 1 / (255^2 P) for P pixels compared, under 198.1 dB for P < 10^15; a
-writer records an exact picture's (infinite) PSNR as this."""
+"""Above any finite PSNR of 8-bit pictures (< 198.1 dB below 10^15 pixels): a writer records an
+exact picture's infinite PSNR as this."""
 
 # --- Scene thumbnails (tsog segment writes them; the server's scene list shows them) --------
 THUMBNAIL_SUFFIX: Final = ".thumb.png"

@@ -18,7 +18,7 @@ from .errors import InputError
 from .io.files import atomic_write_bytes
 from .io.ply import ply_bytes
 from .model import Gaussians, Scene, evaluate_all
-from .segment.segmenter import SegmentOptions, segment_scene
+from .segment import SegmentOptions, segment_scene
 from .server.app import make_app, start_server
 from .synthetic import SceneSpec, generate_scene, rig_cameras
 from .temporal import time_range

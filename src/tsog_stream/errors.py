@@ -22,11 +22,8 @@ from typing import Any
 
 
 class TsogError(Exception):
-    """Base of every error tsog-stream raises on purpose.
-
-    ``where`` names the file (and optionally the field or byte offset) so a message
-    always says what was expected, what was found, and where.
-    """
+    """Base of every error tsog-stream raises on purpose; ``where`` names the file (and the
+    field or byte offset) so a message says what was expected, what was found, and where."""
 
     def __init__(self, message: str, *, where: str | None = None) -> None:
         self.message = printable(message)
@@ -34,22 +31,21 @@ class TsogError(Exception):
         super().__init__(f"{self.where}: {self.message}" if where else self.message)
 
     def __reduce__(self) -> tuple[Any, ...]:
-        """Pickle by state, not by constructor arguments (subclasses add their own, such as
-        MetaError's ``field``): an error raised in a worker process reaches the parent whole."""
+        """Pickle by state, not by constructor arguments: an error raised in a worker process
+        reaches the parent whole."""
         return (_rebuild, (type(self), self.args, self.__dict__))
 
 
 def printable(text: str) -> str:
-    """``text`` safe to print on a terminal or a log line: control and other non-printable
-    characters (escape sequences, line breaks that would inject lines) as ``\\xNN`` escapes.
-    Messages quote hostile text (a server's error body, a file name), so every one is cleaned."""
+    """``text`` with non-printable characters as ``\\xNN`` escapes: messages quote hostile text
+    (a server's error body, a file name), which must not reach a terminal or a log raw."""
     if text.isprintable():
         return text
     return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
 
 
 def _rebuild(cls: type[TsogError], args: tuple[Any, ...], state: dict[str, Any]) -> TsogError:
-    """A TsogError of class ``cls`` with the given args and attributes (see __reduce__)."""
+    """A TsogError of class ``cls`` with the given args and attributes."""
     error = cls.__new__(cls)
     error.args = args
     error.__dict__.update(state)

@@ -1,10 +1,10 @@
-"""Where a viewer starts: capture-camera geometry, the scene's up axis and a floater-proof framing.
+"""Where a viewer starts: camera geometry, the scene's up axis and a floater-proof framing.
 
-Pure numerics over :class:`~tsog_stream.schemas.cameras.CaptureCamera` values. A scene opens
+Pure numerics over :class:`~tsog_stream.schemas.cameras.Camera` values. A scene opens
 from its first capture camera; without one, from a camera framing the *dense core*: the
 opacity-weighted median of the centres and a weighted percentile of their distances, so a
-few floaters far away (a real capture's bounding box can be 30x its subject) do not push the
-camera out of the room. See docs/design/player.md ("The first view").
+few floaters far away do not push the camera out of the room (docs/design/player.md, "The
+first view").
 """
 
 from __future__ import annotations
@@ -18,12 +18,11 @@ import numpy.typing as npt
 from .errors import InputError
 from .model import Gaussians
 from .opacity import logit_to_alpha
-from .schemas.cameras import CaptureCamera, HeaderCamera
+from .schemas.cameras import Camera, HeaderCamera
 
 F64 = npt.NDArray[np.float64]
 DEFAULT_UP: tuple[float, float, float] = (0.0, -1.0, 0.0)
-"""The up axis of a scene without cameras: COLMAP-trained captures (3DGS, Spacetime
-Gaussians, FreeTimeGS) keep COLMAP's y-down world."""
+"""The up axis of a scene without cameras: COLMAP's y-down world, which trained captures keep."""
 CORE_QUANTILE = 0.8
 """Share of the opacity-weighted Gaussians the framing fits into the view."""
 FRAMING_FOV_DEG = 50.0
@@ -38,24 +37,22 @@ MIN_COVERAGE = 0.5
 nor is a capture camera, unless it looks at the dense core (:func:`looks_at_core`)."""
 CORE_IN_MIDDLE = 0.25
 """A camera looks at the dense core when the core's centre projects at most this share of
-the image's width and height from its middle (inside the middle half of each side)..."""
+the image's sides from its middle..."""
 CORE_DISTANCE = (0.1, 10.0)
-"""...and lies in front of it between these many core radii: a 360-degree capture's cameras
-stand about one radius out (a ring there sees 40 % of a real scene), while from ten radii the
-core fills less than a sixth of a 50-degree view."""
+"""...and lies in front of it between these many core radii."""
 FRAMING_NAME = "framing"
 """The ``name`` of a framing camera (capture cameras carry their image names)."""
 FRAMING_SAMPLE = 1 << 20
-"""Gaussians the view of a bigger scene is measured on, every k-th: all of them would be
-seconds of segmenting's serial start, and a median of 2^20 samples is as good a centre."""
+"""Gaussians the view of a bigger scene is measured on, every k-th (a median of 2^20 is as
+good a centre, in far less time)."""
 
 
-def rotation(camera: CaptureCamera) -> F64:
+def rotation(camera: Camera) -> F64:
     """The camera-to-world rotation as a (3, 3) array (columns: right, down, forward)."""
     return np.array(camera.rotation, dtype=np.float64)
 
 
-def world_to_camera(camera: CaptureCamera) -> F64:
+def world_to_camera(camera: Camera) -> F64:
     """The (4, 4) world-to-camera matrix of a capture camera."""
     r = rotation(camera)
     w2c = np.eye(4)
@@ -83,21 +80,15 @@ def look_at(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike) -> F64
     return w2c
 
 
-def up_from_cameras(cameras: Sequence[CaptureCamera]) -> F64 | None:
-    """The scene's up axis as the capture cameras hold it (the mean of their -y axes), or None
-    when there are no cameras or their ups cancel out."""
-    if not cameras:
-        return None
-    ups = -np.array([c.rotation for c in cameras], dtype=np.float64)[:, :, 1]
-    mean = ups.mean(axis=0)
-    norm = float(np.linalg.norm(mean))
-    return mean / norm if norm > 1e-6 else None
-
-
-def scene_up(cameras: Sequence[CaptureCamera]) -> F64:
-    """The up axis: from the cameras when they agree on one, else :data:`DEFAULT_UP`."""
-    up = up_from_cameras(cameras)
-    return up if up is not None else np.array(DEFAULT_UP, dtype=np.float64)
+def scene_up(cameras: Sequence[Camera]) -> F64:
+    """The up axis: the mean of the cameras' -y axes when they agree on one, else DEFAULT_UP."""
+    if cameras:
+        ups = -np.array([c.rotation for c in cameras], dtype=np.float64)[:, :, 1]
+        mean = ups.mean(axis=0)  # negated first: the mean of -0.0s is +0.0
+        norm = float(np.linalg.norm(mean))
+        if norm > 1e-6:
+            return np.asarray(mean / norm, np.float64)
+    return np.array(DEFAULT_UP, dtype=np.float64)
 
 
 def weighted_quantile(values: F64, weights: F64, q: float) -> float:
@@ -118,8 +109,7 @@ def weighted_centres(gaussians: Gaussians) -> tuple[F64, F64]:
 
 
 def framing_sample(gaussians: Gaussians, at_most: int | None = None) -> Gaussians:
-    """``gaussians``, or every k-th of them when there are more than ``at_most`` (by default
-    FRAMING_SAMPLE)."""
+    """``gaussians``, or every k-th when there are more than ``at_most`` (FRAMING_SAMPLE)."""
     step = -(-len(gaussians) // (FRAMING_SAMPLE if at_most is None else at_most))
     return gaussians if step <= 1 else gaussians.subset(np.arange(0, len(gaussians), step))
 
@@ -147,12 +137,9 @@ Core = tuple[F64, float]
 """(centre, radius) of a dense core, as :func:`dense_core` gives it."""
 
 
-def framing_camera(
-    gaussians: Gaussians, up: npt.ArrayLike, core: Core | None = None
-) -> CaptureCamera:
+def framing_camera(gaussians: Gaussians, up: npt.ArrayLike, core: Core | None = None) -> Camera:
     """A camera looking down on the dense core (``core``, else measured) from
-    :data:`FRAMING_ELEVATION_DEG`, far enough that the core's sphere fills the
-    :data:`FRAMING_FOV_DEG` view with a 10 % margin."""
+    FRAMING_ELEVATION_DEG, its sphere filling the view with a 10 % margin."""
     u = np.asarray(up, dtype=np.float64)
     u = u / np.linalg.norm(u)
     centre, radius = core if core is not None else dense_core(gaussians)
@@ -163,7 +150,7 @@ def framing_camera(
     w2c = look_at(eye, centre, u)
     width, height = FRAMING_SIZE
     focal = 0.5 * height / math.tan(math.radians(FRAMING_FOV_DEG) / 2)
-    return CaptureCamera(
+    return Camera(
         name=FRAMING_NAME,
         width=width,
         height=height,
@@ -174,7 +161,7 @@ def framing_camera(
     )
 
 
-def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
+def coverage(gaussians: Gaussians, camera: Camera) -> float:
     """The share of the scene's opacity-weighted Gaussians whose centres ``camera`` sees (in
     front of it and inside its image)."""
     means, weights = weighted_centres(gaussians)
@@ -185,7 +172,7 @@ def coverage(gaussians: Gaussians, camera: CaptureCamera) -> float:
     return float((weights * seen).sum() / weights.sum())
 
 
-def _pixels(camera: CaptureCamera, points: F64) -> tuple[F64, F64, F64]:
+def _pixels(camera: Camera, points: F64) -> tuple[F64, F64, F64]:
     """Where world ``points`` (N, 3) land in ``camera``'s image (x, y in pixels) and their
     depth along its view (behind it: depth <= 0, x and y meaningless)."""
     w2c = world_to_camera(camera)
@@ -198,11 +185,9 @@ def _pixels(camera: CaptureCamera, points: F64) -> tuple[F64, F64, F64]:
     return x, y, depth
 
 
-def looks_at_core(camera: CaptureCamera, core: Core) -> bool:
-    """True when the dense core's centre lies in front of ``camera`` at a sane distance
-    (:data:`CORE_DISTANCE`) and projects near the middle of its image
-    (:data:`CORE_IN_MIDDLE`): a capture camera aimed at the subject, however much of a
-    360-degree scene lies behind it."""
+def looks_at_core(camera: Camera, core: Core) -> bool:
+    """True when the dense core's centre lies in front of ``camera`` at CORE_DISTANCE and
+    projects near its image's middle (CORE_IN_MIDDLE): a camera aimed at the subject."""
     centre, radius = core
     x, y, depth = (float(v[0]) for v in _pixels(camera, np.asarray(centre).reshape(1, 3)))
     near, far = CORE_DISTANCE
@@ -215,15 +200,12 @@ def looks_at_core(camera: CaptureCamera, core: Core) -> bool:
 
 
 def opening_view(
-    gaussians: Gaussians, cameras: Sequence[CaptureCamera], core: Core | None = None
-) -> tuple[CaptureCamera, str]:
+    gaussians: Gaussians, cameras: Sequence[Camera], core: Core | None = None
+) -> tuple[Camera, str]:
     """Where a viewer opens the scene, and why: the first camera when it sees at least
-    :data:`MIN_COVERAGE` of the scene, or when it is a capture camera (not a format's
-    :class:`HeaderCamera`) that looks at the dense core (:func:`looks_at_core`: a 360-degree
-    capture's camera sees under half); else a framing of the core (up from the cameras, or
-    :data:`DEFAULT_UP`). A header may carry a camera of another scene: every macaburguera
-    ``.splatv`` holds the same one, which sees under half of ``yellow_clip2`` and looks past
-    its core."""
+    MIN_COVERAGE of the scene, or when it is a capture camera (a format's
+    :class:`HeaderCamera` may be another scene's) that looks at the dense core; else a framing
+    of the core."""
     if not cameras:
         return framing_camera(gaussians, scene_up(cameras), core), "no capture cameras"
     first = cameras[0]
@@ -240,9 +222,8 @@ def opening_view(
     return framing_camera(gaussians, scene_up(cameras), core), why
 
 
-def default_view(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> CaptureCamera | None:
-    """Where a viewer opens the scene (:func:`opening_view`); None when it shows nothing to
-    frame."""
+def default_view(gaussians: Gaussians, cameras: Sequence[Camera]) -> Camera | None:
+    """Where a viewer opens the scene (:func:`opening_view`); None with nothing to frame."""
     try:
         return opening_view(gaussians, cameras)[0]
     except InputError:

@@ -1,7 +1,6 @@
-"""Rows of an array put in a new order, some of them gathered to its front, or each one's
-axes swapped, in its own memory a block at a time: ``a[...] = np.take(a, order, axis=0)``
-holds a whole copy of ``a`` beside it for a moment, which was the encoder's peak on wide rows
-(the SH bands)."""
+"""Rows of an array put in a new order, or some of them gathered to its front, in its own
+memory a block at a time: the SH palette's kernels reorder their own working arrays this way,
+where ``a[...] = np.take(a, order, axis=0)`` would hold a whole copy beside them."""
 
 from __future__ import annotations
 
@@ -66,22 +65,10 @@ def compact_rows(
     return array[: len(kept)]
 
 
-def swap_row_axes(array: npt.NDArray[Any], *, block_bytes: int | None = None) -> npt.NDArray[Any]:
-    """Each row's two axes swapped, (N, A, B) -> (N, B, A), in the memory of ``array``
-    (C-contiguous) a block of rows at a time, returned as a view of it: what
-    ``np.ascontiguousarray(array.transpose(0, 2, 1))`` gives, without the copy beside it."""
-    count, first, second = array.shape
-    step = _rows_per_step(array, block_bytes)
-    for start in range(0, count, step):
-        block = array[start : start + step]
-        block.reshape(len(block), second, first)[...] = block.transpose(0, 2, 1).copy()
-    return array.reshape(count, second, first)
-
-
 def _rows_per_step(array: npt.NDArray[Any], block_bytes: int | None) -> int:
     """Rows of ``array`` a block of ``block_bytes`` (BLOCK_BYTES) holds, at least one."""
     row_bytes = max(1, array.nbytes // max(1, len(array)))
     return max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // row_bytes)
 
 
-__all__ = ["compact_rows", "permute_rows", "swap_row_axes"]
+__all__ = ["compact_rows", "permute_rows"]

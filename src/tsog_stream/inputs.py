@@ -22,8 +22,8 @@ from .framing import default_view
 from .io.cameras import read_cameras
 from .io.readers import ReadOptions, detect_format, load_scene
 from .model import Gaussians, Scene, opacity_at
-from .render.evaluate import Source, Span, scene_source
-from .schemas.cameras import CaptureCamera
+from .render.evaluate import Source, scene_source
+from .schemas.cameras import Camera
 from .schemas.manifest import SceneInfo
 
 URL_SCHEMES = ("http://", "https://", "file://")
@@ -51,16 +51,8 @@ def input_kind(target: str, format: str | None = None) -> str:
 
 def fit_options(kind: str, options: ReadOptions) -> ReadOptions:
     """``options`` without the reading options that do not apply to inputs of ``kind``."""
-
-    def keep(name: str) -> Any:
-        return getattr(options, name) if kind in OPTION_KINDS[name] else None
-
-    return ReadOptions(
-        fps=keep("fps"),
-        duration_s=keep("duration_s"),
-        scene_length_s=keep("scene_length_s"),
-        duration_mode=options.duration_mode,
-    )
+    unused: dict[str, Any] = {k: None for k, kinds in OPTION_KINDS.items() if kind not in kinds}
+    return replace(options, **unused)
 
 
 def stream_notes(info: SceneInfo) -> list[str]:
@@ -72,11 +64,6 @@ def stream_notes(info: SceneInfo) -> list[str]:
         f"its length, {info.end_s - info.start_s:g} s, was assumed when it was segmented (the "
         "input did not say it): segment it again with --duration-s"
     ]
-
-
-def _stream_span(info: SceneInfo) -> Span | None:
-    """The time range a container declares (None when it holds a static scene)."""
-    return None if info.timeline_type is None else (info.start_s, info.end_s)
 
 
 def open_source(
@@ -109,7 +96,7 @@ def _stream_source(target: str, kind: str, cameras: str | os.PathLike[str] | Non
     info = manifest.scene
     chosen = given if given is not None else list(manifest.cameras)
 
-    def opening() -> CaptureCamera | None:
+    def opening() -> Camera | None:
         if cameras is None and manifest.view is not None:
             return manifest.view
         return default_view(stream.frame_at(info.start_s), chosen)
@@ -119,7 +106,7 @@ def _stream_source(target: str, kind: str, cameras: str | os.PathLike[str] | Non
             if chunk.holds_gaussians:
                 yield stream.chunk_scene(chunk.id)
 
-    span = _stream_span(info)
+    span = None if info.timeline_type is None else (info.start_s, info.end_s)
     return Source(
         target,
         kind,
@@ -135,8 +122,8 @@ def _stream_source(target: str, kind: str, cameras: str | os.PathLike[str] | Non
 
 
 def thumbnail_png(container: str | os.PathLike[str]) -> bytes:
-    """A small PNG of a container's opening view half way through (the scene list's
-    picture): THUMBNAIL_SIZE, the page's background grey."""
+    """The scene list's picture: a THUMBNAIL_SIZE PNG of a container's opening view half way
+    through, on the page's background grey."""
     from .render import from_capture, png_bytes, render, to_uint8  # noqa: PLC0415 - numba
 
     with open_source(container) as source:
@@ -151,17 +138,15 @@ def thumbnail_png(container: str | os.PathLike[str]) -> bytes:
 
 
 THUMBNAIL_GAUSSIANS = 1 << 20
-"""Gaussians a thumbnail draws at most: the most opaque (a 5M-Gaussian scene's render peaked
-the process at 6 GB for a picture a few hundred pixels wide)."""
+"""Gaussians a thumbnail draws at most, the most opaque: a picture this small needs no more,
+and drawing all of a huge scene would hold gigabytes."""
 
 
 def _most_opaque_at(scenes: Iterable[Scene], t: float) -> Gaussians:
     """The THUMBNAIL_GAUSSIANS most opaque Gaussians shown at ``t`` by all ``scenes`` (in
-    their order), evaluated at t. Reduced scene by scene, memory holds at most twice that
-    many and one scene, not the whole (a 5M container's thumbnail: 5.0 -> 2.3 GB); each scene
-    gives only what is at least as opaque as the THUMBNAIL_GAUSSIANS-th so far, and only that
-    is evaluated (all were, and the kept ones re-selected at every chunk: a 5M container's
-    thumbnail now holds 150-200 MB less and takes ~0.7 s less of ~7.5 s)."""
+    their order), evaluated at t. Reduced scene by scene, so memory holds at most twice that
+    many and one scene, never the whole; a scene gives (and evaluates) only what is at least
+    as opaque as the THUMBNAIL_GAUSSIANS-th so far."""
     kept: list[Gaussians] = []
     floor = -np.inf  # nothing less opaque can be among the most opaque any more
     for scene in scenes:

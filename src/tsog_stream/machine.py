@@ -1,17 +1,13 @@
 """What this machine lets a process use: cores and memory, as the kernel and a container's
 limits (cgroup v2, then v1) say. Thread pools and default worker counts are sized by these, not
-by the machine's totals, which a pinned or limited process would oversubscribe. And how the C
-library's allocator holds a process's memory (glibc's thresholds, arenas and freed pages)."""
+by the machine's totals, which a pinned or limited process would oversubscribe."""
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
-import functools
 import math
 import os
-from typing import Any, Final
+from typing import Final
 
 CPU_QUOTAS: Final = (
     ("/sys/fs/cgroup/cpu.max", None),
@@ -28,16 +24,6 @@ overstate what this process may take."""
 MEMINFO: Final = "/proc/meminfo"
 UNLIMITED: Final = 1 << 60
 """Limits at or above this mean none (cgroup v1 writes "unlimited" as about 2^63)."""
-
-
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_ARENA_MAX = -1, -3, -8
-"""glibc ``mallopt`` parameters (malloc.h)."""
-MMAP_THRESHOLD: Final = 4 << 20
-"""Allocations from this size on are mapped on their own, and unmapped when freed: a job's
-large per-Gaussian temporaries then leave no holes in the heap, while the working blocks
-below it are still reused (measured: docs/design/cluster.md)."""
-TRIM_THRESHOLD: Final = 64 << 20
-"""Free memory at the top of the heap kept for reuse before it is handed back."""
 
 
 def usable_cores() -> int:
@@ -94,47 +80,3 @@ def _read(path: str) -> str:
     """A small system file's text, stripped (at most 64 KiB: these are a line or a page)."""
     with open(path, encoding="ascii") as file:
         return file.read(1 << 16).strip()
-
-
-def tune_malloc() -> bool:
-    """Give glibc's allocator fixed thresholds (mmap MMAP_THRESHOLD, trim TRIM_THRESHOLD)
-    and one arena for every thread; False where there is no glibc.
-
-    Dask starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which also pins the mmap
-    threshold low, so every large temporary would be mapped and zeroed afresh; and with an
-    arena per thread, memory one thread freed is not reused by the others (measured:
-    docs/design/cluster.md).
-    """
-    mallopt = _libc_function("mallopt")
-    if mallopt is None:
-        return False
-    settings = (
-        (M_MMAP_THRESHOLD, MMAP_THRESHOLD),
-        (M_TRIM_THRESHOLD, TRIM_THRESHOLD),
-        (M_ARENA_MAX, 1),
-    )
-    return all([bool(mallopt(option, value)) for option, value in settings])  # every one set
-
-
-def release_freed_memory() -> bool:
-    """Hand the pages glibc's heap holds free back to the system (``malloc_trim``); False
-    where there is no glibc. A phase's temporaries (the layout's sample encodes, the sampled
-    frames, the layers' renders), once freed, otherwise stay in the process's RSS for the rest
-    of the run under the next phase's peak (measured: docs/design/segmenter.md)."""
-    trim = _libc_function("malloc_trim")
-    return trim is not None and bool(trim(0))
-
-
-def _libc_function(name: str) -> Any:
-    """The C library's function ``name``, or None where there is no such library or function."""
-    library = _libc()
-    return getattr(library, name, None) if library is not None else None
-
-
-@functools.cache
-def _libc() -> Any:
-    """The C library, found once (a lookup is slow), or None."""
-    try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-    except OSError:
-        return None

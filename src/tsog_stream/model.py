@@ -30,7 +30,6 @@ from .constants import (
     VISIBILITY_THRESHOLD,
 )
 from .errors import InputError
-from .inplace import compact_rows, permute_rows
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -44,11 +43,6 @@ def rows(values: A, index: Index) -> A:
     if np.asarray(index).dtype == np.bool_:
         return cast(A, values[index])
     return cast(A, np.take(values, index, axis=0))
-
-
-def _nothing_like(values: A) -> A:
-    """Read-only zeros of ``values``' shape and dtype that hold no memory (a broadcast)."""
-    return cast("A", np.broadcast_to(np.zeros((), values.dtype), values.shape))
 
 
 def _as_f32(name: str, value: npt.ArrayLike, shape_tail: tuple[int, ...]) -> F32:
@@ -122,13 +116,6 @@ class Gaussians:
     def sh_bands(self) -> int:
         """Number of SH bands beyond DC (0-3)."""
         return SH_BANDS_BY_COEFFS[self.shN.shape[1]]
-
-    def let_go(self, *names: str) -> None:
-        """Put read-only zeros that hold no memory (a broadcast) in place of the attributes
-        ``names``, keeping their shapes: what an encoder that was handed the rows does once
-        their images are made, so their memory goes before the SH palette's fit."""
-        for name in names:
-            setattr(self, name, _nothing_like(getattr(self, name)))
 
     def subset(self, index: Index) -> Gaussians:
         """The Gaussians selected by an integer or boolean index, in that order."""
@@ -284,48 +271,6 @@ class Scene:
         if self.timeline is not None:
             out += [self.timeline.t0, self.timeline.t1]
         return out + list(self.temporal.values())
-
-    def reordered(self, order: npt.NDArray[np.intp]) -> Scene:
-        """The scene with its rows in ``order`` (a permutation), made in its own arrays a block
-        of rows at a time (:func:`~tsog_stream.inplace.permute_rows`) when they are all
-        writable (the scene given up by its owner, e.g. a job's part): ``subset`` would hold a
-        second scene beside it, and a whole array's copy its widest array twice. Otherwise a
-        copy."""
-        if len(order) != len(self) or not self._writable():
-            return self.subset(order)
-        for array in self.arrays():
-            permute_rows(array, order)
-        return self
-
-    def keeping(self, kept: npt.NDArray[np.intp]) -> Scene:
-        """The scene of the rows ``kept`` (ascending), gathered to the front of its own arrays
-        a block of rows at a time (:func:`~tsog_stream.inplace.compact_rows`) when they are
-        all writable (the scene given up by its owner, e.g. a window just read): ``subset``
-        held the window twice. Otherwise a copy."""
-        if not self._writable():
-            return self.subset(kept)
-        fronts = [compact_rows(array, kept) for array in self.arrays()]
-        timeline = None
-        if self.timeline is not None:
-            was = self.timeline
-            timeline = Timeline(was.type, fronts[6], fronts[7], was.fps, was.scene_length)
-        moving = dict(zip(self.temporal, fronts[6 if timeline is None else 8 :], strict=True))
-        return Scene(Gaussians(*fronts[:6]), timeline, moving)
-
-    def let_go_of_time(self) -> None:
-        """Put read-only zeros that hold no memory in place of the lifespans and the motion
-        coefficients, keeping their shapes: what an encoder that was handed the rows does
-        once their images are made (as :meth:`Gaussians.let_go`)."""
-        if self.timeline is not None:
-            self.timeline.t0 = _nothing_like(self.timeline.t0)
-            self.timeline.t1 = _nothing_like(self.timeline.t1)
-        for attr, coeffs in self.temporal.items():
-            self.temporal[attr] = _nothing_like(coeffs)
-
-    def _writable(self) -> bool:
-        """Whether every array may be written in place (the rows moved within it): not a
-        read-only view of a caller's data, nor an attribute an encoder let go."""
-        return all(array.flags.writeable for array in self.arrays())
 
     def at(self, t: float, threshold: float | None = None) -> Gaussians:
         """The static Gaussians visible at time ``t`` (seconds): :func:`evaluate_at`."""

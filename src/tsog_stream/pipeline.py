@@ -1,11 +1,8 @@
 """Any input to a streamable ``.tsogs``: all that ``tsog segment`` does, as one library call.
 
-:func:`segment_input` reads the input (a frame sequence window by window, any other input
-whole), finds its capture cameras, probes whether a frame sequence merges over time, lets the
-segmenter choose the layout and the quality layers, writes the container, checks a few
-merged frames against their source, and draws the scene list's thumbnail beside it. What it
-made comes back as an :class:`InputReport`, data that the CLI (``tsog segment``, ``tsog
-view``) prints; a :class:`Listener` hears the phases, bars and notes as they happen.
+:func:`segment_input` reads the input, finds its cameras, merges a frame sequence over time
+where that pays, segments, checks a few merged frames and draws the thumbnail; it returns an
+:class:`InputReport` the CLI prints, and a :class:`Listener` hears the phases as they happen.
 """
 
 from __future__ import annotations
@@ -18,8 +15,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
 
-import numpy as np
-
 from .client import open_stream
 from .constants import thumbnail_path
 from .errors import InputError, TsogError
@@ -30,20 +25,14 @@ from .io.objects import ObjectPath, is_object_url
 from .io.readers import LoadedScene, ReadOptions, detect_format, load_scene
 from .io.sequence import DEFAULT_FPS, FrameSequence, open_sequence
 from .io.splatv import ASSUMED_DURATION
-from .machine import release_freed_memory
 from .merge import TemporalMode, Tolerance, merge_sequence
 from .merge.check import frame_errors
 from .merge.sequence import MAX_HELD
 from .model import Scene
-from .schemas.cameras import CaptureCamera
+from .schemas.cameras import Camera
+from .segment import SegmentOptions, SegmentReport, merge_or_frames, segment_scene, segment_sequence
 from .segment.layout import Choice
-from .segment.segmenter import (
-    SegmentOptions,
-    SegmentReport,
-    merge_or_frames,
-    segment_scene,
-    segment_sequence,
-)
+from .segment.sequence import spread
 
 SEQUENCE_KINDS = ("ply-sequence", "sog-sequence")
 """Input formats read window by window (never whole)."""
@@ -75,26 +64,16 @@ class Listener(Protocol):
 class Silent:
     """A :class:`Listener` that ignores everything (the default)."""
 
-    def __call__(self, stage: str) -> None:
-        """Ignored."""
-
-    def bar(self, stage: str, fraction: float) -> None:
-        """Ignored."""
-
-    def done(self) -> None:
-        """Ignored."""
-
-    def note(self, text: str) -> None:
-        """Ignored."""
-
-    def warn(self, text: str) -> None:
-        """Ignored."""
+    def __call__(self, stage: str) -> None: ...
+    def bar(self, stage: str, fraction: float) -> None: ...
+    def done(self) -> None: ...
+    def note(self, text: str) -> None: ...
+    def warn(self, text: str) -> None: ...
 
 
 @dataclass(frozen=True)
 class InputOptions:
-    """How to read the input and what surrounds the segmenter (its own options are
-    :class:`SegmentOptions`)."""
+    """How to read the input and what surrounds the segmenter (:class:`SegmentOptions`)."""
 
     format: str | None = None
     """The input's format (None: detected from its content)."""
@@ -105,8 +84,8 @@ class InputOptions:
     window_frames: float | None = None
     """A window in frames, made seconds by the input's frame rate (replaces ``window_s``)."""
     temporal: TemporalMode = "fit"
-    """Frame sequences: store each frame (off), or unchanged Gaussians once (merge), or also
-    fit smooth motion (fit); kept only where it pays (merge/, segment/layout.py)."""
+    """Frame sequences: each frame (off), unchanged Gaussians once (merge), or also smooth
+    motion (fit); kept only where it pays."""
     tolerance: Tolerance | None = None
     """How far a merged Gaussian may be from the frames it stands for (None: the defaults)."""
     overwrite: bool = False
@@ -132,8 +111,7 @@ class TemporalOutcome:
     worst: dict[str, float] = field(default_factory=dict)
     """The largest change from a source frame before encoding, per attribute."""
     declined: str | None = None
-    """Why the frames were stored one per frame after all, and how, as a sentence (None: the
-    merge was stored)."""
+    """Why the frames were stored one per frame after all (None: the merge was stored)."""
 
 
 @dataclass(frozen=True)
@@ -156,7 +134,7 @@ class InputReport:
     """The input's size (0 when unknown: a pattern)."""
     fps: float | None
     """The input's frame rate (None: it has none)."""
-    cameras: list[CaptureCamera]
+    cameras: list[Camera]
     cameras_source: str
     """Where the cameras were read ("" without them)."""
     temporal: TemporalOutcome | None = None
@@ -169,9 +147,8 @@ class InputReport:
 
 @dataclass
 class _Held:
-    """The input being segmented, dropped once the container is written: the thumbnail then
-    decodes and draws the whole scene again, and the input held through it would double the
-    peak."""
+    """The input being segmented, dropped once the container is written (before the thumbnail
+    decodes the scene again)."""
 
     source: Scene | FrameSequence | None
     duration_assumed: bool = False
@@ -185,8 +162,8 @@ def segment_input(
     listener: Listener | None = None,
 ) -> InputReport:
     """Segment any input (a file, folder, frame pattern or storage URL) into the container
-    ``output`` (a path or storage URL), as ``tsog segment`` does. Raises :class:`TsogError` on
-    a bad input or an output that cannot be written (checked before the read)."""
+    ``output`` (a path or storage URL), as ``tsog segment`` does; :class:`TsogError` on a bad
+    input or an output that cannot be written (checked before the read)."""
     options = options or SegmentOptions()
     inputs = inputs or InputOptions()
     told: Listener = listener or Silent()
@@ -210,7 +187,7 @@ def segment_input(
 
 def _opened(
     path: str, kind: str, inputs: InputOptions, told: Listener
-) -> tuple[_Held, list[CaptureCamera], str]:
+) -> tuple[_Held, list[Camera], str]:
     """A frame sequence opened (read window by window later) and its capture cameras."""
     fps = inputs.reading.fps if inputs.reading.fps is not None else DEFAULT_FPS
     seq = open_sequence(path, fps=fps, kind=kind.partition("-")[0])
@@ -225,7 +202,7 @@ def _opened(
 
 def _loaded(
     path: str, kind: str, inputs: InputOptions, told: Listener
-) -> tuple[_Held, list[CaptureCamera], str]:
+) -> tuple[_Held, list[Camera], str]:
     """Any other input read whole (:func:`load_told`)."""
     loaded = load_told(path, kind, inputs.reading, told, cameras=inputs.cameras)
     held = _Held(loaded.scene, duration_assumed=loaded.duration_assumed)
@@ -240,8 +217,8 @@ def load_told(
     *,
     cameras: str | os.PathLike[str] | None = None,
 ) -> LoadedScene:
-    """Read an input whole, its notes told: an assumption about time first (a ``.splatv``
-    without its length), before the read, as it changes everything shown of it."""
+    """Read an input whole, its notes told; an assumed length (a ``.splatv``) first, before the
+    read, as it changes everything shown of it."""
     said = kind == "splatv" and reading.duration_s is None
     if said:
         told.warn(ASSUMED_DURATION)
@@ -264,7 +241,7 @@ def _segment(
     inputs: InputOptions,
     told: Listener,
     input_size: int,
-    capture: tuple[list[CaptureCamera], str],
+    capture: tuple[list[Camera], str],
 ) -> InputReport:
     """Segment an opened or loaded input (merged first where that pays), check it, draw it."""
     source = held.source
@@ -321,8 +298,8 @@ def _segment(
 def _probed(
     source: Scene | FrameSequence, inputs: InputOptions, options: SegmentOptions, told: Listener
 ) -> tuple[Scene | None, Choice | None, TemporalOutcome | None]:
-    """A frame sequence merged over time where that pays (``inputs.temporal``): the merge to
-    segment (None: the frames), the layout chosen while deciding, and what merging gave."""
+    """A frame sequence merged where that pays: the merge (None: the frames), the layout chosen
+    while deciding, and what merging gave."""
     if not isinstance(source, FrameSequence) or inputs.temporal == "off":
         return None, None, None
     merged, temporal = _merged(source, inputs, told)
@@ -357,8 +334,7 @@ def _with_window(
 def _merged(
     seq: FrameSequence, inputs: InputOptions, told: Listener
 ) -> tuple[Scene | None, TemporalOutcome]:
-    """The sequence merged as ``inputs.temporal`` says (None when merging saves nothing), and
-    what merging gave."""
+    """The sequence merged (None when that saves nothing), and what merging gave."""
     started = time.monotonic()
     scene, stats = merge_sequence(seq, inputs.temporal, inputs.tolerance, progress=told)
     told.done()
@@ -390,7 +366,7 @@ def _merged(
 
 def frame_check(seq: FrameSequence, path: str, samples: int = FRAME_CHECKS) -> FrameCheck:
     """Decode a few frames of the written container and compare them with their source."""
-    frames = sorted({round(k) for k in np.linspace(0, seq.count - 1, min(samples, seq.count))})
+    frames = spread(seq.count, samples)
     worst: dict[str, float] = {}
     unpaired: list[tuple[int, int]] = []
     with open_stream(path) as reader:
@@ -405,11 +381,8 @@ def frame_check(seq: FrameSequence, path: str, samples: int = FRAME_CHECKS) -> F
 
 
 class _RendererWarmUp:
-    """The renderer loaded on a thread while the last jobs are encoded (numba's import and its
-    kernel's cache), when this process mostly waits for its workers and holds no job's part
-    any more, so the thumbnail drawn at the end starts at once: started earlier it would
-    raise the peak (the parts being sent) or hold the GIL from the serial start. A failure is
-    left for the thumbnail to report."""
+    """The renderer loaded on a thread while the last jobs are encoded (this process then waits
+    and holds no part), so the thumbnail starts at once; a failure is left to the thumbnail."""
 
     def __init__(self) -> None:
         self._thread: threading.Thread | None = None
@@ -436,10 +409,9 @@ def _load_renderer() -> None:
 
 
 def _write_thumbnail(container: str, told: Listener) -> str | None:
-    """The scene list's picture beside the container, or None (told why): a failure is a
-    note, not an error, as the container is whole without it."""
+    """The scene list's picture beside the container, or None (told why: the container is
+    whole without it)."""
     told("drawing the thumbnail")
-    release_freed_memory()  # what segmenting freed, before the picture is decoded and drawn
     target = thumbnail_path(container)
     try:
         atomic_write_bytes(target, thumbnail_png(container))
@@ -451,8 +423,7 @@ def _write_thumbnail(container: str, told: Listener) -> str | None:
 
 
 def input_bytes(path: str | os.PathLike[str]) -> int:
-    """Size of an input file, or of the files in an input folder or store prefix (0 for a
-    pattern)."""
+    """Size of an input file, folder or store prefix (0 for a pattern)."""
     text = str(path)
     if is_object_url(text):
         return 0 if any(c in text for c in "*?[") else ObjectPath.from_url(text).total_bytes()

@@ -1,21 +1,9 @@
 """256-entry scalar codebooks of SOG v2 (scales, sh0, shN), after splat-transform's quantizer.
 
-:func:`dp_codebook` is the reference algorithm of the SOG v2 notes §6.1 (splat-transform
-``quantize-1d-core.ts``): pool the samples, keep ±Infinity out (each present sign reserves an
-end slot holding finite min − 20 / finite max + 20), drop NaN, bin the sorted finite values
-into H = min(1024, n) bins whose position blends rank and value, weight each bin by
-count^0.5 and split the bins into at most 256 contiguous groups by an exact dynamic program
-that minimises the weighted sum of squared deviations.
-
-:func:`build_codebook` keeps the slots and sentinels and lowers the real quantisation
-error: with at most as many distinct finite values as slots it stores them exactly;
-otherwise it runs 1-D Lloyd passes from the reference codebook on the full sorted samples
-(O(256 log n) each, through prefix sums) and keeps the codebook with the smallest mean
-squared error over the samples, so it is never worse than the reference. Starting from the
-reference (not from an MSE-optimal DP) keeps its generous share of entries for sparse tails:
-the worst-case error stays close to the reference's (docs/design/quantizers.md). Given a
-weight per sample it minimises the weighted error instead (the scale codebook's fit).
-:func:`assign_codebook` maps values to their nearest entry.
+:func:`dp_codebook` is the reference algorithm (SOG v2 notes §6.1, docs/design/quantizers.md
+§1); :func:`build_codebook` keeps its slots and ±inf sentinels and refines it by 1-D Lloyd
+passes (never a larger error; optionally weighted); :func:`assign_codebook` maps values to
+their nearest entry.
 """
 
 from __future__ import annotations
@@ -37,29 +25,26 @@ Span = tuple[float, float]
 HIST_BINS: Final = 1024
 """Upper bound on histogram bins (splat-transform's H)."""
 DENSITY_ALPHA: Final = 0.5
-"""Bin weight = count ** DENSITY_ALPHA ("sub-linear density weighting")."""
+"""Bin weight = count ** DENSITY_ALPHA."""
 BETA_MIN: Final = 0.5
 BETA_MAX: Final = 0.999
 REFINE_PASSES: Final = 200
 """Upper bound on 1-D Lloyd passes in :func:`build_codebook`; it stops when nothing moves."""
 BLOCK_VALUES: Final = 1 << 16
-"""Values a block of the histogram's or the prefix sums' arithmetic holds (512 KiB of
-float64): computed whole, a codebook held five times its values as float64 temporaries."""
+"""Values per block of float64 temporaries (bounds a codebook's memory)."""
 
 
 def dp_codebook(samples: npt.ArrayLike) -> F32:
-    """The plain reference codebook (histogram + DP, docs/design/quantizers.md §1), unrefined."""
+    """The reference codebook (histogram + DP), unrefined."""
     return _codebook(samples, refine=False)
 
 
 def build_codebook(samples: npt.ArrayLike, weights: npt.ArrayLike | None = None) -> F32:
     """A 256-entry ascending float32 codebook for the pooled ``samples`` (any shape).
 
-    Same slots and sentinels as :func:`dp_codebook`; its mean squared error over the finite
-    samples is never larger. Empty or all-NaN input gives zeros.
-    With ``weights`` (one per sample, >= 0: how much each one's error costs), the entries
-    minimise the weighted squared error instead (:func:`_weighted_centroids`); at most as
-    many distinct values as slots are still stored exactly.
+    Same slots and sentinels as :func:`dp_codebook`, never a larger mean squared error; empty
+    or all-NaN input gives zeros. ``weights`` (one per sample, >= 0) weigh each sample's
+    error; at most as many distinct values as slots are stored exactly either way.
     """
     return _codebook(samples, refine=True, weights=weights)
 
@@ -67,9 +52,7 @@ def build_codebook(samples: npt.ArrayLike, weights: npt.ArrayLike | None = None)
 def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
     """Index of the nearest codebook entry for every value (same shape as ``values``).
 
-    Binary search over the float64 midpoints of consecutive entries; a value exactly on a
-    midpoint goes to the upper entry, -inf to 0 and +inf to the last index. NaN goes to the
-    last index too, as in splat-transform, whose comparisons with NaN are all false.
+    As splat-transform: a value on a midpoint goes up, -inf to 0, +inf and NaN to the last.
     """
     table = np.asarray(codebook)
     if table.ndim != 1 or not 1 <= table.size <= CODEBOOK_SIZE:
@@ -92,10 +75,8 @@ def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
 
 
 BINNED_FROM: Final = 1 << 16
-"""Values from which :func:`assign_codebook` looks labels up by bin (below, the search is
-quicker than building the bins' table)."""
+"""Values from which :func:`assign_codebook` looks labels up by bin (quicker than searching)."""
 LABEL_BINS: Final = 1 << 16
-"""Equal bins over the values' finite range whose label table :func:`_binned_labels` reads."""
 BIN_MARGIN: Final = 2
 """Bins on each side a value's computed bin is trusted within (its rounding moves it far less)."""
 
@@ -110,9 +91,8 @@ class _LabelBins(NamedTuple):
 
 
 def _label_bins(values: npt.NDArray[Any], mids: F64) -> _LabelBins | None:
-    """The bins :func:`_binned_labels` reads (their range from the finite values, a block
-    at a time); None where none can be laid (no finite value, or a range too narrow for its
-    magnitude): every value is to be searched."""
+    """The bins :func:`_binned_labels` reads; None where none can be laid (no finite value,
+    or a range too narrow for its magnitude)."""
     low, high = np.inf, -np.inf
     for start in range(0, values.size, BLOCK_VALUES):
         block = np.asarray(values[start : start + BLOCK_VALUES], dtype=np.float64)
@@ -129,10 +109,9 @@ def _label_bins(values: npt.NDArray[Any], mids: F64) -> _LabelBins | None:
 
 
 def _binned_labels(data: F64, mids: F64, bins: _LabelBins) -> U8:
-    """``searchsorted(mids, data, side="right")`` as bytes, without searching most values:
-    each bin (widened by BIN_MARGIN bins each side) whose label is the same at both ends
-    gives its values that label, exactly, as the label only grows with the value; the values
-    of bins a midpoint falls in, and non-finite ones, are searched."""
+    """``searchsorted(mids, data, side="right")`` as bytes, exactly: a bin whose (widened)
+    ends share a label gives it to its values; only the others and non-finite ones are
+    searched."""
     finite = np.isfinite(data)
     everywhere = bool(finite.all())
     position = data - bins.low if everywhere else np.where(finite, data, bins.low) - bins.low
@@ -160,7 +139,7 @@ def codebook_mse(samples: npt.ArrayLike, codebook: npt.ArrayLike) -> float:
 
 
 def _codebook(samples: npt.ArrayLike, *, refine: bool, weights: npt.ArrayLike | None = None) -> F32:
-    """Shared driver: split off non-finite values, quantise the finite ones, add sentinels."""
+    """Split off non-finite values, quantise the finite ones, add sentinels."""
     data = np.asarray(samples)
     if not (np.issubdtype(data.dtype, np.floating) or np.issubdtype(data.dtype, np.integer)):
         raise InputError(f"samples must be numeric, got dtype {data.dtype}")
@@ -186,21 +165,19 @@ def _codebook(samples: npt.ArrayLike, *, refine: bool, weights: npt.ArrayLike | 
 
 
 def _sorted_wide(values: npt.NDArray[np.floating]) -> F64:
-    """The values sorted (before widening: faster), as float64. ``values`` is the caller's own
-    copy, sorted in place, so that it is the only narrow copy beside the wide one."""
+    """The caller's own copy ``values`` sorted in place, as float64."""
     values.sort()
     return values.astype(np.float64)
 
 
 def _steps(ascending: F64) -> int:
-    """How many neighbours differ in the ascending values (their distinct values less one),
-    without the differences themselves (8 bytes a value)."""
+    """Distinct values less one of the ascending values."""
     return int(np.count_nonzero(ascending[1:] != ascending[:-1]))
 
 
 def _usable_weights(weights: npt.ArrayLike, size: int, usable: npt.NDArray[np.bool_]) -> F64 | None:
-    """The finite samples' weights as float64, None (unweighted) where none is positive;
-    a weight that is not finite or below zero counts as zero."""
+    """The finite samples' weights as float64 (non-finite or negative: 0); None where none is
+    positive."""
     given = np.array(weights, dtype=np.float64)  # its own copy (of a broadcast too), zeroed below
     if given.size != size:
         raise InputError(f"{given.size} weights for {size} samples")
@@ -212,17 +189,14 @@ def _usable_weights(weights: npt.ArrayLike, size: int, usable: npt.NDArray[np.bo
 
 
 WEIGHTED_BINS: Final = 1 << 16
-"""Equal bins over the finite range in which :func:`_weighted_centroids` sums the weights
-(a bin's width, span / 65536, is far below the spacing of 256 entries)."""
+"""Equal bins over the finite range in which :func:`_weighted_centroids` sums the weights."""
 
 
 def _binned(
     data: npt.NDArray[np.floating], usable: npt.NDArray[np.bool_], weights: F64, span: Span
 ) -> tuple[F64, F64]:
-    """The weights and the weighted values of the usable samples summed in WEIGHTED_BINS
-    equal bins over ``span`` (their least and greatest), a block of samples at a time: each
-    added in the samples' order onto zeros, as ``np.bincount`` adds them whole (the same
-    bits), without the float64 values, their bins and their products whole."""
+    """The usable samples' weights and weighted values summed in WEIGHTED_BINS equal bins
+    over ``span``, a block at a time (the same bits as ``np.bincount`` whole)."""
     low, high = span
     mass, moment = np.zeros(WEIGHTED_BINS), np.zeros(WEIGHTED_BINS)
     done = 0
@@ -240,12 +214,8 @@ def _binned(
 
 def _weighted_centroids(sums: tuple[F64, F64], span: Span, slots: int) -> F32:
     """Ascending centroids (at most ``slots``) minimising the weighted squared error: the
-    reference's programme (rank/value-blended bins weighted by mass^DENSITY_ALPHA, rank as
-    the weight below a value) then weighted Lloyd passes, all on weighted sums in
-    WEIGHTED_BINS equal bins (:func:`_binned`), never a sort of the samples. The scale
-    codebook weighs each Gaussian by what its size error shows
-    (codec/sog_encode.scale_importance): a capture's entries went to sizes no view draws
-    (coffee10 at quality 100: 40.6 -> 45.5 dB)."""
+    reference's programme then weighted Lloyd passes, on the binned sums of :func:`_binned`
+    (quantizers.md, "Weighted")."""
     low, high = span
     mass, moment = sums
     occupied = mass > 0
@@ -327,19 +297,18 @@ def _blended_bins(
     return np.clip(np.floor(bins * position), 0, bins - 1).astype(np.intp)
 
 
-def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64, F64]:
+def _group_costs(centers: F64, weights: F64) -> tuple[F64, F64, F64]:
     """Prefix sums of w, w·x, w·x² so any group's weighted SSE is O(1)."""
     zero = np.zeros(1)
     pw = np.concatenate([zero, np.cumsum(weights)])
     pwx = np.concatenate([zero, np.cumsum(weights * centers)])
     pwxx = np.concatenate([zero, np.cumsum(weights * centers * centers)])
-    return pw, pwx, pwxx, centers
+    return pw, pwx, pwxx
 
 
 def _cost_matrix(pw: F64, pwx: F64, pwxx: F64, out: F64 | None = None) -> F64:
-    """cost[end, start] = weighted SSE of bins start..end (inf where start > end), written
-    into ``out`` when given (an (H, H) view). Computed in place, a block of ends at a time:
-    whole, its two (H, H) temporaries were twice the result."""
+    """cost[end, start] = weighted SSE of bins start..end (inf where start > end), into ``out``
+    when given, a block of ends at a time."""
     h = pw.size - 1
     cost = np.empty((h, h)) if out is None else out
     step = max(1, BLOCK_VALUES // h)
@@ -366,17 +335,12 @@ def _group_costs_ending(pw: F64, pwx: F64, pwxx: F64, first: int, out: F64) -> N
 def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     """Optimal partition into min(target, non-empty bins) groups; their weighted means.
 
-    Row m of the DP only needs ends j in a band of width H - K + 1 (the other K - m groups
-    need a bin each). An optimal split never moves left when a group is added (Knuth's bound
-    for costs with the quadrangle inequality, as a group's weighted SSE has): row m looks at
-    splits from row m - 1's onwards, a few bins per end instead of the whole band (0.34 ->
-    0.06 s for 1024 bins into 256). Ties go to the smallest split, as in the reference; only
-    ties within rounding (runs of bins with one value) may resolve to another partition of
-    the same cost.
+    Row m searches each end's splits from row m - 1's onwards (Knuth's bound, quantizers.md
+    §1); ties go to the smallest split, as in the reference.
     """
     h = centers.size
     groups = min(target, int(np.count_nonzero(weights)))
-    pw, pwx, pwxx, _ = _group_costs(centers, weights)
+    pw, pwx, pwxx = _group_costs(centers, weights)
     band = h - groups + 1
     stride = h + band  # columns past h: inf, so a row's candidates never wrap into the next
     cost = np.empty((h, stride))
@@ -419,12 +383,8 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
 
 
 def _lloyd_1d(points: F64, start: F32, mass: F64 | None = None) -> tuple[F32, float]:
-    """1-D Lloyd passes on ascending ``points`` (each of weight ``mass``; 1 when None: the
-    sorted samples themselves); the codebook with the lowest exact (weighted) SSE, its SSE.
-
-    Each codebook's group edges are searched once: a pass moves the entries by the edges its
-    SSE was measured with (they were searched again for the next pass; a few per cent of a
-    1M-value codebook's time)."""
+    """1-D Lloyd passes on ascending ``points`` (each of weight ``mass``, 1 when None); the
+    codebook with the lowest exact (weighted) SSE, and its SSE."""
     shift = points[points.size // 2]
     p0 = None if mass is None else np.concatenate([np.zeros(1), np.cumsum(mass)])
     p1, p2 = _prefix_moments(points, shift, mass)
@@ -453,10 +413,8 @@ def _lloyd_1d(points: F64, start: F32, mass: F64 | None = None) -> tuple[F32, fl
 
 
 def _prefix_moments(points: F64, shift: float, mass: F64 | None) -> tuple[F64, F64]:
-    """Prefix sums, from 0, of each point's weighted offset from ``shift`` and of its
-    weighted square (weight ``mass``, 1 when None): the terms computed a block at a time into
-    the sums' own arrays and summed there (whole, the offsets and terms were three more
-    arrays of the points' size)."""
+    """Prefix sums, from 0, of each point's weighted offset from ``shift`` and of its weighted
+    square (weight ``mass``, 1 when None), a block at a time."""
     n = points.size
     p1, p2 = np.zeros(n + 1), np.zeros(n + 1)
     for start in range(0, n, BLOCK_VALUES):
@@ -486,9 +444,8 @@ def _sse_1d(
     *,
     counts: npt.NDArray[np.floating] | npt.NDArray[np.intp],
 ) -> float:
-    """Exact (weighted) sum of squared errors of the sorted points against ``table`` (its
-    group ``edges`` among them, :func:`_edges`, each group's ``counts`` or mass), via prefix
-    sums."""
+    """Exact (weighted) SSE of the sorted points against ``table`` (group ``edges`` and
+    ``counts`` or mass per group), via prefix sums."""
     c = table.astype(np.float64) - shift
     s1 = p1[edges[1:]] - p1[edges[:-1]]
     s2 = p2[edges[1:]] - p2[edges[:-1]]
@@ -496,14 +453,12 @@ def _sse_1d(
 
 
 SHORT_CODEBOOK_STEPS: Final = 65536
-"""A codebook entry may move by its finite span / this (a 16-bit grid over the span, far
-finer than the 256 entries' own spacing) to be written with fewer digits."""
+"""A codebook entry may move by its span / this to be written with fewer digits."""
 
 
 def short_codebook(codebook: npt.ArrayLike) -> F32:
-    """The codebook with each entry replaced by the value of fewest significant digits within
-    span / SHORT_CODEBOOK_STEPS of it, still ascending: the same quantisation to a 16-bit
-    grid's precision, and a meta.json whose codebooks take about half the bytes."""
+    """Each entry replaced by the value of fewest significant digits within span /
+    SHORT_CODEBOOK_STEPS of it, still ascending: about half meta.json's codebook bytes."""
     table = np.asarray(codebook, dtype=np.float64)
     span = float(table.max() - table.min()) if table.size else 0.0
     tol = max(span / SHORT_CODEBOOK_STEPS, 0.0)

@@ -41,14 +41,12 @@ def load_secret(
     ``$TSOG_URL_SECRET``; None when none is set. Trailing newlines of a file are dropped."""
     path = secret_file or environ.get(SECRET_FILE_ENV)
     if path:
+        where = str(path)
         try:
             with open(path, "rb") as f:
                 raw = f.read(MAX_SECRET_BYTES + 1).rstrip(b"\r\n")
         except OSError as exc:
-            raise InputError(
-                f"cannot read the URL secret: {exc.strerror}", where=str(path)
-            ) from exc
-        where = str(path)
+            raise InputError(f"cannot read the URL secret: {exc.strerror}", where=where) from exc
     elif SECRET_ENV in environ:
         raw, where = environ[SECRET_ENV].encode(), f"${SECRET_ENV}"
     else:
@@ -106,21 +104,15 @@ def sign_url(url: str, secret: bytes, expires: int, scope: str | None = None) ->
         raise InputError(
             "the scope must be the URL's path or a prefix of it ending with '/'", where=scope
         )
-    query = [(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True)]
-    query = [(k, v) for k, v in query if k not in SIGNED_PARAMS]
-    return urlunsplit(
-        parts._replace(query=urlencode(query + signing_params(secret, scope, expires), safe="/"))
-    )
+    kept = [q for q in parse_qsl(parts.query, keep_blank_values=True) if q[0] not in SIGNED_PARAMS]
+    query = urlencode(kept + signing_params(secret, scope, expires), safe="/")
+    return urlunsplit(parts._replace(query=query))
 
 
 def signing_params(secret: bytes, scope: str, expires: int) -> list[tuple[str, str]]:
     """The query parameters that sign ``scope`` (a path, or a prefix ending with '/') until
     ``expires`` (Unix seconds)."""
-    return [
-        (EXPIRES, str(expires)),
-        (SCOPE, scope),
-        (SIGNATURE, signature(secret, scope, expires)),
-    ]
+    return [(EXPIRES, str(expires)), (SCOPE, scope), (SIGNATURE, signature(secret, scope, expires))]
 
 
 def check_signed(path: str, query: Mapping[str, str], secret: bytes, now: float) -> None:
@@ -161,19 +153,3 @@ def parse_ttl(text: str) -> int:
     if match is None or int(match.group(1)) == 0:
         raise InputError(f"expected a duration like 3600, 90s, 15m, 12h or 7d, got {text!r}")
     return int(match.group(1)) * _TTL_UNITS[match.group(2)]
-
-
-__all__ = [
-    "SECRET_ENV",
-    "SECRET_FILE_ENV",
-    "check_signed",
-    "covers",
-    "decoded_path",
-    "load_secret",
-    "parse_ttl",
-    "redact_url",
-    "sign_url",
-    "signature",
-    "signed_params",
-    "signing_params",
-]

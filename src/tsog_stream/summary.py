@@ -9,7 +9,7 @@ from .codec.chunk import checked_images, read_meta
 from .constants import META_JSON, TEMPORAL_CHANNELS
 from .model import Scene, Timeline, TimelineType
 from .schemas import listed_files
-from .schemas.cameras import CaptureCamera
+from .schemas.cameras import Camera
 from .temporal import time_range
 
 _GROUPS = {
@@ -61,22 +61,29 @@ def chunk_summary(files: Mapping[str, bytes], *, where: str) -> dict[str, Any]:
     return out
 
 
-def duration_text(start_s: float, end_s: float, *, static: bool, assumed: bool = False) -> str:
+def duration_text(
+    start_s: float, end_s: float, *, static: bool, assumed: bool = False, flag: str = "--duration-s"
+) -> str:
     """A scene's length as ``tsog`` shows it: '2.50 s', '1.00 s (assumed: pass --duration-s)'
-    when its reader assumed it, or 'static (one moment)'."""
+    when its reader assumed it (``flag``: the option that sets it for the input's kind, such
+    as --scene-length-s for FreeTimeGS), or 'static (one moment)'."""
     if static:
         return "static (one moment)"
     text = f"{end_s - start_s:.2f} s"
-    return f"{text} (assumed: pass --duration-s)" if assumed else text
+    return f"{text} (assumed: pass {flag})" if assumed else text
 
 
-def scene_summary(scene: Scene, *, duration_assumed: bool = False) -> dict[str, Any]:
-    """Count, SH bands, duration (``duration_assumed``: its reader assumed it), timeline type,
-    time range and temporal orders of an in-memory scene."""
+def scene_summary(
+    scene: Scene, *, duration_assumed: bool = False, flag: str = "--duration-s"
+) -> dict[str, Any]:
+    """Count, SH bands, duration (``duration_assumed``: its reader assumed it; ``flag`` sets
+    it), timeline type, time range and temporal orders of an in-memory scene."""
     out: dict[str, Any] = {"count": len(scene), "sh_bands": scene.gaussians.sh_bands}
     if scene.timeline is not None:
         first, last = time_range(scene.timeline)
-        out["duration"] = duration_text(first, last, static=False, assumed=duration_assumed)
+        out["duration"] = duration_text(
+            first, last, static=False, assumed=duration_assumed, flag=flag
+        )
         out["timeline"] = timeline_summary(scene.timeline)
         out["temporal"] = {
             a: int(c.shape[1]) for a, c in scene.temporal.items() if a in TEMPORAL_CHANNELS
@@ -96,7 +103,7 @@ def timeline_summary(timeline: Timeline) -> dict[str, Any]:
 
 
 def cameras_summary(
-    cameras: Sequence[CaptureCamera], source: str = "", view: CaptureCamera | None = None
+    cameras: Sequence[Camera], source: str = "", view: Camera | None = None
 ) -> dict[str, Any]:
     """How many capture cameras, from where, and the view a player opens on."""
     out: dict[str, Any] = {"count": len(cameras)}

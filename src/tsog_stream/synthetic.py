@@ -1,8 +1,6 @@
-"""Seeded synthetic 4D scenes for tests, benchmarks and the demo.
-
-A scene is a static background (a ground disc and a dome, alive the whole time) plus moving
-objects: blobs of Gaussians that appear, follow a polynomial path and disappear. Every timeline
-type can be produced; type 0 repeats each live Gaussian once per frame, like a PLY sequence.
+"""Seeded synthetic 4D scenes for tests, benchmarks and the demo: a static background (ground
+disc and dome) plus blobs that appear, follow a polynomial path and disappear, in any timeline
+type (type 0 repeats each live Gaussian once per frame, like a PLY sequence).
 """
 
 from __future__ import annotations
@@ -10,7 +8,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
-from math import comb
 
 import numpy as np
 import numpy.typing as npt
@@ -19,8 +16,8 @@ from .constants import SH_COEFFS_BY_BANDS, TEMPORAL_CHANNELS
 from .errors import InputError
 from .framing import look_at
 from .model import Gaussians, Scene, Timeline, TimelineType
-from .schemas.cameras import CaptureCamera
-from .temporal import visibility_half_width
+from .schemas.cameras import Camera
+from .temporal import shifted_coefficients, visibility_half_width
 
 F64 = npt.NDArray[np.float64]
 
@@ -40,9 +37,8 @@ class SceneSpec:
     dynamic: tuple[str, ...] = ("means",)
     seed: int = 0
     size_spread: float = 0.0
-    """Log-sigma of a size factor drawn per Gaussian (0: sizes vary smoothly in space only).
-    At 0 the top 20 % of Gaussians hold 35 % of the scene's opacity x size; real captures are
-    far more skewed (65-86 %: yellow_clip2, spinach_4, coffee10), which 1.0 matches (64 %)."""
+    """Log-sigma of a size factor drawn per Gaussian (0: sizes vary smoothly in space only; 1.0
+    skews sizes as real captures are, docs/benchmarks.md)."""
 
     def __post_init__(self) -> None:
         if self.sh_bands not in SH_COEFFS_BY_BANDS:
@@ -172,10 +168,7 @@ def _generate(spec: SceneSpec) -> Scene:
 
 
 def _frame_scene(
-    rng: np.random.Generator,
-    spec: SceneSpec,
-    background: F64,
-    obj: _Objects,
+    rng: np.random.Generator, spec: SceneSpec, background: F64, obj: _Objects
 ) -> Scene:
     """Type 0: every frame repeats the background and the live objects at their path position."""
     frames = round(spec.duration * spec.fps)
@@ -190,16 +183,13 @@ def _frame_scene(
         dt = t - obj.birth[obj.owner[live]]
         parts_means += [background, obj.points[live] + _path(live_paths, dt)]
         parts_frame.append(np.full(background.shape[0] + int(live.sum()), float(f)))
-        parts_motion += [zeros, _path_derivatives(live_paths, dt)]
+        parts_motion += [zeros, shifted_coefficients(live_paths, dt)]
     means = np.concatenate(parts_means)
     g = _static_attributes(rng, means, spec.sh_bands)
     frame_ids = np.concatenate(parts_frame)
+    zero = np.zeros_like(frame_ids)
     timeline = Timeline(
-        TimelineType.FRAME,
-        frame_ids,
-        np.zeros_like(frame_ids),
-        fps=spec.fps,
-        scene_length=spec.duration,
+        TimelineType.FRAME, frame_ids, zero, fps=spec.fps, scene_length=spec.duration
     )
     motion = np.concatenate(parts_motion)
     return Scene(g, timeline, _dynamic_coefficients(rng, len(g), spec, motion))
@@ -209,16 +199,6 @@ def _path(coeffs: F64, dt: F64) -> F64:
     """Displacement sum_k c_k dt^k of paths (M, order, 3) after dt (M,) seconds."""
     powers = dt[:, None] ** np.arange(1, coeffs.shape[1] + 1)
     return np.asarray(np.einsum("mk,mkc->mc", powers, coeffs), np.float64)
-
-
-def _path_derivatives(coeffs: F64, dt: F64) -> F64:
-    """Taylor coefficients of the path re-expanded around dt, so motion continues from there."""
-    order = coeffs.shape[1]
-    out = np.zeros_like(coeffs)
-    for j in range(1, order + 1):  # coefficient of (t - dt)^j
-        for k in range(j, order + 1):
-            out[:, j - 1] += comb(k, j) * coeffs[:, k - 1] * (dt ** (k - j))[:, None]
-    return out
 
 
 def small_scene(
@@ -265,10 +245,9 @@ def freetime_scene(
     speed: float = 0.05,
     seed: int = 0,
 ) -> Scene:
-    """A FreeTimeGS-style scene from any static Gaussians (a real capture, say): each gets a
-    random centre in [0, duration_s], a visible lifespan (type 2, at the visibility threshold)
-    drawn uniformly from ``lifespan`` as fractions of the clip, and a linear velocity of up to
-    ``speed`` scene extents per second. The benchmarks' short, medium and long scenes."""
+    """A FreeTimeGS-style scene from any static Gaussians: each a random centre in [0,
+    duration_s], a type-2 lifespan drawn from ``lifespan`` (fractions of the clip) and a linear
+    velocity of up to ``speed`` scene extents per second."""
     lo, hi = lifespan
     if not (0 < lo <= hi) or duration_s <= 0:
         raise InputError(f"expected 0 < {lo} <= {hi} and a positive duration", where="lifespan")
@@ -284,7 +263,7 @@ def freetime_scene(
     return Scene(g, timeline, {"means": velocity.astype(np.float32)})
 
 
-def rig_cameras(count: int = 8, width: int = 1280, height: int = 720) -> list[CaptureCamera]:
+def rig_cameras(count: int = 8, width: int = 1280, height: int = 720) -> list[Camera]:
     """Capture cameras for a generated scene (+y up): a ring of ``count`` at radius 12, 4 units
     above the ground, looking at the scene's centre, as a capture rig would stand."""
     focal = 0.5 * height / math.tan(math.radians(25))  # 50 degrees vertically
@@ -294,7 +273,7 @@ def rig_cameras(count: int = 8, width: int = 1280, height: int = 720) -> list[Ca
         eye = np.array([12 * math.sin(phi), 4.0, 12 * math.cos(phi)])
         c2w = look_at(eye, [0.0, 0.5, 0.0], [0.0, 1.0, 0.0])[:3, :3].T
         cameras.append(
-            CaptureCamera(
+            Camera(
                 name=f"rig_{k:02d}",
                 width=width,
                 height=height,

@@ -1,11 +1,5 @@
-"""Lifespans: when each Gaussian of a 4D scene is visible (:func:`lifespans`,
-:func:`time_range`, the type-2 :func:`visibility_half_width` and :func:`scale_cap`), and
-moving the time each Gaussian's motion is stored about (:func:`recentre`).
-
-Evaluating a scene at time t is the model's (:meth:`~tsog_stream.model.Scene.at`,
-:func:`~tsog_stream.model.evaluate_at` and its kin), so that ``Scene.at`` needs nothing
-from this module.
-"""
+"""Lifespans: when each Gaussian of a 4D scene is visible, and moving the time each Gaussian's
+motion is stored about (:func:`recentre`). Evaluating a scene at t is the model's."""
 
 from __future__ import annotations
 
@@ -29,12 +23,10 @@ def visibility_half_width(threshold: float = VISIBILITY_THRESHOLD) -> float:
 
 
 def recentre(scene: Scene, t0: F64) -> None:
-    """Move each Gaussian's reference time to ``t0`` (timeline units), keeping every path:
-    each polynomial base + sum_k c_k (t - t_ref)^k re-expanded about the new t_ref (Taylor's
-    shift, exact in float64). In place: the scene's timeline, moving base attributes and
-    coefficients are replaced by new arrays (none is written, and nothing else is copied: an
-    encoder's job drops its SH bands once read). The encoder stores the attributes about the
-    reference time the decoder will read, so a rounded centre or start moves no Gaussian."""
+    """Move each Gaussian's reference time to ``t0`` (timeline units), keeping every path (each
+    polynomial re-expanded about the new time), so a rounded centre or start moves no
+    Gaussian. The scene's timeline, moving attributes and coefficients are replaced by new
+    arrays; none is written."""
     timeline = scene.timeline
     if timeline is None:
         return
@@ -55,19 +47,15 @@ def recentre(scene: Scene, t0: F64) -> None:
 def _shifted(
     base: npt.NDArray[np.float32], coeffs: npt.NDArray[np.float32], delta: F64
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-    """(base, coefficients) of base + sum_k c_k (s + delta)^k as a polynomial in s:
-    b' = b + sum_k c_k delta^k, c'_j = sum_{k>=j} C(k, j) c_k delta^(k-j). A row whose
-    re-expansion leaves float32 (huge coefficients) keeps its own: its attribute then moves
-    by the shift, as it did before the encoder re-expanded anything."""
+    """(base, coefficients) of base + sum_k c_k (s + delta)^k as a polynomial in s; a row whose
+    re-expansion leaves float32 keeps its own (its attribute then moves by the shift)."""
     c = coeffs.astype(np.float64)
     d = delta[:, None]
     new_base = base.astype(np.float64)
-    new_coeffs = np.zeros_like(c)
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(1, coeffs.shape[1] + 1):
             new_base += c[:, k - 1] * d**k
-            for j in range(1, k + 1):
-                new_coeffs[:, j - 1] += math.comb(k, j) * c[:, k - 1] * d ** (k - j)
+        new_coeffs = shifted_coefficients(c, delta)
         shifted_base, shifted = new_base.astype(np.float32), new_coeffs.astype(np.float32)
     kept = ~(np.isfinite(shifted_base).all(axis=1) & np.isfinite(shifted).all(axis=(1, 2)))
     if kept.any():
@@ -75,13 +63,20 @@ def _shifted(
     return shifted_base, shifted
 
 
-def scale_cap(timeline: Timeline) -> float:
-    """Largest type-2 scale worth storing: SCALE_CAP_SPANS times the scene's span.
+def shifted_coefficients(coeffs: F64, delta: F64) -> F64:
+    """c'_j = sum_{k>=j} C(k, j) c_k delta^(k-j): the (M, K, C) coefficients of
+    sum_k c_k (s + delta)^k as a polynomial in s, per row's ``delta`` (M,)."""
+    d = delta[:, None]
+    out = np.zeros_like(coeffs)
+    for k in range(1, coeffs.shape[1] + 1):
+        for j in range(1, k + 1):
+            out[:, j - 1] += math.comb(k, j) * coeffs[:, k - 1] * d ** (k - j)
+    return out
 
-    A larger scale changes the temporal opacity factor by less than 0.13 % anywhere in the
-    scene, while an unbounded one (a float16 overflow in .splatv gives 65504) would stretch the
-    linear 16-bit range so far that short lifespans lose all precision.
-    """
+
+def scale_cap(timeline: Timeline) -> float:
+    """Largest type-2 scale worth storing: SCALE_CAP_SPANS times the scene's span (a larger one
+    changes the opacity factor by < 0.13 %, and would cost short lifespans their precision)."""
     if timeline.scene_length:
         span = float(timeline.scene_length)
     elif len(timeline):
@@ -110,12 +105,3 @@ def time_range(timeline: Timeline, threshold: float = VISIBILITY_THRESHOLD) -> t
         return 0.0, 0.0
     start, end = lifespans(timeline, threshold)
     return float(min(0.0, start.min())), float(end.max())
-
-
-__all__ = [
-    "lifespans",
-    "recentre",
-    "scale_cap",
-    "time_range",
-    "visibility_half_width",
-]

@@ -1,11 +1,8 @@
-"""Play a stream over a slow link and measure what a viewer sees.
+"""Play a stream over a shaped link and measure what a viewer sees (``tsog play --bandwidth``).
 
-A local container or folder is served on loopback first (the real server); the link is a
-:class:`~tsog_stream.server.link.ThrottledRelay` in front of the origin. The report has the
-playback's figures (first picture, startup, stalls, layers shown) and the rendered PSNR of
-sampled shown frames against the same frames at full quality, fetched straight from the origin
-and drawn by the CPU renderer from the scene's opening view. ``tsog play --bandwidth`` and
-``benchmarks/bench_progressive.py`` use it.
+The link is a :class:`~tsog_stream.server.link.ThrottledRelay` in front of the origin (a local
+container or folder is served on loopback first). The report has the playback's figures and
+the rendered PSNR of sampled shown frames against the same frames with every layer.
 """
 
 from __future__ import annotations
@@ -21,8 +18,7 @@ from urllib.parse import unquote, urlsplit
 
 from .client import Playback, PlayedFrame, PlayStats, StreamClient
 from .errors import InputError, TsogError
-from .model import Gaussians
-from .render import Camera, from_capture, render, to_uint8
+from .render import from_capture, render, to_uint8
 from .render.metrics import psnr
 from .server import make_app, start_server
 from .server.link import LinkShape, ThrottledRelay
@@ -92,9 +88,8 @@ async def play_through_link(
             relayed = relay.url(path)
             began = time.monotonic()
             try:
-                client = await StreamClient.open(relayed)
-                opened = time.monotonic() - began
-                try:
+                async with await StreamClient.open(relayed) as client:
+                    opened = time.monotonic() - began
                     playback = client.play(
                         start,
                         speed=speed,
@@ -103,9 +98,7 @@ async def play_through_link(
                         realtime=True,
                         adaptive=adaptive,
                     )
-                    samples = await _sampled(playback, playback.stats, fps, duration, on_frame)
-                finally:
-                    await client.aclose()
+                    samples = await _sampled(playback, fps, duration, on_frame)
             except TsogError as exc:
                 raise _naming(exc, relayed, os.fspath(target)) from None
         m = client.index.manifest
@@ -127,7 +120,6 @@ def _naming(exc: TsogError, relayed: str, target: str) -> TsogError:
 
 async def _sampled(
     playback: Playback,
-    stats: PlayStats,
     fps: float,
     duration: float | None,
     on_frame: Callable[[PlayedFrame, PlayStats], None] | None,
@@ -139,7 +131,7 @@ async def _sampled(
         if frame.index % every == 0:
             kept.append(frame)
         if on_frame is not None:
-            on_frame(frame, stats)
+            on_frame(frame, playback.stats)
     step = max(1, len(kept) // SAMPLES)
     return kept[::step][:SAMPLES]
 
@@ -158,10 +150,6 @@ async def _compare(
             out.append((frame.t, frame.layers, math.inf))  # every layer: the full frame itself
             continue
         full = await direct.frame_at(frame.t)
-        out.append((frame.t, frame.layers, _psnr(frame.gaussians, full, camera)))
+        drawn = [to_uint8(render(g, camera)) for g in (frame.gaussians, full)]
+        out.append((frame.t, frame.layers, psnr(*drawn)))
     return out
-
-
-def _psnr(shown: Gaussians, full: Gaussians, camera: Camera) -> float:
-    """PSNR of ``shown`` against ``full``, both rendered by ``camera``."""
-    return psnr(to_uint8(render(shown, camera)), to_uint8(render(full, camera)))

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from ..client import PlayStats, open_stream
 from ..errors import InputError
 from ..server.link import LinkShape, parse_bandwidth, parse_latency
-from .common import Subparsers, add_common, add_timeout, check_frame_output, local_file
+from .common import Subparsers, add_common, add_frame_output, add_timeout, check_file_output
 from .progress import Progress
 from .stream_commands import STREAM_HELP, stream_frame
 
@@ -27,15 +27,7 @@ def add_client_commands(sub: Subparsers) -> None:
     """Register ``fetch`` and ``play`` on the main parser."""
     p = sub.add_parser("fetch", help="fetch the frame at time T of a served container")
     p.add_argument("url", help=STREAM_HELP)
-    p.add_argument("--t", type=float, required=True, help="time in seconds")
-    p.add_argument(
-        "-o",
-        "--output",
-        type=local_file,
-        required=True,
-        help="frame.ply or frame.sog (or a folder)",
-    )
-    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_frame_output(p)
     add_timeout(p)
     add_common(p)
 
@@ -92,7 +84,7 @@ def add_client_commands(sub: Subparsers) -> None:
 
 def cmd_fetch(args: argparse.Namespace, progress: Progress) -> int:
     """tsog fetch: one frame, reading only the chunks it needs."""
-    check_frame_output(args.output, overwrite=args.force)
+    check_file_output(args.output, overwrite=args.force, file_suffix=".ply")
     stats = stream_frame(args.url, args.t, args.output, progress, timeout=args.timeout)
     print(f"{stats.requests} requests, {stats.bytes} bytes")
     return 0
@@ -177,14 +169,13 @@ def _quality_line(report: LinkPlayReport, *, every: bool) -> str:
     """The sampled shown frames' worst PSNR against full quality (``every``: and each)."""
     if not report.quality:
         return "quality:         not measured (the scene has no view to render from)"
-    worst = "full" if math.isinf(report.worst_psnr) else f"{report.worst_psnr:.1f} dB"
-    if not every:
-        return f"quality:         worst {worst} against full quality"
-    shown = ", ".join(
-        f"t={t:.2f} s: {'full' if math.isinf(db) else f'{db:.1f} dB'}"
-        for t, _, db in report.quality
-    )
-    return f"quality:         worst {worst} against full quality ({shown})"
+
+    def shown(db: float) -> str:
+        return "full" if math.isinf(db) else f"{db:.1f} dB"
+
+    each = ", ".join(f"t={t:.2f} s: {shown(db)}" for t, _, db in report.quality)
+    worst = f"quality:         worst {shown(report.worst_psnr)} against full quality"
+    return f"{worst} ({each})" if every else worst
 
 
 def _line(t: float, stats: PlayStats) -> str:

@@ -1,5 +1,5 @@
-"""What every ``tsog`` command shares: the common options, the INPUT argument with its reading
-options, and loading an input with its notes on stderr."""
+"""What every ``tsog`` command shares: argument types, the INPUT argument with its reading
+options, output checks, and the library's listener printing on stderr."""
 
 from __future__ import annotations
 
@@ -16,8 +16,9 @@ from ..io.files import check_output, local_path
 from ..io.readers import FORMATS, LoadedScene, ReadOptions, detect_format
 from ..io.sequence import DEFAULT_FPS
 from ..io.splatv import ASSUMED_DURATION, ASSUMED_DURATION_S
-from ..pipeline import input_bytes as input_bytes  # noqa: PLC0414 - the commands import it here
 from ..pipeline import load_told
+from ..schemas.manifest import SceneInfo
+from ..summary import duration_text
 from .progress import Progress
 
 if TYPE_CHECKING:
@@ -27,8 +28,8 @@ else:
 
 
 class Integer:
-    """An argparse type for an integer option with its range declared: a value outside it is a
-    usage error naming the range, never a value that overflows or loops for ever later."""
+    """An argparse type of an integer in a declared range: outside it, a usage error naming the
+    range, never a value that overflows or loops for ever later."""
 
     def __init__(self, low: int, high: int) -> None:
         self.low, self.high = low, high
@@ -46,8 +47,27 @@ class Integer:
         return value
 
 
+class Seconds:
+    """An argparse type of a finite number of seconds in (0, ``high``]."""
+
+    def __init__(self, high: float = math.inf) -> None:
+        self.high = high
+        self.__name__ = "seconds"
+
+    def __call__(self, text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+        if not (math.isfinite(value) and 0 < value <= self.high):
+            within = "> 0" if math.isinf(self.high) else f"in (0, {self.high:g}]"
+            raise argparse.ArgumentTypeError(
+                f"expected a finite number of seconds {within}, got {text}"
+            )
+        return value
+
+
 SEED = Integer(0, 2**32 - 1)
-"""Seeds of numpy's generators."""
 QUALITY = Integer(0, 100)
 QUALITY_HELP = (
     "0..100: how precisely to keep positions, rotations, scales, colours, SH bands, opacity, "
@@ -59,6 +79,17 @@ QUALITY_HELP = (
     "lifespan by 1/40 of its temporal scale, and Gaussians of alpha 0.05 or less are left "
     "out (0.2 (1 - q/100)^2; docs/spec.md 5.1)"
 )
+CAMERAS_HELP = (
+    "capture cameras: a 3DGS cameras.json, a COLMAP model (its folder, the folder holding "
+    "sparse/0, or its cameras/images .txt/.bin) or a .splatv (default: those the input "
+    "carries, or a cameras.json / COLMAP model beside it)"
+)
+
+
+def local_file(text: str) -> Path:
+    """An argparse type of a local path or ``file://`` URL (``Path`` alone would make
+    ``file:///a/b`` the relative ``file:/a/b``)."""
+    return local_path(text)
 
 
 def add_common(p: argparse.ArgumentParser) -> None:
@@ -66,22 +97,16 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output on stderr")
 
 
-def seconds(text: str) -> float:
-    """An argparse type: a finite number of seconds > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0, got {text}")
-    return value
+def add_force(p: argparse.ArgumentParser, what: str = "OUTPUT") -> None:
+    """-f/--force: replace an output that exists."""
+    p.add_argument("-f", "--force", action="store_true", help=f"replace {what} if it exists")
 
 
 def add_timeout(p: argparse.ArgumentParser) -> None:
     """``--timeout``: the deadline of one read of a stream over HTTP (client.HttpOptions)."""
     p.add_argument(
         "--timeout",
-        type=seconds,
+        type=Seconds(),
         default=DEFAULT_DEADLINE_S,
         metavar="SECONDS",
         help="give up on one read of a stream over HTTP (the opening request, a chunk) after "
@@ -99,7 +124,12 @@ def add_input(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--format", choices=FORMATS, help="input format (default: detected from content)"
     )
-    g = p.add_argument_group("reading options (each applies to the formats named)")
+    add_reading_options(p, "the formats named")
+
+
+def add_reading_options(p: argparse.ArgumentParser, applies_to: str) -> None:
+    """The per-format reading options, as one group."""
+    g = p.add_argument_group(f"reading options (each applies to {applies_to})")
     g.add_argument(
         "--fps", type=float, help=f"frame rate of PLY/SOG frame sequences (default {DEFAULT_FPS:g})"
     )
@@ -119,16 +149,22 @@ def add_input(p: argparse.ArgumentParser) -> None:
     )
 
 
-CAMERAS_HELP = (
-    "capture cameras: a 3DGS cameras.json, a COLMAP model (its folder, the folder holding "
-    "sparse/0, or its cameras/images .txt/.bin) or a .splatv (default: those the input "
-    "carries, or a cameras.json / COLMAP model beside it)"
-)
-
-
 def add_cameras(p: argparse.ArgumentParser) -> None:
     """--cameras PATH: where the input's capture cameras are."""
     p.add_argument("--cameras", type=local_file, metavar="PATH", help=CAMERAS_HELP)
+
+
+def add_frame_output(p: argparse.ArgumentParser) -> None:
+    """--t and -o/--output of the commands writing the scene at one time (frame, fetch)."""
+    p.add_argument("--t", type=float, required=True, help="time in seconds")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=local_file,
+        required=True,
+        help="frame.ply or frame.sog (or a folder)",
+    )
+    add_force(p)
 
 
 def read_options(args: argparse.Namespace) -> ReadOptions:
@@ -147,12 +183,8 @@ def note(message: str) -> None:
 
 
 def warn(message: str) -> None:
-    """Something the user asked for works, but worse than it could: on stderr."""
+    """Something asked for works, but worse than it could: on stderr."""
     print(f"tsog: warning: {message}", file=sys.stderr)
-
-
-ASSUMPTIONS = frozenset({ASSUMED_DURATION})
-"""Reader notes that are assumptions about time, not repairs: warnings, printed first."""
 
 
 def assumed_duration(input_name: str) -> str:
@@ -164,49 +196,29 @@ def assumed_duration(input_name: str) -> str:
     )
 
 
+def scene_duration(info: SceneInfo) -> str:
+    """A container's length as ``tsog`` shows it (summary.duration_text)."""
+    static = info.timeline_type is None
+    return duration_text(info.start_s, info.end_s, static=static, assumed=info.duration_assumed)
+
+
 def load_input(args: argparse.Namespace, progress: Progress) -> LoadedScene:
-    """Load the INPUT (and its capture cameras) with progress and reader notes on stderr, an
-    assumption about time said first (:func:`pipeline.load_told`)."""
+    """Load INPUT (and its capture cameras), told on stderr (:func:`pipeline.load_told`)."""
     kind = args.format or detect_format(args.input)
     told = Told(progress, args.input)
     cameras = getattr(args, "cameras", None)
     return load_told(args.input, kind, read_options(args), told, cameras=cameras)
 
 
-def print_reader_notes(notes: list[str]) -> None:
-    """A reader's notes on stderr: assumptions about time first, as warnings (they change
-    every time the file is shown), then what it dropped or repaired."""
-    for text in notes:
-        if text in ASSUMPTIONS:
-            warn(text)
-    for text in notes:
-        if text not in ASSUMPTIONS:
-            note(text)
-
-
-def check_encode_output(output: Path, *, overwrite: bool) -> None:
-    """Refuse, before the input is read, a location ``tsog encode`` could not write
-    (io.files.check_output): a ``.4dgs`` or ``.sog`` file, else a SOG folder."""
-    is_4dgs = output.suffix.lower() == ".4dgs"
-    check_output(output, overwrite=overwrite, folder=not is_4dgs and chunk_folder(output))
-
-
-def local_file(text: str) -> Path:
-    """An argparse type for a local path given as a path or a ``file://`` URL (``Path`` alone
-    would turn ``file:///a/b`` into ``file:/a/b`` below the working folder)."""
-    return local_path(text)
-
-
-def check_frame_output(output: Path, *, overwrite: bool) -> None:
-    """Refuse, before anything is read, a location ``tsog frame``/``tsog fetch`` could not write
-    (io.files.check_output): a ``.ply`` or ``.sog`` file, else a folder."""
-    is_ply = output.suffix.lower() == ".ply"
-    check_output(output, overwrite=overwrite, folder=not is_ply and chunk_folder(output))
+def check_file_output(output: Path, *, overwrite: bool, file_suffix: str) -> None:
+    """Refuse, before the input is read, a location a command writing a ``file_suffix`` or
+    ``.sog`` file, else a SOG folder, could not write (io.files.check_output)."""
+    is_file = output.suffix.lower() == file_suffix
+    check_output(output, overwrite=overwrite, folder=not is_file and chunk_folder(output))
 
 
 def check_time(t: float, span: tuple[float, float] | None) -> None:
-    """Refuse a --t that is not a finite time inside the scene's range (a static scene, with
-    no range, is the same at every finite time)."""
+    """Refuse a --t that is not finite or (unless the scene is static) outside its range."""
     if not math.isfinite(t):
         raise InputError(f"expected a finite number of seconds, got {t}", where="--t")
     if span is not None and not span[0] <= t <= span[1]:
@@ -218,8 +230,7 @@ def check_time(t: float, span: tuple[float, float] | None) -> None:
 
 class Told:
     """The library's listener (pipeline.Listener) on the command line: phases and bars on the
-    progress line, notes and warnings on stderr (the assumed length of ``input`` said with the
-    flag that sets it)."""
+    progress line, notes and warnings on stderr (an assumed length named with its flag)."""
 
     def __init__(self, progress: Progress, input_name: str) -> None:
         self.progress = progress
@@ -239,3 +250,8 @@ class Told:
 
     def warn(self, text: str) -> None:
         warn(assumed_duration(self.input_name) if text == ASSUMED_DURATION else text)
+
+    def notes(self, notes: list[str]) -> None:
+        """A reader's notes: an assumption about time first, as a warning, then the rest."""
+        for text in sorted(notes, key=lambda text: text != ASSUMED_DURATION):
+            (self.warn if text == ASSUMED_DURATION else self.note)(text)

@@ -54,16 +54,12 @@ def latched() -> Iterator[None]:
 
 
 TRACKER_QUIET = "ignore:resource_tracker:UserWarning"
-"""A warning filter for multiprocessing's resource tracker, the process that unlinks the
-semaphores of a pool whose owner died: after Ctrl-C (raised wherever the main thread was,
-inside a semaphore's finalizer too) it reported the pool's semaphores as leaked, or already
-gone, on stderr after "tsog: interrupted" (once in a CI run of test_faults_process). It
-cleans them up all the same."""
+"""A warning filter for multiprocessing's resource tracker: after Ctrl-C it reports a pool's
+semaphores as leaked or gone after "tsog: interrupted", though it cleans them up all the same."""
 
 
 def quiet_resource_tracker() -> None:
-    """Have the resource tracker this process starts (at its first pool) keep its clean-up
-    warnings to itself: it is spawned with the interpreter's ``-W`` options, taken from
-    ``sys.warnoptions`` when it starts."""
+    """Have the resource tracker this process starts keep its clean-up warnings to itself (it
+    takes its ``-W`` options from ``sys.warnoptions`` when it starts)."""
     if TRACKER_QUIET not in sys.warnoptions:
         sys.warnoptions.append(TRACKER_QUIET)

@@ -32,12 +32,14 @@ from .common import (
     QUALITY,
     QUALITY_HELP,
     SEED,
+    Subparsers,
     add_cameras,
     add_common,
+    add_force,
+    add_frame_output,
     add_input,
     add_timeout,
-    check_encode_output,
-    check_frame_output,
+    check_file_output,
     check_time,
     load_input,
     local_file,
@@ -84,7 +86,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"tsog-stream {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_file_commands(sub)
+    add_stream_commands(sub)
+    add_client_commands(sub)
+    add_serve_command(sub)
+    add_sign_command(sub)
+    add_render_commands(sub)
+    add_view_command(sub)
+    p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
+    p.add_argument(
+        "--out", type=local_file, default=Path("out"), help="folder for demo.sog (default ./out)"
+    )
+    p.add_argument("--seed", type=SEED, default=0, help="scene and palette seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    add_common(p)
+    return parser
 
+
+def _add_file_commands(sub: Subparsers) -> None:
+    """encode, decode, info and frame: the commands on a scene file."""
     p = sub.add_parser("encode", help="encode a scene to a SOG/TSOG chunk (.sog zip or folder)")
     add_input(p)
     p.add_argument(
@@ -97,14 +117,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="OUT.4dgs only: drop motion .4dgs cannot hold instead of refusing",
     )
-    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_force(p)
     add_common(p)
-
     p = sub.add_parser("decode", help="decode a chunk to a float 3DGS PLY (base values)")
     add_input(p)
     p.add_argument("output", type=local_file, help="output .ply")
     add_common(p)
-
     p = sub.add_parser(
         "info", help="describe a file: count, SH bands, timeline, image sizes, bytes, cameras"
     )
@@ -113,42 +131,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     add_timeout(p)
     add_common(p)
-
     p = sub.add_parser("frame", help="export the scene at time t as a static PLY or SOG")
     add_input(p)
-    p.add_argument("--t", type=float, required=True, help="time in seconds")
-    p.add_argument(
-        "-o",
-        "--output",
-        type=local_file,
-        required=True,
-        help="frame.ply or frame.sog (or a folder)",
-    )
-    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_frame_output(p)
     p.add_argument("-v", "--verbose", action="store_true", help="report the bytes read")
     add_timeout(p)
     add_common(p)
 
-    add_stream_commands(sub)
-    add_client_commands(sub)
-    add_serve_command(sub)
-    add_sign_command(sub)
-    add_render_commands(sub)
-    add_view_command(sub)
-
-    p = sub.add_parser("demo", help="generate a 4D scene, encode it to TSOG, decode it, report")
-    p.add_argument(
-        "--out", type=local_file, default=Path("out"), help="folder for demo.sog (default ./out)"
-    )
-    p.add_argument("--seed", type=SEED, default=0, help="scene and palette seed (default 0)")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
-    add_common(p)
-    return parser
-
 
 def cmd_encode(args: argparse.Namespace, progress: Progress) -> int:
     """tsog encode."""
-    check_encode_output(args.output, overwrite=args.force)
+    check_file_output(args.output, overwrite=args.force, file_suffix=".4dgs")
     scene = load_input(args, progress).scene
     if args.output.suffix.lower() == ".4dgs":
         for text in write_4dgs(args.output, scene, lossy=args.lossy):
@@ -177,8 +170,7 @@ def cmd_decode(args: argparse.Namespace, progress: Progress) -> int:
 
 
 def _print_text(info: dict[str, Any], indent: str = "") -> None:
-    """Print a nested summary as indented 'key: value' lines, values (camera names, a
-    file's strings) escaped for the terminal."""
+    """A nested summary as indented 'key: value' lines, values escaped for the terminal."""
     for key, value in info.items():
         if isinstance(value, dict):
             print(f"{indent}{key}:")
@@ -229,7 +221,7 @@ def cmd_info(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_frame(args: argparse.Namespace, progress: Progress) -> int:
     """tsog frame."""
-    check_frame_output(args.output, overwrite=args.force)
+    check_file_output(args.output, overwrite=args.force, file_suffix=".ply")
     if input_kind(args.input, args.format) in STREAM_KINDS:
         stats = stream_frame(args.input, args.t, args.output, progress, timeout=args.timeout)
         if args.verbose:
@@ -251,8 +243,8 @@ def cmd_demo(args: argparse.Namespace, progress: Progress) -> int:
     progress.done()
     if args.json:
         print(json.dumps(report, indent=2))
-        return 0
-    _print_demo(report)
+    else:
+        _print_demo(report)
     return 0
 
 
@@ -274,17 +266,12 @@ def _print_demo(report: dict[str, Any]) -> None:
     print("errors after encode/decode (positions: scene units, rotations: degrees, opacity: alpha)")
     head = ("t (s)", "visible", "pos max", "rot max", "scale max", "alpha max", "flips")
     print(" ".join(f"{h:>9}" for h in head))
+    cells = (
+        "{t:9.2f} {count:9.0f} {means_max:9.5f} {rotation_deg_max:9.3f} {scales_max:9.4f} "
+        "{opacity_max:9.4f} {visibility_flips:9d}"
+    )
     for row in report["errors"]:
-        cells = (
-            f"{row['t']:9.2f}",
-            f"{int(row['count']):9d}",
-            f"{row['means_max']:9.5f}",
-            f"{row['rotation_deg_max']:9.3f}",
-            f"{row['scales_max']:9.4f}",
-            f"{row['opacity_max']:9.4f}",
-            f"{row['visibility_flips']:9d}",
-        )
-        print(" ".join(cells))
+        print(cells.format(**row))
     if s["output"]:
         print(f"watch it in the web player: {_tsog_command()} view {printable(s['output'])}")
 

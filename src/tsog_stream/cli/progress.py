@@ -12,17 +12,12 @@ from . import interrupt
 QUIET_SECONDS = 2.0
 """Without a terminal, stages are logged only once the work has lasted this long."""
 LOG_BAR_SECONDS = 5.0
-"""Without a terminal, a bar is logged at most this often (and when it is full): the monkey
-flipbook's 150 chunks in 3 s were 150 lines of a log, an hour of capture would be tens of
-thousands."""
+"""Without a terminal, a bar is logged at most this often (and when full), never per step."""
 
 
 class Progress:
-    """Reports named stages with elapsed time; silent when ``quiet``.
-
-    On a terminal a live status line is redrawn; otherwise (logs, CI) stages are printed one
-    per line, but only for work that has already taken more than a couple of seconds.
-    """
+    """Reports named stages with elapsed time (silent when ``quiet``): a redrawn status line on
+    a terminal, else (logs, CI) one line per stage of work lasting over QUIET_SECONDS."""
 
     def __init__(self, *, quiet: bool = False, stream: TextIO | None = None) -> None:
         self.quiet = quiet

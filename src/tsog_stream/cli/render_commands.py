@@ -17,15 +17,17 @@ from ..constants import EVAL_MAX_TIMES, MAX_CAMERAS, RENDER_MAX_SIDE, RENDER_MAX
 from ..errors import InputError, printable
 from ..framing import FRAMING_NAME
 from ..io.files import check_output
+from ..pipeline import input_bytes
 from .common import (
     Integer,
     Subparsers,
+    Told,
     add_cameras,
     add_common,
+    add_force,
     add_input,
-    input_bytes,
+    add_reading_options,
     local_file,
-    print_reader_notes,
     read_options,
 )
 from .progress import Progress
@@ -117,7 +119,7 @@ def add_render_commands(sub: Subparsers) -> None:
     )
     _add_views(p, "orbit cameras around the scene (default 8); with --cameras: all", None)
     p.add_argument("-o", "--output", type=local_file, required=True, help="the PNG to write")
-    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_force(p)
     add_common(p)
 
     p = sub.add_parser(
@@ -138,44 +140,36 @@ def add_render_commands(sub: Subparsers) -> None:
         "a .splatv's cameras",
     )
     p.add_argument("--plot", type=local_file, help="also draw PSNR over time to this PNG")
-    p.add_argument("-f", "--force", action="store_true", help="replace the PLOT if it exists")
+    add_force(p, "the PLOT")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    g = p.add_argument_group("reading options (each applies to the inputs of the formats named)")
-    g.add_argument("--fps", type=float, help="frame rate of PLY/SOG frame sequences")
-    g.add_argument("--duration-s", type=float, help=".splatv: seconds spanned by the clip")
-    g.add_argument("--scene-length-s", type=float, help="FreeTimeGS: seconds of normalised time")
-    g.add_argument(
-        "--duration-mode",
-        choices=("log", "linear"),
-        default="log",
-        help="FreeTimeGS PLY: durations stored as log sigma (default) or sigma",
-    )
+    add_reading_options(p, "the inputs of the formats named")
     add_common(p)
 
 
-def parse_up(text: str) -> tuple[float, float, float]:
-    """'X,Y,Z', a non-zero direction."""
+def _triple(
+    text: str, flag: str, expected: str, low: float = -math.inf, high: float = math.inf
+) -> tuple[float, float, float]:
+    """Three finite comma-separated numbers in [low, high], or an error naming ``flag``."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) != 3 or not all(map(math.isfinite, values)) or not any(values):
-        raise InputError(f"expected a direction X,Y,Z, got {text!r}", where="--up")
+    if len(values) != 3 or not all(math.isfinite(v) and low <= v <= high for v in values):
+        raise InputError(f"expected {expected}, got {text!r}", where=flag)
     return values[0], values[1], values[2]
+
+
+def parse_up(text: str) -> tuple[float, float, float]:
+    """'X,Y,Z', a non-zero direction."""
+    up = _triple(text, "--up", "a direction X,Y,Z")
+    if not any(up):
+        raise InputError(f"expected a direction X,Y,Z, got {text!r}", where="--up")
+    return up
 
 
 def parse_background(text: str) -> tuple[float, float, float]:
     """'R,G,B' with each value in [0, 1]."""
-    parts = text.split(",")
-    try:
-        values = [float(v) for v in parts]
-    except ValueError:
-        values = []
-    if len(values) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
-        raise InputError(
-            f"expected R,G,B with values in [0, 1], got {text!r}", where="--background"
-        )
-    return values[0], values[1], values[2]
+    return _triple(text, "--background", "R,G,B with values in [0, 1]", 0.0, 1.0)
 
 
 def _setup(args: argparse.Namespace, default_views: int) -> tuple[CameraSetup, RenderStyle]:
@@ -189,11 +183,6 @@ def _setup(args: argparse.Namespace, default_views: int) -> tuple[CameraSetup, R
     setup = CameraSetup(views, args.width, args.height, cameras, parse_up(args.up))
     setup.check()
     return setup, RenderStyle(parse_background(args.background), args.antialiased)
-
-
-def _notes(source: Source) -> None:
-    """The reader's warnings and notes, one line each on stderr."""
-    print_reader_notes(source.notes)
 
 
 def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
@@ -216,7 +205,7 @@ def cmd_render(args: argparse.Namespace, progress: Progress) -> int:
         progress=progress,
         cameras=None if orbit else args.cameras,
     ) as src:
-        _notes(src)
+        Told(progress, args.input).notes(src.notes)
         if orbit:
             seen, view = f"view {args.view or 0}", args.view or 0
             progress(f"rendering t = {args.t:g} s, {seen}")
@@ -256,7 +245,7 @@ def _open_pair(
         progress(f"reading {target}")
         fitted = fit_options(input_kind(target), options)
         sources.append(stack.enter_context(open_source(target, options=fitted, progress=progress)))
-        _notes(sources[-1])
+        Told(progress, target).notes(sources[-1].notes)
     for name, kinds in OPTION_KINDS.items():
         if getattr(options, name) is not None and not any(s.kind in kinds for s in sources):
             flag = "--" + name.replace("_", "-")

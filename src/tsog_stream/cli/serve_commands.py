@@ -1,4 +1,4 @@
-"""``tsog serve`` and ``tsog sign``: the CLI side of the server (argument parsing only)."""
+"""``tsog serve`` and ``tsog sign``: the CLI side of the server and of URL signing."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.objects import as_location
 from ..signing import load_secret, parse_ttl, sign_url
-from .common import Integer, Subparsers, local_file
+from .common import Integer, Seconds, Subparsers, local_file
 from .progress import Progress
 
 SECRET_HELP = (
@@ -20,7 +20,7 @@ SECRET_HELP = (
 
 
 def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
-    """Register ``serve`` on an argparse subparsers object; returns its parser."""
+    """Register ``serve``; returns its parser (its ``func``: :func:`cmd_serve`)."""
     p = sub.add_parser(
         "serve",
         help="serve containers and files over HTTP with byte ranges (docs/http.md)",
@@ -60,11 +60,12 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
         "signed URL (tsog sign); '*' crosses '/'; repeatable",
     )
     p.add_argument("--secret-file", type=local_file, help=SECRET_HELP)
-    p.add_argument("--keepalive", type=float, default=15.0, help="idle and request-head timeout, s")
-    p.add_argument("--send-timeout", type=float, default=60.0, help="deadline to send one body, s")
+    day = Seconds(86400)
+    p.add_argument("--keepalive", type=day, default=15.0, help="idle and request-head timeout, s")
+    p.add_argument("--send-timeout", type=day, default=60.0, help="deadline to send one body, s")
     p.add_argument(
         "--stall-timeout",
-        type=float,
+        type=day,
         default=10.0,
         help="drop a client that takes no bytes for this long, s (default 10)",
     )
@@ -80,7 +81,7 @@ def add_serve_command(sub: Subparsers) -> argparse.ArgumentParser:
 
 
 def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
-    """Register ``sign`` on an argparse subparsers object; returns its parser."""
+    """Register ``sign``; returns its parser."""
     p = sub.add_parser(
         "sign",
         help="print a signed, expiring URL for a private scene (docs/http.md)",
@@ -98,7 +99,6 @@ def add_sign_command(sub: Subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--secret-file", type=local_file, help=SECRET_HELP)
     p.add_argument("-q", "--quiet", action="store_true", help="no messages on stderr")
-    p.set_defaults(func=cmd_sign)
     return p
 
 
@@ -111,22 +111,6 @@ def cmd_serve(args: argparse.Namespace, progress: Progress) -> int:
     if not (found.is_dir() or found.is_file()):
         raise InputError("no such folder or file", where=args.root)
     root = found if isinstance(found, Path) else args.root  # a Site crosses processes: a URL
-    if not 0 <= args.port <= 65535:
-        raise InputError(f"expected a port 0-65535, got {args.port}", where="--port")
-    for flag, count in (
-        ("--max-concurrent", args.max_concurrent),
-        ("--max-per-client", args.max_per_client),
-    ):
-        if count < 1:
-            raise InputError("must be at least 1", where=flag)
-    seconds = (
-        ("--keepalive", args.keepalive),
-        ("--send-timeout", args.send_timeout),
-        ("--stall-timeout", args.stall_timeout),
-    )
-    for flag, value in seconds:
-        if not 0 < value <= 86400:
-            raise InputError(f"expected seconds in (0, 86400], got {value}", where=flag)
     privacy = Privacy(tuple(args.private), load_secret(args.secret_file))
     if not args.quiet:
         logging.basicConfig(level=logging.INFO, format="%(message)s")

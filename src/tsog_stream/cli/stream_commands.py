@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import re
-from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -20,22 +19,20 @@ from ..codec.chunk import encode_chunk
 from ..codec.precision import DEFAULT_QUALITY
 from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
 from ..container.sources import ReadStats
-from ..errors import InputError, printable
+from ..errors import InputError
 from ..io.chunks import write_chunk_files
 from ..io.files import atomic_write_bytes, check_output
 from ..io.objects import is_object_url
 from ..io.ply import write_ply
-from ..merge import TEMPORAL_MODES, TemporalMode, Tolerance
+from ..merge import TEMPORAL_MODES, Tolerance
 from ..model import Gaussians, Scene
-from ..pipeline import FrameCheck, InputOptions, InputReport, TemporalOutcome, segment_input
-from ..schemas.cameras import CaptureCamera
+from ..pipeline import InputOptions, segment_input
 from ..schemas.manifest import Layer
+from ..segment import SegmentOptions
 from ..segment.engines import WORKER_MEMORY, check_cluster, default_workers
 from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIANS, MAX_LAYERS
-from ..segment.layout import OVERFETCH_WARNING, SEEK_TARGET, Choice
 from ..segment.plan import POLICIES
-from ..segment.segmenter import SegmentOptions, SegmentReport
-from ..summary import cameras_summary, duration_text
+from ..summary import cameras_summary
 from .common import (
     QUALITY,
     QUALITY_HELP,
@@ -49,13 +46,12 @@ from .common import (
     add_timeout,
     check_time,
     read_options,
-    warn,
+    scene_duration,
 )
 from .progress import Progress
+from .segment_report import print_segment_report
 
-DEFAULT_TEMPORAL: TemporalMode = "fit"
-"""--temporal default, chosen by measurement (docs/design/temporal-merge.md)."""
-
+DEFAULT_TEMPORAL = InputOptions().temporal
 STREAM_HELP = (
     "a .tsogs container or unpacked folder: path, file:// URL or http(s):// URL "
     "(a folder URL ends with / or /manifest.json)"
@@ -65,20 +61,16 @@ _WINDOW = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*(s|f)?\s*$")
 
 
 def check_segment_args(args: argparse.Namespace) -> None:
-    """Refuse bad options and an output location that cannot be written before the
-    (possibly long) input read."""
+    """Refuse bad options and an unwritable output before the (possibly long) input read."""
     check_output(args.output, overwrite=args.force)
     parse_window(args.window)
-    if args.workers < 1:
-        raise InputError(f"must be at least 1, got {args.workers}", where="--workers")
     if args.cluster is not None:
         check_cluster(args.cluster)
-    tolerance_option(args)  # refuses a negative or non-finite tolerance now, not after a read
+    tolerance_option(args)
 
 
 def parse_window(text: str) -> tuple[float | None, float | None]:
-    """'1s', '0.5' -> (seconds, None); '30f' -> (None, frames), made seconds by the input's
-    frame rate once it is read; 'auto' -> (None, None)."""
+    """'1s', '0.5' -> (seconds, None); '30f' -> (None, frames); 'auto' -> (None, None)."""
     if text == AUTO:
         return None, None
     m = _WINDOW.match(text)
@@ -98,6 +90,47 @@ def add_stream_commands(sub: Subparsers) -> None:
         "segment",
         help="segment a scene into a streamable .tsogs container (a static one: one moment)",
     )
+    _add_segment_layout(p)
+    _add_segment_encoding(p)
+    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_common(p)
+    p = sub.add_parser("verify", help="check a container: hashes, decoding, pixel budget, index")
+    p.add_argument("input", help=STREAM_HELP)
+    add_timeout(p)
+    add_common(p)
+    p = _copying(sub, "extract", "copy one chunk of a container out as a standalone .sog")
+    p.add_argument("chunk", type=Integer(0, 2**31 - 1), help="chunk id (see tsog info)")
+    _copying(sub, "unpack", "container -> folder with manifest.json and chunks/*.sog")
+    _copying(sub, "pack", "unpacked folder -> container (the exact bytes unpack started from)")
+
+
+COPY_HELP = {
+    "extract": (STREAM_HELP, "the .sog to write (path or storage URL)"),
+    "unpack": (
+        STREAM_HELP,
+        "the folder to write, or a storage prefix for a CDN (s3://bucket/scene/): chunks "
+        "first, manifest.json last",
+    ),
+    "pack": (
+        "the unpacked folder (path or URL; any stream works)",
+        "the container to write (path or storage URL)",
+    ),
+}
+"""INPUT and OUTPUT of the commands that copy a stream's bytes."""
+
+
+def _copying(sub: Subparsers, name: str, about: str) -> argparse.ArgumentParser:
+    """A command copying a stream's bytes from INPUT to -o OUTPUT."""
+    p = sub.add_parser(name, help=about)
+    p.add_argument("input", help=COPY_HELP[name][0])
+    p.add_argument("-o", "--output", required=True, help=COPY_HELP[name][1])
+    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
+    add_common(p)
+    return p
+
+
+def _add_segment_layout(p: argparse.ArgumentParser) -> None:
+    """tsog segment's input, output and layout options."""
     add_input(p)
     add_cameras(p)
     p.add_argument(
@@ -140,6 +173,10 @@ def add_stream_commands(sub: Subparsers) -> None:
         "a LocalCluster of --workers processes (needs tsog-stream[cluster]); the container is "
         "byte-identical to a local run (default: a local process pool)",
     )
+
+
+def _add_segment_encoding(p: argparse.ArgumentParser) -> None:
+    """tsog segment's encoding, layer and merge-over-time options."""
     p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
     p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
     p.add_argument(
@@ -178,42 +215,6 @@ def add_stream_commands(sub: Subparsers) -> None:
         help="--temporal: the same for the other attributes, in codebook steps (default 0.5; "
         "1 for SOG frames, already rounded to their own codebooks)",
     )
-    p.add_argument("-f", "--force", action="store_true", help="replace OUTPUT if it exists")
-    add_common(p)
-
-    p = sub.add_parser("verify", help="check a container: hashes, decoding, pixel budget, index")
-    p.add_argument("input", help=STREAM_HELP)
-    add_timeout(p)
-    add_common(p)
-
-    p = sub.add_parser("extract", help="copy one chunk of a container out as a standalone .sog")
-    p.add_argument("input", help=STREAM_HELP)
-    p.add_argument("chunk", type=Integer(0, 2**31 - 1), help="chunk id (see tsog info)")
-    p.add_argument("-o", "--output", required=True, help="the .sog to write (path or storage URL)")
-    p.add_argument("-f", "--force", action="store_true")
-    add_common(p)
-
-    p = sub.add_parser("unpack", help="container -> folder with manifest.json and chunks/*.sog")
-    p.add_argument("input", help=STREAM_HELP)
-    p.add_argument(
-        "-o",
-        "--output",
-        required=True,
-        help="the folder to write, or a storage prefix for a CDN (s3://bucket/scene/): chunks "
-        "first, manifest.json last",
-    )
-    p.add_argument("-f", "--force", action="store_true")
-    add_common(p)
-
-    p = sub.add_parser(
-        "pack", help="unpacked folder -> container (the exact bytes unpack started from)"
-    )
-    p.add_argument("input", help="the unpacked folder (path or URL; any stream works)")
-    p.add_argument(
-        "-o", "--output", required=True, help="the container to write (path or storage URL)"
-    )
-    p.add_argument("-f", "--force", action="store_true")
-    add_common(p)
 
 
 def segment_options(args: argparse.Namespace) -> tuple[SegmentOptions, InputOptions]:
@@ -223,7 +224,7 @@ def segment_options(args: argparse.Namespace) -> tuple[SegmentOptions, InputOpti
         window_s=seconds,
         policy=args.policy,
         max_pixels=args.max_pixels,
-        workers=max(1, args.workers),
+        workers=args.workers,
         seed=args.seed,
         quality=args.quality,
         layers=args.layers,
@@ -240,14 +241,21 @@ def segment_options(args: argparse.Namespace) -> tuple[SegmentOptions, InputOpti
 
 
 def reading_options(args: argparse.Namespace) -> InputOptions:
-    """How to read the INPUT, as its options (``add_input``, ``add_cameras``) give it; the
-    rest as ``tsog segment`` does by default."""
+    """How to read INPUT as its options give it; the rest as ``tsog segment``'s defaults."""
     return InputOptions(format=args.format, reading=read_options(args), cameras=args.cameras)
 
 
 def default_options() -> SegmentOptions:
     """The segmenter's options of a segment command line that gives none (``tsog view``)."""
     return SegmentOptions(workers=default_workers(), quality=DEFAULT_QUALITY)
+
+
+def tolerance_option(args: argparse.Namespace) -> Tolerance | None:
+    """The --tolerance/--tolerance-steps pair (None: the defaults for the input kind)."""
+    if args.tolerance is None and args.tolerance_steps is None:
+        return None
+    steps = args.tolerance_steps if args.tolerance_steps is not None else Tolerance().steps
+    return Tolerance(position=args.tolerance, steps=steps)
 
 
 def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
@@ -260,127 +268,6 @@ def cmd_segment(args: argparse.Namespace, progress: Progress) -> int:
     return 0
 
 
-def print_segment_report(made: InputReport, quality: int) -> None:
-    """What segmenting made, as ``tsog segment`` says it."""
-    if made.temporal is not None:
-        _print_temporal(made.temporal)
-    if made.frame_check is not None:
-        _print_frame_check(made.frame_check)
-    report = made.segment
-    print(f"{report.path}: {report.bytes} bytes, {_size_change(report.bytes, made.input_bytes)}")
-    print(f"  {_duration_line(report)}")
-    if report.layout is not None:
-        _print_layout(report.layout, made.fps)
-    print(f"  {report.windows} windows, {report.chunks} chunks")
-    faint = f" ({report.faint} too faint at quality {quality} left out)" if report.faint else ""
-    print(f"  {report.gaussians} Gaussians, {report.stored} stored copies{faint}")
-    if not report.static:
-        print(f"  {report.dropped} Gaussians never visible inside the scene's time range")
-    print(f"  {_cameras_line(made.cameras, made.cameras_source, report)}")
-    print(f"  {_layers_line(report)}")
-    if made.thumbnail is not None:
-        print(f"  thumbnail: {made.thumbnail}")
-    for level, size in sorted(report.bytes_per_level.items()):
-        print(f"  level {level}: {size} bytes")
-    shown = ", ".join(str(b) for b in report.bytes_per_window[:12])
-    more = " ..." if len(report.bytes_per_window) > 12 else ""
-    print(f"  bytes per window (level 0): {shown}{more}")
-
-
-def _print_temporal(outcome: TemporalOutcome) -> None:
-    """What merging the frames over time gave, and whether it was stored."""
-    if outcome.merged:
-        if outcome.note:
-            print(f"temporal: {outcome.note}")
-        share = 100.0 * outcome.gaussians_out / max(1, outcome.gaussians_in)
-        print(
-            f"temporal {outcome.mode}: {outcome.gaussians_in} Gaussians in {outcome.frames} "
-            f"frames -> {outcome.gaussians_out} ({share:.1f}%), {outcome.moving_out} with "
-            f"motion, {outcome.seconds:.1f} s"
-        )
-        worst = ", ".join(f"{k} {v:.3g}" for k, v in sorted(outcome.worst.items()))
-        print(f"  largest change from a source frame before encoding: {worst}")
-    if outcome.declined is not None:
-        print(f"temporal: {outcome.declined}")
-
-
-def _print_frame_check(check: FrameCheck) -> None:
-    """The worst error per attribute of a few decoded frames of a merged container."""
-    for frame, unpaired in check.unpaired:
-        print(f"  frame {frame}: {unpaired} Gaussians could not be paired with the source")
-    shown = ", ".join(f"{k} {v:.3g}" for k, v in sorted(check.worst.items()))
-    frames = ", ".join(map(str, check.frames))
-    print(f"  worst error after encoding (frames {frames}): {shown}")
-
-
-def _duration_line(report: SegmentReport) -> str:
-    """The stream's length, said to be assumed when it was (a .splatv without --duration-s),
-    or that a static scene is a stream of one moment."""
-    if report.static:
-        return "a static scene: a stream of one moment (0 s), shown the same at any time"
-    assumed = report.duration_assumed
-    text = duration_text(report.start_s, report.end_s, static=False, assumed=assumed)
-    return f"duration {text}"
-
-
-def _layers_line(report: SegmentReport) -> str:
-    """How many quality layers, why, and what each weighs."""
-    if not report.layers:
-        return report.layers_why or "one layer"
-    sizes = ", ".join(f"{layer.bytes}" for layer in report.layers)
-    return f"{report.layers_why}; bytes per layer: {sizes}"
-
-
-def _cameras_line(cameras: list[CaptureCamera], source: str, report: SegmentReport) -> str:
-    """Where the player and tsog render open the scene, and why."""
-    if not cameras:
-        return (
-            "no capture cameras (none in the input or beside it; --cameras PATH gives them): "
-            "opens on a framing of the dense core"
-        )
-    many = "camera" if len(cameras) == 1 else "cameras"
-    found = f"{len(cameras)} capture {many} from {printable(source)}"
-    if report.view is not None and report.view == cameras[0]:
-        name = printable(cameras[0].name) or "0"
-        return f"{found}: opens from the first ({name}; {report.view_why})"
-    return f"{found}: opens on a framing of the dense core ({report.view_why})"
-
-
-def _size_change(size: int, input_size: int) -> str:
-    """'12 % smaller than the input' or '9 % larger than the input', said plainly."""
-    if not input_size:
-        return "input size unknown"
-    change = 100.0 * (size - input_size) / input_size
-    if abs(change) < 0.05:
-        return "the size of the input"
-    return f"{abs(change):.1f} % {'larger' if change > 0 else 'smaller'} than the input"
-
-
-def _print_layout(choice: Choice, fps: float | None) -> None:
-    """The layout used and why; a warning when a layout given explicitly over-fetches."""
-    chosen = choice.chosen
-    how = "as given" if choice.explicit else "chosen"
-    print(f"  layout ({how}): {chosen.layout.describe(fps)}: {choice.reason}")
-    print(
-        f"  a seek at a random t: about {chosen.seek_mean / 1e3:.0f} kB in {chosen.requests:.1f} "
-        f"requests, opening included, to show {chosen.shown_mean / 1e3:.0f} kB"
-    )
-    if choice.explicit and chosen.overfetch > OVERFETCH_WARNING:
-        warn(
-            f"this layout makes a seek fetch about {chosen.overfetch:.1f}x what it "
-            "shows; --window auto (the default) chooses one that fetches at most "
-            f"{SEEK_TARGET:g}x where the content allows"
-        )
-
-
-def tolerance_option(args: argparse.Namespace) -> Tolerance | None:
-    """The --tolerance/--tolerance-steps pair (None: the defaults for the input kind)."""
-    if args.tolerance is None and args.tolerance_steps is None:
-        return None
-    steps = args.tolerance_steps if args.tolerance_steps is not None else Tolerance().steps
-    return Tolerance(position=args.tolerance, steps=steps)
-
-
 def seek_table(reader: Stream, samples: int = 8) -> list[dict[str, Any]]:
     """Seek costs at evenly spaced times of the scene."""
     scene = reader.index.manifest.scene
@@ -388,7 +275,7 @@ def seek_table(reader: Stream, samples: int = 8) -> list[dict[str, Any]]:
     return [reader.seek_cost(round(float(t), 4)).as_dict() for t in times]
 
 
-def layers_summary(layers: Sequence[Layer]) -> dict[str, Any]:
+def layers_summary(layers: list[Layer]) -> dict[str, Any]:
     """The quality layers: how many, and per layer its Gaussians, bytes and measured PSNR."""
     out: dict[str, Any] = {"count": max(len(layers), 1)}
     for layer in layers:
@@ -417,24 +304,18 @@ def stream_info(target: str, timeout: float | None = None) -> dict[str, Any]:
             "policy": m.policy,
             "window_s": m.window_s,
             "max_pixels": m.max_pixels,
-            "duration": duration_text(
-                m.scene.start_s,
-                m.scene.end_s,
-                static=m.scene.timeline_type is None,
-                assumed=m.scene.duration_assumed,
-            ),
+            "duration": scene_duration(m.scene),
             "scene": m.scene.model_dump(),
             "nodes": len(m.nodes),
             "chunks": len(m.chunks),
             "cameras": cameras_summary(m.cameras, view=m.view),
-            "layers": layers_summary(m.layers),
+            "layers": layers_summary(list(m.layers)),
             "seek_costs": seek_table(reader),
         }
 
 
 def write_frame(output: Path, frame: Gaussians, t: float, progress: Progress) -> None:
-    """Write the frame at ``t`` as a float PLY (``.ply``) or, for any other name, a SOG v2
-    chunk, and say how many Gaussians it holds."""
+    """Write the frame at ``t`` as a float PLY (``.ply``), else as a SOG v2 chunk; say its size."""
     if output.suffix.lower() == ".ply":
         write_ply(output, frame)
     else:
@@ -446,8 +327,7 @@ def write_frame(output: Path, frame: Gaussians, t: float, progress: Progress) ->
 def stream_frame(
     target: str, t: float, output: Path, progress: Progress, *, timeout: float | None = None
 ) -> ReadStats:
-    """tsog frame (and fetch) on a stream: only the chunks t needs are read; returns what
-    reading them cost."""
+    """tsog frame (and fetch) on a stream, reading only the chunks t needs; what it cost."""
     progress(f"opening {target}")
     with open_stream(target, timeout=timeout) as reader:
         info = reader.index.manifest.scene
@@ -484,21 +364,15 @@ def cmd_extract(args: argparse.Namespace, progress: Progress) -> int:
 
 
 def cmd_unpack(args: argparse.Namespace, progress: Progress) -> int:
-    """tsog unpack."""
-    _check_unpack_output(args.output, overwrite=args.force)
+    """tsog unpack; a storage prefix is checked by its manifest.json, the last file written."""
+    if is_object_url(args.output):
+        check_output(f"{args.output.rstrip('/')}/manifest.json", overwrite=args.force)
+    else:
+        check_output(args.output, overwrite=args.force, folder=True)
     with open_stream(args.input) as reader:
         count = reader.unpack(args.output, overwrite=args.force)
     print(f"{args.output}: manifest.json and {count} chunks")
     return 0
-
-
-def _check_unpack_output(output: str, *, overwrite: bool) -> None:
-    """Refuse, before any chunk is read, a folder (or storage prefix, whose manifest.json is
-    what exists or not) that unpacking could not publish."""
-    if is_object_url(output):
-        check_output(f"{output.rstrip('/')}/manifest.json", overwrite=overwrite)
-    else:
-        check_output(output, overwrite=overwrite, folder=True)
 
 
 def cmd_pack(args: argparse.Namespace, progress: Progress) -> int:

@@ -29,15 +29,13 @@ from typing import IO, Any
 from ..errors import SourceError
 
 MAX_CACHE_BYTES = 4 << 30
-"""Bytes of segmented copies kept at most (least recently used removed first), besides the
-ones being made or served."""
+"""Bytes of copies kept at most, besides the ones being made or served."""
 SOURCE_FILE = "source.json"
-"""Each copy's record of its input (path, options) and when it was last used (its mtime)."""
+"""Each copy's record of its input (path, options); its mtime says when it was last used."""
 KEY_LENGTH = 24
 """Hex digits of a copy's folder name (the input's fingerprint): other names are not ours."""
 CLAIM_ATTEMPTS = 8
-"""Times a copy's folder is claimed again when the one locked was removed meanwhile (by the
-run that held it failing, or by eviction) before giving up."""
+"""Claims of a copy's folder removed while we waited for its lock, before giving up."""
 
 
 @dataclass(frozen=True)
@@ -52,17 +50,15 @@ class Copy:
 
 
 def record(folder: Path, source: dict[str, Any]) -> None:
-    """Write the copy's record of its input (after the container, so a copy without one is
-    a copy being made, or one a failed run left)."""
+    """Write the copy's record, after its container: a copy without one is unfinished."""
     (folder / SOURCE_FILE).write_text(json.dumps(source, sort_keys=True))
 
 
 @contextlib.contextmanager
 def claimed(root: Path, key: str, waiting: Callable[[str], None]) -> Iterator[Path]:
-    """The folder ``root/key``, made a real folder if something else was there (a symbolic
-    link or a file is removed: never what it points to) and held exclusively until exit, so
-    two runs never make the same copy at once (the second waits, announced by ``waiting``).
-    A cache that cannot be used is a :class:`SourceError` naming it, in one line."""
+    """The folder ``root/key`` (a link or file in its place removed, never followed), held
+    exclusively until exit so two runs never make one copy at once (the second waits, said by
+    ``waiting``). An unusable cache is a one-line :class:`SourceError`."""
     folder = root / key
     for _ in range(CLAIM_ATTEMPTS):
         handle = _open_folder(root, folder)
@@ -118,7 +114,7 @@ def _lock(handle: int, waiting: Callable[[str], None]) -> None:
 
 
 def _same_file(handle: int, path: Path) -> bool:
-    """Whether ``path`` (not followed) is still the folder open as ``handle``."""
+    """Whether ``path`` (unfollowed) is still the folder open as ``handle``."""
     try:
         found = path.lstat()
     except OSError:
@@ -128,8 +124,7 @@ def _same_file(handle: int, path: Path) -> bool:
 
 
 def entry_kind(path: Path) -> str:
-    """What ``path`` itself is (a link is not followed): "missing", "folder", "file",
-    "symbolic link" or "other" (a FIFO, a socket, a device)."""
+    """What ``path`` itself is, unfollowed: missing, folder, file, symbolic link or other."""
     try:
         mode = path.lstat().st_mode
     except FileNotFoundError:
@@ -147,8 +142,7 @@ def has_record(folder: Path) -> bool:
 
 
 def clear(folder: Path) -> bool:
-    """Remove what the claimed ``folder`` holds (links removed, not followed); whether it held
-    anything."""
+    """Remove what the claimed ``folder`` holds (links unfollowed); whether it held anything."""
     found = False
     for path in folder.iterdir():
         found = True
@@ -182,12 +176,17 @@ def serving(folder: Path) -> Iterator[None]:
 
 
 def evict(root: Path, made: Path, limit: int = MAX_CACHE_BYTES) -> list[Path]:
-    """After ``made`` was made: remove earlier versions of its input read the same way, then
-    the least recently used copies while the cache holds more than ``limit`` bytes. Copies
-    being served, and ``made`` itself, stay. Returns the folders removed."""
+    """After ``made``: remove earlier copies of its input read the same way, then the least
+    recently used while the cache holds more than ``limit`` bytes; never ``made`` nor a copy
+    being served. Returns the folders removed."""
     copies = [c for c in _copies(root) if c.folder != made]
     mine = _read_source(made / SOURCE_FILE)
-    removed = [c.folder for c in copies if mine is not None and _same_input(c.source, mine)]
+    same = ("input", "options")  # the older copy: of earlier files or an earlier program
+    removed = [
+        c.folder
+        for c in copies
+        if mine is not None and all(c.source.get(k) == mine.get(k) for k in same)
+    ]
     kept = [c for c in copies if c.folder not in removed]
     total = sum(c.size for c in kept) + _folder_size(made)
     for copy in sorted(kept, key=lambda c: c.used):
@@ -196,12 +195,6 @@ def evict(root: Path, made: Path, limit: int = MAX_CACHE_BYTES) -> list[Path]:
         removed.append(copy.folder)
         total -= copy.size
     return [folder for folder in removed if _remove_unless_served(folder)]
-
-
-def _same_input(a: dict[str, Any], b: dict[str, Any]) -> bool:
-    """Whether two copies are of the same input read with the same options (then the older
-    one is of an earlier version of its files, or of this program)."""
-    return a.get("input") == b.get("input") and a.get("options") == b.get("options")
 
 
 def _copies(root: Path) -> list[Copy]:
@@ -221,8 +214,7 @@ def _copies(root: Path) -> list[Copy]:
 
 
 def _read_source(path: Path) -> dict[str, Any] | None:
-    """A copy's record, or None when it has none (being made), it is not a regular file or it
-    cannot be read."""
+    """A copy's record; None when missing, not a regular file, or unreadable."""
     if entry_kind(path) != "file":
         return None
     try:
@@ -233,8 +225,7 @@ def _read_source(path: Path) -> dict[str, Any] | None:
 
 
 def _folder_size(folder: Path) -> int:
-    """Bytes of the regular files directly in ``folder`` (a copy's container, its thumbnail
-    and record)."""
+    """Bytes of the regular files directly in ``folder`` (container, thumbnail, record)."""
     total = 0
     with contextlib.suppress(OSError):
         for path in folder.iterdir():
@@ -254,19 +245,3 @@ def _remove_unless_served(folder: Path) -> bool:
         return False  # served now (the lock is held), or gone already
     shutil.rmtree(folder, ignore_errors=True)
     return True
-
-
-__all__ = [
-    "KEY_LENGTH",
-    "MAX_CACHE_BYTES",
-    "SOURCE_FILE",
-    "claimed",
-    "clear",
-    "entry_kind",
-    "evict",
-    "has_record",
-    "mark_used",
-    "record",
-    "serving",
-    "unusable_cache",
-]

@@ -28,7 +28,6 @@ from ..io.objects import is_object_url
 from ..io.sequence import list_frames
 from ..pipeline import segment_input
 from ..schemas.manifest import SceneInfo
-from ..summary import duration_text
 from .common import (
     Integer,
     Subparsers,
@@ -39,10 +38,12 @@ from .common import (
     assumed_duration,
     local_file,
     note,
+    scene_duration,
     warn,
 )
 from .progress import Progress
-from .stream_commands import default_options, print_segment_report, reading_options
+from .segment_report import print_segment_report
+from .stream_commands import default_options, reading_options
 from .view_cache import (
     KEY_LENGTH,
     MAX_CACHE_BYTES,
@@ -139,30 +140,21 @@ def source_of(args: argparse.Namespace) -> dict[str, Any]:
             where=args.input,
         )
     cameras = str(Path(args.cameras).resolve()) if args.cameras else None
+    reading = [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
     return {
         "input": str(Path(args.input).resolve()),
-        "options": [cameras, *_reading_options(args)],
+        "options": [cameras, *reading],
         "version": __version__,
     }
-
-
-def _reading_options(args: argparse.Namespace) -> list[object]:
-    """The options that change how the input is read (part of a copy's key and record)."""
-    return [args.format, args.fps, args.duration_s, args.scene_length_s, args.duration_mode]
 
 
 def fingerprint(args: argparse.Namespace) -> str:
     """A key that changes when the input's files, the reading options or the version do."""
     source = source_of(args)
-    items: list[object] = [source["version"], source["input"]]
-    sources = _files_of(Path(args.input))
-    if args.cameras is not None:
-        sources += _files_of(Path(args.cameras))
-    for path in sources:
-        st = path.stat()
-        items.append([str(path.resolve()), st.st_size, st.st_mtime_ns])
-    items.append([str(args.cameras) if args.cameras else None, *_reading_options(args)])
-    return hashlib.sha256(json.dumps(items).encode()).hexdigest()[:KEY_LENGTH]
+    files = _files_of(Path(args.input)) + (_files_of(Path(args.cameras)) if args.cameras else [])
+    stats = [(str(path.resolve()), path.stat()) for path in files]
+    items = [source, [[name, st.st_size, st.st_mtime_ns] for name, st in stats]]
+    return hashlib.sha256(json.dumps(items, sort_keys=True).encode()).hexdigest()[:KEY_LENGTH]
 
 
 def _scene_name(target: str) -> str:
@@ -216,8 +208,8 @@ def _clear_leftovers(root: Path, folder: Path) -> None:
 
 
 def _complete_copy(folder: Path, container: Path) -> SceneInfo | None:
-    """What a copy a run finished in ``folder`` holds, or None when there is none: its record
-    and its container must be regular files (not links) and the container must open."""
+    """What a finished copy in ``folder`` holds (its record and container regular files, the
+    container opening), or None."""
     if not has_record(folder) or entry_kind(container) != "file":
         return None
     try:
@@ -248,15 +240,9 @@ def _segment_into(args: argparse.Namespace, container: Path, progress: Progress)
 
 def _copy_line(container: Path, scene: SceneInfo, input_size: int = 0) -> str:
     """What a copy holds and how big it is, in one line."""
-    span = duration_text(
-        scene.start_s,
-        scene.end_s,
-        static=scene.timeline_type is None,
-        assumed=scene.duration_assumed,
-    )
     was = f" (the input: {_bytes_text(input_size)})" if input_size else ""
     size = _bytes_text(container.stat().st_size)
-    return f"{scene.gaussians:,} Gaussians, {span}, {size}{was}"
+    return f"{scene.gaussians:,} Gaussians, {scene_duration(scene)}, {size}{was}"
 
 
 def _bytes_text(size: int) -> str:

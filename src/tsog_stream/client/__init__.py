@@ -11,10 +11,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from .cache import CacheStats, SceneCache
 from .costs import SeekCost
 from .fetchers import ChunkFetcher, FolderFetcher, RangeFetcher, make_fetcher
 from .http_options import HttpOptions
-from .stream import CacheStats, Playback, PlayedFrame, PlayStats, SceneCache, StreamClient
+from .playback import Playback, PlayedFrame, PlayStats
+from .stream import StreamClient
 from .sync import Stream, open_stream
 from .verify import Check, VerifyReport
 

@@ -2,11 +2,9 @@
 
 Pure decisions over the index (no I/O), shared by the client's adaptive playback and mirrored
 by the web player's ``adapt.js``. A chunk is due when the playback reaches its first visible
-second; fetched back to back in due order over a link of the measured throughput (earliest
-deadline first, the best order for meeting deadlines on one link), a layer set is playable
-when every chunk arrives in time. The player draws the base layer as soon as it has it, waits
-at most a little longer for the layers it can keep up with, then plays, dropping a layer when
-the link slows and taking one back when it recovers. See docs/client.md ("Adaptive playback").
+second; a layer set is playable when its chunks, fetched back to back in due order (earliest
+deadline first, the best order for meeting deadlines on one link) at the measured throughput,
+all arrive in time. See docs/client.md ("Adaptive playback").
 """
 
 from __future__ import annotations
@@ -24,11 +22,8 @@ SAFETY = 0.85
 STARTUP_FACTOR = 4.0
 STARTUP_MIN_S = 2.0
 """After the first picture, playback waits for more layers at most max(STARTUP_MIN_S,
-STARTUP_FACTOR x the first picture's wait): a fast link starts at full quality, a slow one
-starts on the layers it can keep up with rather than freezing later. The base is a small share
-of what a frame needs (docs/client.md), so 4x its wait stays under what full quality alone
-takes to show anything, and a much shorter wait left slow links on the base alone
-(docs/design/segmenter.md, "Quality layers")."""
+STARTUP_FACTOR x the first picture's wait): a fast link starts at full quality, a slow one on
+the layers it keeps up with (docs/design/segmenter.md, "Quality layers")."""
 UPGRADE_MARGIN = 0.8
 """A layer is taken on while playing only when its missing bytes need at most this share of the
 playback left (kept while they need at most all of it): no flapping at the edge."""

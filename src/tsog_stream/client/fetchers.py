@@ -99,31 +99,14 @@ class FolderFetcher(ChunkFetcher):
         self.stats = self._http.stats if self._http is not None else ReadStats()
 
     async def _get(self, name: str, limit: int) -> bytes:
-        """The file ``name`` of the folder, at most ``limit`` bytes (else a SourceError)."""
+        """The file ``name`` of the folder, at most ``limit`` bytes (a longer one is refused
+        after ``limit`` + 1 bytes, never read whole)."""
         if self._http is not None:
             return await self._http.get(self._url(name), limit)
-        if is_object_url(self.base):
-            return await self._get_object(name, limit)
-        path = Path(self.base) / name
-        try:
-            size = (await asyncio.to_thread(os.stat, path)).st_size
-        except OSError as exc:
-            raise SourceError(f"cannot read: {exc.strerror}", where=str(path)) from exc
-        data = b"" if size > limit else await asyncio.to_thread(read_head, path, limit + 1)
-        if size > limit or len(data) > limit:
-            raise SourceError(
-                f"{max(size, len(data))} bytes, expected at most {limit}", where=str(path)
-            )
-        self.stats.add(len(data))
-        return data
-
-    async def _get_object(self, name: str, limit: int) -> bytes:
-        """The stored object ``name`` under the folder's prefix: one GET of at most
-        ``limit`` + 1 bytes, so a longer object is refused without reading it whole."""
-        obj = object_at(self.base.rstrip("/")) / name
-        data = await asyncio.to_thread(read_head, obj, limit + 1)
+        where = self._where(name)
+        data = await asyncio.to_thread(read_head, where, limit + 1)
         if len(data) > limit:
-            raise SourceError(f"more than {limit} bytes, expected at most {limit}", where=str(obj))
+            raise SourceError(f"more than {limit} bytes, expected at most {limit}", where=where)
         self.stats.add(len(data))
         return data
 
@@ -134,7 +117,7 @@ class FolderFetcher(ChunkFetcher):
         return StreamIndex(index.header, index.manifest, self.name, packed=False)
 
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
-        """Each chunk's file, one request each (a longer file is refused unread)."""
+        """Each chunk's file, one request each (a longer file is refused, never read whole)."""
         return list(await asyncio.gather(*(self._get(c.file, c.length) for c in group)))
 
     def _url(self, name: str) -> str:

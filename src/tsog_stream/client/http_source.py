@@ -5,11 +5,11 @@ Every read is one ``GET`` with ``Range: bytes=a-b`` (RFC 9110 §14.2) and
 ``Content-Range`` (RFC 9110 §14.4) is exactly the range asked for and names the file's length,
 and its body has that many bytes. The first response teaches the file's length and its strong
 ETag; later requests carry ``If-Match: <etag>`` so a file replaced on the server fails with a
-412 (a SourceError), never a silent mix of two versions. Connection errors, timeouts and 5xx
-answers are retried with exponential backoff, resuming a truncated body from the last byte
-received, all within one deadline per read (``HttpOptions.deadline_s``). An origin that
-ignores ``Range`` (200 with the whole file) is tolerated for small files (kept in memory) and
-refused for large ones. See docs/client.md.
+412 (a SourceError), never a silent mix of two versions. Transient failures are retried by
+one policy (:func:`with_retries`), a truncated body resuming from the last byte received. An
+origin that ignores ``Range`` (200 with the whole file) is tolerated for small files (kept in
+memory) and refused for large ones. ``HttpFiles`` does whole-file GETs the same way. See
+docs/client.md.
 """
 
 from __future__ import annotations
@@ -21,6 +21,13 @@ from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
 import aiohttp
+from tenacity import (
+    AsyncRetrying,
+    retry_if_exception_type,
+    stop_after_attempt,
+    stop_before_delay,
+    wait_exponential,
+)
 
 from ..container.header import PREFIX_SIZE
 from ..container.ranges import ByteRange
@@ -32,6 +39,7 @@ from .http_options import HttpOptions
 _CONTENT_RANGE = re.compile(r"^bytes (\d+)-(\d+)/(\d+)$")
 _UNSATISFIED = re.compile(r"^bytes \*/(\d+)$")
 _MAX_ERROR_BODY = 4096
+_PIECE = 64 * 1024
 T = TypeVar("T")
 
 
@@ -44,9 +52,40 @@ RETRYABLE = (aiohttp.ClientError, TimeoutError, ConnectionError, _RetryableError
 bodies cut short, timeouts and 5xx answers."""
 
 
-def backoff(options: HttpOptions, attempt: int) -> float:
-    """Seconds to wait before retry number ``attempt`` (1-based): doubling, capped."""
-    return float(min(options.backoff_s * 2 ** (attempt - 1), options.max_backoff_s))
+def retry_policy(options: HttpOptions) -> AsyncRetrying:
+    """The client's one retry policy: RETRYABLE failures only, waits doubling from
+    ``backoff_s`` up to ``max_backoff_s``, at most ``retries`` more attempts, and no wait that
+    would end past ``deadline_s`` from the first attempt (better to fail now than at it)."""
+    return AsyncRetrying(
+        retry=retry_if_exception_type(RETRYABLE),
+        wait=wait_exponential(multiplier=options.backoff_s, max=options.max_backoff_s),
+        stop=stop_after_attempt(options.retries + 1) | stop_before_delay(options.deadline_s),
+        reraise=True,
+    )
+
+
+async def with_retries(
+    options: HttpOptions, attempt: Callable[[], Awaitable[T]], what: Callable[[], str], where: str
+) -> T:
+    """``attempt()`` under :func:`retry_policy`, all within ``options.deadline_s``: an attempt
+    still running then is cancelled. Giving up is one SourceError line; ``what()`` names what
+    is being read (it may change as a body resumes)."""
+    policy = retry_policy(options)
+    try:
+        async with asyncio.timeout(options.deadline_s) as limit:
+            return await policy(attempt)
+    except RETRYABLE as exc:
+        tries = int(policy.statistics.get("attempt_number", 1))
+        cut = limit.expired()
+        attempts = f"{tries} attempt{'s' if tries > 1 else ''}"
+        reason = "still unfinished at the deadline" if cut else str(exc) or type(exc).__name__
+        if tries > options.retries and not cut:
+            raise SourceError(f"{what()} failed after {attempts}: {reason}", where=where) from exc
+        raise SourceError(
+            f"{what()} not received within {options.deadline_s:g} s ({attempts}, the last "
+            f"{reason}; see --timeout)",
+            where=where,
+        ) from exc
 
 
 def new_session(options: HttpOptions) -> aiohttp.ClientSession:
@@ -58,47 +97,43 @@ def new_session(options: HttpOptions) -> aiohttp.ClientSession:
     return aiohttp.ClientSession(timeout=timeout, auto_decompress=False)
 
 
-async def with_retries(
-    options: HttpOptions, attempt: Callable[[], Awaitable[T]], what: Callable[[], str], where: str
-) -> T:
-    """``attempt()`` until it succeeds, retrying RETRYABLE failures with backoff, at most
-    ``options.retries`` times and never past one deadline, ``options.deadline_s`` from now:
-    an attempt still running then is cancelled, a wait that would end after it is not begun.
-    ``what()`` names what is being read (it may change as a body resumes)."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + options.deadline_s
-    tries = 0
-    while True:
-        tries += 1
-        try:
-            async with asyncio.timeout_at(deadline) as limit:
-                return await attempt()
-        except RETRYABLE as exc:
-            cut = limit.expired()
-            reason = "still unfinished at the deadline" if cut else str(exc) or type(exc).__name__
-            if cut or tries > options.retries:
-                raise _gave_up(options, what(), tries, reason, where, deadline=cut) from exc
-            wait = backoff(options, tries)
-            if loop.time() + wait >= deadline:
-                raise _gave_up(options, what(), tries, reason, where, deadline=True) from exc
-            await asyncio.sleep(wait)
+class _Http:
+    """A session made on first use (inside the running event loop), with its read counters."""
+
+    def __init__(self, options: HttpOptions | None, session: aiohttp.ClientSession | None) -> None:
+        self.options = options or HttpOptions()
+        self.stats = ReadStats()
+        self._session = session
+        self._owns_session = session is None
+
+    def _client(self) -> aiohttp.ClientSession:
+        if self._session is None:
+            self._session = new_session(self.options)
+        return self._session
+
+    async def aclose(self) -> None:
+        """Close the HTTP session if this object created it."""
+        if self._session is not None and self._owns_session:
+            await self._session.close()
+        self._session = None
+
+    async def _body(
+        self, resp: aiohttp.ClientResponse, got: bytearray, length: int, where: str, *, exact: bool
+    ) -> None:
+        """Append the body to ``got``, counting bytes on the wire: more than ``length`` bytes
+        is a SourceError, fewer (when ``exact``) a cut-off body to retry."""
+        received = 0
+        async for piece in resp.content.iter_chunked(_PIECE):
+            received += len(piece)
+            self.stats.bytes += len(piece)
+            if received > length:
+                raise SourceError(f"expected at most {length} bytes, got more", where=where)
+            got += piece
+        if exact and received < length:
+            raise aiohttp.ClientPayloadError(f"body ended after {received} of {length} bytes")
 
 
-def _gave_up(
-    options: HttpOptions, what: str, tries: int, reason: str, where: str, *, deadline: bool
-) -> SourceError:
-    """The one-line error of a read given up on: out of time or out of attempts."""
-    attempts = f"{tries} attempt{'s' if tries > 1 else ''}"
-    if deadline:
-        return SourceError(
-            f"{what} not received within {options.deadline_s:g} s ({attempts}, the last "
-            f"{reason}; see --timeout)",
-            where=where,
-        )
-    return SourceError(f"{what} failed after {attempts}: {reason}", where=where)
-
-
-class HttpSource:
+class HttpSource(_Http):
     """Random access to one file on an HTTP server, pinned to the version first seen."""
 
     def __init__(
@@ -108,29 +143,14 @@ class HttpSource:
         *,
         session: aiohttp.ClientSession | None = None,
     ) -> None:
+        super().__init__(options, session)
         self.url = url
         self.name = redact_url(url)  # for messages: a signature is never shown
-        self.stats = ReadStats()
-        self.options = options or HttpOptions()
         self.etag: str | None = None
-        self._session = session
-        self._owns_session = session is None
         self._size: int | None = None
         self._head = b""  # bytes from the first request, served again without a request
         self._copy: bytes | None = None  # the whole file, when the origin ignores ranges
         self._lock = asyncio.Lock()
-
-    def _client(self) -> aiohttp.ClientSession:
-        """The session, created on first use (inside the running event loop)."""
-        if self._session is None:
-            self._session = new_session(self.options)
-        return self._session
-
-    async def aclose(self) -> None:
-        """Close the HTTP session if this source created it."""
-        if self._session is not None and self._owns_session:
-            await self._session.close()
-        self._session = None
 
     async def size(self) -> int:
         """Length of the file, learnt from the first request (which also fetches its prefix)."""
@@ -162,12 +182,14 @@ class HttpSource:
         return await self._fetch(span, probe=False)
 
     async def _fetch(self, span: ByteRange, *, probe: bool) -> bytes:
-        """GET ``span`` with retries within the read's deadline, resuming after the bytes
-        already received."""
+        """GET ``span`` with retries, each attempt resuming after the bytes already received."""
         got = bytearray()
 
         async def attempt() -> bytes:
-            await self._get(ByteRange(span.start + len(got), span.end), got, probe=probe)
+            rest = ByteRange(span.start + len(got), span.end)
+            self.stats.requests += 1
+            async with self._client().get(self.url, headers=self._headers(rest)) as resp:
+                await self._receive(resp, rest, got, probe=probe)
             return bytes(got)
 
         def what() -> str:
@@ -182,41 +204,24 @@ class HttpSource:
             headers["If-Match"] = self.etag
         return headers
 
-    async def _get(self, span: ByteRange, got: bytearray, *, probe: bool) -> None:
-        """One request for ``span``; appends the body to ``got`` as it arrives."""
-        self.stats.requests += 1
-        async with self._client().get(self.url, headers=self._headers(span)) as resp:
-            await self._receive(resp, span, got, probe=probe)
-
     async def _receive(
         self, resp: aiohttp.ClientResponse, span: ByteRange, got: bytearray, *, probe: bool
     ) -> None:
         """Check one response and read its body into ``got``."""
-        if resp.status == 403:
-            raise AccessError(await _denial(resp), where=self.name)
         if resp.status == 412:
             raise SourceError(
                 f"the file changed on the server (ETag {self.etag} no longer matches); "
                 "reopen it to read the new version",
                 where=self.name,
             )
-        if resp.status >= 500:
-            raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
-        if resp.headers.get("Content-Encoding", "identity").lower() != "identity":
-            raise SourceError(
-                f"expected an unencoded body, got Content-Encoding: "
-                f"{resp.headers['Content-Encoding']}",
-                where=self.name,
-            )
+        await _refuse_failures(resp, self.name)
         if resp.status == 200:
             await self._take_whole_file(resp, got, span)
         elif resp.status == 416 and probe:
             self._learn(_parse(_UNSATISFIED, resp, self.name)[0], resp)
         elif resp.status == 206:
             expected = self._check_range(resp, span, probe=probe)
-            await self._read_body(resp, got, expected)
-        elif resp.status in (404, 410):
-            raise SourceError(f"not found (HTTP {resp.status})", where=self.name)
+            await self._body(resp, got, expected, self.name, exact=True)
         else:
             raise SourceError(
                 f"expected HTTP 206 for Range {span.http_header()}, got {resp.status}",
@@ -276,21 +281,59 @@ class HttpSource:
             self._learn(length, resp)
         self._check_etag(resp)
         whole = bytearray()
-        await self._read_body(resp, whole, length)
+        await self._body(resp, whole, length, self.name, exact=True)
         self._copy = bytes(whole)
         got += self._copy[span.start : span.end]
 
-    async def _read_body(self, resp: aiohttp.ClientResponse, got: bytearray, length: int) -> None:
-        """Append the body to ``got``, counting bytes on the wire; longer than ``length`` fails."""
-        received = 0
-        async for piece in resp.content.iter_chunked(64 * 1024):
-            received += len(piece)
-            self.stats.bytes += len(piece)
-            if received > length:
-                raise SourceError(f"expected a {length}-byte body, got more", where=self.name)
-            got += piece
-        if received < length:
-            raise aiohttp.ClientPayloadError(f"body ended after {received} of {length} bytes")
+
+class HttpFiles(_Http):
+    """Whole-file GETs (the unpacked layout's manifest and chunks) over one shared session.
+
+    Each file is one request with ``Accept-Encoding: identity``; only a 200 whose body has at
+    most ``limit`` bytes is accepted (a longer declared length is refused unread), retried
+    like :class:`HttpSource`.
+    """
+
+    def __init__(self, options: HttpOptions | None = None) -> None:
+        super().__init__(options, None)
+
+    async def get(self, url: str, limit: int) -> bytes:
+        """The whole body of ``url`` (at most ``limit`` bytes)."""
+        where = redact_url(url)
+
+        async def attempt() -> bytes:
+            self.stats.requests += 1
+            async with self._client().get(url, headers={"Accept-Encoding": "identity"}) as resp:
+                await _refuse_failures(resp, where)
+                if resp.status != 200:
+                    raise SourceError(f"expected HTTP 200, got {resp.status}", where=where)
+                length = resp.content_length
+                if length is not None and length > limit:
+                    resp.close()
+                    raise SourceError(f"{length} bytes, expected at most {limit}", where=where)
+                body = bytearray()
+                exact = length is not None  # without a declared length, a short body is whole
+                await self._body(
+                    resp, body, limit if length is None else length, where, exact=exact
+                )
+                return bytes(body)
+
+        return await with_retries(self.options, attempt, lambda: "GET", where)
+
+
+async def _refuse_failures(resp: aiohttp.ClientResponse, where: str) -> None:
+    """Raise for an answer with no body to use: 5xx (retried), 403, 404/410, an encoded body."""
+    if resp.status >= 500:
+        raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
+    if resp.status == 403:
+        raise AccessError(await _denial(resp), where=where)
+    if resp.status in (404, 410):
+        raise SourceError(f"not found (HTTP {resp.status})", where=where)
+    encoding = resp.headers.get("Content-Encoding", "identity")
+    if encoding.lower() != "identity":
+        raise SourceError(
+            f"expected an unencoded body, got Content-Encoding: {encoding}", where=where
+        )
 
 
 async def _denial(resp: aiohttp.ClientResponse) -> str:
@@ -313,70 +356,3 @@ def _parse(pattern: re.Pattern[str], resp: aiohttp.ClientResponse, url: str) -> 
             f"expected Content-Range like {pattern.pattern!r}, got {value!r}", where=url
         )
     return tuple(int(g) for g in m.groups())
-
-
-class HttpFiles:
-    """Whole-file GETs (the unpacked layout's manifest and chunks) over one shared session.
-
-    Each file is one request with ``Accept-Encoding: identity``; only a 200 whose body has at
-    most ``limit`` bytes is accepted (a longer declared length is refused unread). Connection
-    errors, timeouts and 5xx answers are retried with backoff within one deadline per file, like
-    :class:`HttpSource`.
-    """
-
-    def __init__(self, options: HttpOptions | None = None) -> None:
-        self.options = options or HttpOptions()
-        self.stats = ReadStats()
-        self._session: aiohttp.ClientSession | None = None
-
-    def _client(self) -> aiohttp.ClientSession:
-        """The session, created on first use (inside the running event loop)."""
-        if self._session is None:
-            self._session = new_session(self.options)
-        return self._session
-
-    async def aclose(self) -> None:
-        """Close the HTTP session."""
-        if self._session is not None:
-            await self._session.close()
-        self._session = None
-
-    async def get(self, url: str, limit: int) -> bytes:
-        """The whole body of ``url`` (at most ``limit`` bytes), retrying transient failures
-        within the read's deadline."""
-        return await with_retries(
-            self.options, lambda: self._get_once(url, limit), lambda: "GET", redact_url(url)
-        )
-
-    async def _get_once(self, url: str, limit: int) -> bytes:
-        """One GET of ``url``; checks status, encoding and length."""
-        self.stats.requests += 1
-        headers, where = {"Accept-Encoding": "identity"}, redact_url(url)
-        async with self._client().get(url, headers=headers) as resp:
-            if resp.status >= 500:
-                raise _RetryableError(f"HTTP {resp.status} {resp.reason}")
-            if resp.status == 403:
-                raise AccessError(await _denial(resp), where=where)
-            if resp.status in (404, 410):
-                raise SourceError(f"not found (HTTP {resp.status})", where=where)
-            if resp.status != 200:
-                raise SourceError(f"expected HTTP 200, got {resp.status}", where=where)
-            if resp.headers.get("Content-Encoding", "identity").lower() != "identity":
-                raise SourceError(
-                    f"expected an unencoded body, got Content-Encoding: "
-                    f"{resp.headers['Content-Encoding']}",
-                    where=where,
-                )
-            length = resp.content_length
-            if length is not None and length > limit:
-                resp.close()
-                raise SourceError(f"{length} bytes, expected at most {limit}", where=where)
-            body = bytearray()
-            async for piece in resp.content.iter_chunked(64 * 1024):
-                self.stats.bytes += len(piece)
-                body += piece
-                if len(body) > limit:
-                    raise SourceError(f"more than the expected {limit} bytes", where=where)
-            if length is not None and len(body) < length:
-                raise aiohttp.ClientPayloadError(f"body ended after {len(body)} of {length} bytes")
-            return bytes(body)

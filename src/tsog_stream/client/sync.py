@@ -21,7 +21,8 @@ from ..container.stream_index import StreamIndex
 from ..model import Gaussians, Scene
 from .costs import SeekCost
 from .http_options import HttpOptions
-from .stream import MiB, Playback, PlayedFrame, PlayStats, StreamClient
+from .playback import Playback, PlayedFrame, PlayStats
+from .stream import MiB, StreamClient
 from .verify import VerifyReport
 
 T = TypeVar("T")
@@ -40,9 +41,12 @@ class Stream:
         http: HttpOptions | None = None,
         timeout: float | None = None,
     ) -> None:
-        self._runner: asyncio.Runner | _LoopThread = (
-            _LoopThread() if _loop_running() else asyncio.Runner()
-        )
+        try:
+            asyncio.get_running_loop()
+        except RuntimeError:
+            self._runner: asyncio.Runner | _LoopThread = asyncio.Runner()
+        else:  # a Jupyter cell, async code: this thread cannot run a loop of its own
+            self._runner = _LoopThread()
         opening = StreamClient.open(
             target,
             cache_bytes=cache_bytes,
@@ -129,8 +133,16 @@ class Stream:
     def run_playback(
         self, playback: Playback, on_frame: Callable[[PlayedFrame], None] | None = None
     ) -> list[PlayedFrame]:
-        """Run a playback to its end, calling ``on_frame`` after each frame."""
-        return self._run(_collect(playback, on_frame))
+        """Run a playback to its end, calling ``on_frame`` after each frame; returns them all."""
+        frames: list[PlayedFrame] = []
+
+        def keep(frame: PlayedFrame) -> None:
+            frames.append(frame)
+            if on_frame is not None:
+                on_frame(frame)
+
+        self._run(_drain(playback, keep))
+        return frames
 
     def drain_playback(
         self, playback: Playback, on_frame: Callable[[PlayedFrame], None] | None = None
@@ -153,15 +165,6 @@ class Stream:
         self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
-
-
-def _loop_running() -> bool:
-    """Whether this thread is inside a running event loop (a Jupyter cell, async code)."""
-    try:
-        asyncio.get_running_loop()
-    except RuntimeError:
-        return False
-    return True
 
 
 class _LoopThread:
@@ -209,20 +212,8 @@ async def _cancel_the_rest() -> None:
     await asyncio.gather(*tasks, return_exceptions=True)
 
 
-async def _collect(
-    playback: Playback, on_frame: Callable[[PlayedFrame], None] | None
-) -> list[PlayedFrame]:
-    """All frames of a playback."""
-    out = []
-    async for frame in playback:
-        out.append(frame)
-        if on_frame is not None:
-            on_frame(frame)
-    return out
-
-
 async def _drain(playback: Playback, on_frame: Callable[[PlayedFrame], None] | None) -> int:
-    """Iterate a playback, dropping each frame; returns how many there were."""
+    """Iterate a playback, dropping each frame after ``on_frame``; returns how many there were."""
     count = 0
     async for frame in playback:
         count += 1

@@ -128,11 +128,10 @@ async def _check_unused(source: ByteSource, index: StreamIndex) -> list[str]:
 
 def layer_problems(manifest: Manifest) -> list[str]:
     """What the layer table says that its chunks do not: per layer, the Gaussians (SH-band
-    chunks hold none) and bytes of the chunks in it, at least one chunk, a PSNR for every
-    layer but the last (the full scene: null), finite and within [0, MAX_PSNR_DB]. The table
-    is what a player and ``tsog info`` show of the quality layers, so a table that lies is an
-    index problem even though no chunk is damaged. A table longer than the layers the chunks
-    use is one problem, not one per empty entry."""
+    chunks hold none) and bytes of its chunks, at least one chunk, and a PSNR on every layer
+    but the last (the full scene: null; the schema bounds the values). A player and ``tsog
+    info`` show this table, so a table that lies is an index problem though no chunk is
+    damaged; entries past the layers the chunks use are one problem, not one each."""
     layers = manifest.layers
     if not layers:
         return []
@@ -162,21 +161,14 @@ def layer_problems(manifest: Manifest) -> list[str]:
             problems.append(
                 f"{name}: says {layer.bytes} bytes, its {chunks[k]} chunks have {sizes[k]}"
             )
-        problems.extend(_psnr_problems(layer.psnr_db, k, last=k == len(layers) - 1))
+        if k == len(layers) - 1 and layer.psnr_db is not None:
+            problems.append(
+                f"{name}: the last layer (the full scene) has a PSNR of {layer.psnr_db:g} dB, "
+                "not null"
+            )
+        elif k < len(layers) - 1 and layer.psnr_db is None:
+            problems.append(f"{name}: no PSNR, expected the measured quality of layers 0..{k}")
     return problems
-
-
-def _psnr_problems(psnr_db: float | None, k: int, *, last: bool) -> list[str]:
-    """Layer ``k``'s PSNR: null for the last layer (the full scene), else a number (the
-    schema bounds it to [0, MAX_PSNR_DB])."""
-    name = f"layers[{k}]"
-    if last:
-        if psnr_db is None:
-            return []
-        return [f"{name}: the last layer (the full scene) has a PSNR of {psnr_db:g} dB, not null"]
-    if psnr_db is None:
-        return [f"{name}: no PSNR, expected the measured quality of layers 0..{k}"]
-    return []
 
 
 async def verify_stream(source: ChunkFetcher, index: StreamIndex) -> VerifyReport:

@@ -16,20 +16,13 @@ import numpy.typing as npt
 from .. import constants as C
 from .._version import __version__
 from ..errors import InputError, SogError
-from ..model import F32, Scene, Timeline, TimelineType
+from ..model import F32, Gaussians, Scene, Timeline, TimelineType
 from ..morton import morton_order
-from ..schemas import (
-    ChunkMeta,
-    ShBandsMeta,
-    check_image_sizes,
-    dump_meta,
-    listed_files,
-    parse_meta,
-)
+from ..schemas import ChunkMeta, ShBandsMeta, check_image_sizes, dump_meta, listed_files, parse_meta
 from ..temporal import recentre
+from .budgets import QUALITY_MAX, Budgets
 from .bundle import read_bundle
 from .layout import image_size
-from .precision import QUALITY_MAX, Budgets
 from .sog_decode import decode_sog
 from .sog_encode import FractionDone, encode_appearance, encode_geometry
 from .tsog_images import (
@@ -49,11 +42,15 @@ U8 = npt.NDArray[np.uint8]
 
 def texel_order(scene: Scene) -> npt.NDArray[np.intp]:
     """The Morton order of the scene's base positions (splat-transform's order); for frame
-    content (a type-0 timeline) frame after frame, each frame in its own Morton order: frames
-    are scenes of their own, and their Gaussians interleaved in one Morton order made the
-    fireworks frames' chunk 16 % larger at quality 50 for the same picture (docs/spec.md §3)."""
-    means = scene.gaussians.means
-    timeline = scene.timeline
+    content (a type-0 timeline) frame after frame, each in its own Morton order (frames are
+    scenes of their own: interleaved, they took more bytes; docs/spec.md §3)."""
+    return texel_order_of(scene.gaussians.means, scene.timeline)
+
+
+def texel_order_of(means: F32, timeline: Timeline | None) -> npt.NDArray[np.intp]:
+    """:func:`texel_order` of Gaussians at ``means`` with ``timeline``: what a caller cutting
+    a part uses to hand the encoder its rows already in order (the order of rows in that
+    order is the identity, so the encoder then copies none of them)."""
     if timeline is None or timeline.type is not TimelineType.FRAME:
         return morton_order(means)
     frames = np.asarray(timeline.t0)
@@ -71,34 +68,46 @@ def encode_chunk(
     progress: Progress | None = None,
     quality: int = QUALITY_MAX,
     on_palette: FractionDone | None = None,
-    given_up: bool = False,
 ) -> dict[str, bytes]:
     """Files of a SOG/TSOG chunk (images in writing order, meta.json last).
 
-    ``quality`` 0..100 sets the error budgets of positions, timeline and motion
-    (codec/precision.py; 100 keeps every 16-bit code as computed). Every Gaussian given is
-    stored: ``tsog encode`` and the segmenter first leave out those too faint for the quality
-    (:func:`~tsog_stream.codec.precision.without_faint`).
-    ``order`` is a full permutation (texel i = Gaussian order[i]); by default the Morton order.
-    ``on_palette`` hears how far the SH palette's fitting got (0..1; it comes last and takes
-    most of the time of a chunk with SH bands).
-    ``given_up``: the caller no longer needs ``scene`` as it is, so its rows are put in texel
-    order in its own arrays (:meth:`Scene.reordered`) instead of a copy beside them, its
-    moving attributes are re-expanded about the rounded reference times
-    (:func:`~tsog_stream.temporal.recentre`: the same paths) and its SH bands are dropped
-    once the palette has read them (the encoder's peak then holds no second copy); only its
-    count is left to rely on.
-    Same scene and seed give byte-identical files. A scene without Gaussians is refused: a
-    lossless WebP has at least one pixel, so SOG cannot hold it.
+    ``quality`` 0..100 sets the error budgets of the codes (codec/budgets.py; 100 keeps every
+    16-bit code as computed). Every Gaussian given is stored (callers first leave out those
+    too faint, :func:`~tsog_stream.codec.precision.without_faint`). ``order`` is a full
+    permutation (texel i = Gaussian order[i]), by default the Morton order. ``on_palette``
+    hears how far the SH palette's fit got (0..1; it comes last and takes longest). Same scene
+    and seed give byte-identical files. A scene without Gaussians is refused: a lossless WebP
+    has at least one pixel.
     """
     if len(scene) == 0:
         raise InputError("the scene has no Gaussians: there is nothing to encode")
     _refuse_non_finite(scene)
     note = progress or (lambda _msg: None)
     note("ordering")
-    order = texel_order(scene) if order is None else order
-    ordered = scene.reordered(order) if given_up else scene.subset(order)
+    ordered = in_order(scene, texel_order(scene) if order is None else order)
     del order  # not needed again (a Gaussian's index each)
+    return _encode_ordered(ordered, quality, seed=seed, note=note, on_palette=on_palette)
+
+
+def in_order(scene: Scene, order: npt.NDArray[np.intp]) -> Scene:
+    """``scene``'s rows in ``order``: a copy, or when they are in that order already a new
+    scene sharing their arrays, which the encoder replaces but never writes."""
+    if np.array_equal(order, np.arange(len(scene))):
+        g = scene.gaussians
+        same = Gaussians(g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN)
+        return Scene(same, scene.timeline, dict(scene.temporal))
+    return scene.subset(order)
+
+
+def _encode_ordered(
+    ordered: Scene,
+    quality: int,
+    *,
+    seed: int,
+    note: Progress,
+    on_palette: FractionDone | None,
+) -> dict[str, bytes]:
+    """:func:`encode_chunk` of a scene already in texel order."""
     width, height = image_size(len(ordered))
     note("positions")
     budgets = Budgets.of(ordered, quality)
@@ -125,11 +134,8 @@ def encode_chunk(
             quats=ordered.gaussians.quats,
             budgets=budgets if ordered.temporal else None,
             images=images,
-            given_up=given_up,
         )
         del budgets  # what comes next needs only the slacks
-        if given_up:
-            ordered.gaussians.let_go("means", "quats")
         meta |= encode_appearance(
             ordered.gaussians,
             width,
@@ -139,7 +145,6 @@ def encode_chunk(
             progress=note,
             slacks=slacks,
             on_palette=on_palette,
-            given_up=given_up,
         )
         meta |= timed.result()
         parsed = parse_meta(meta, where="encoder output")
@@ -158,13 +163,9 @@ def _add_time_images(
     quats: F32,
     budgets: Budgets | None,
     images: ImageEncoder,
-    given_up: bool = False,
 ) -> dict[str, Any]:
     """The ``timeline`` and ``temporal`` meta keys of a chunk, their images handed to
-    ``images`` (a ``given_up`` scene's lifespans and motion then let go, not held through the
-    SH palette's fit). Made on a thread beside the codebooks, so they are not an encode's last
-    work; the positions stay before the codebooks on the calling thread, since made beside
-    them too they would hold both working sets at once (docs/design/chunk-codec.md)."""
+    ``images`` (made on a thread beside the codebooks: docs/design/chunk-codec.md)."""
     meta: dict[str, Any] = {}
     if ordered.timeline is not None and times is not None:
         made, meta["timeline"] = timeline_images(ordered.timeline, times, width, height)
@@ -174,8 +175,6 @@ def _add_time_images(
             ordered.temporal, quats, width, height, budgets
         )
         images.add(temporal_images)
-    if given_up:
-        ordered.let_go_of_time()
     return meta
 
 
@@ -187,8 +186,7 @@ def _in_canonical_order(files: dict[str, bytes], meta: ChunkMeta) -> dict[str, b
 
 def _refuse_non_finite(scene: Scene) -> None:
     """InputError naming what is not finite among positions, lifespans and motion
-    coefficients: SOG cannot place such a Gaussian, and a 16-bit range (min, max in
-    meta.json) cannot hold such a value."""
+    coefficients (a 16-bit range cannot hold such a value)."""
     parts: dict[str, npt.NDArray[np.floating]] = {
         "positions: SOG cannot place them": scene.gaussians.means
     }
@@ -218,11 +216,8 @@ def read_meta(files: Mapping[str, bytes], *, where: str) -> ChunkMeta:
 def checked_images(
     meta: ChunkMeta | ShBandsMeta, files: Mapping[str, bytes], *, where: str
 ) -> tuple[dict[str, bytes], dict[str, tuple[int, int]]]:
-    """The WebP bytes of every image the meta lists, and their sizes, checked before decoding.
-
-    Sizes are read from the WebP headers and checked against the count, each other and the
-    read budget, so nothing is decoded (or allocated) for an image larger than they allow.
-    """
+    """The WebP bytes of every image the meta lists, and their sizes (from the WebP headers),
+    checked against the count, each other and the read budget before anything is decoded."""
     needed: dict[str, bytes] = {}
     for field, name in listed_files(meta):
         if name not in files:
@@ -267,10 +262,8 @@ def _check_plausible_count(meta: ChunkMeta | ShBandsMeta, image_bytes: int, wher
 
 
 def decode_chunk(files: Mapping[str, bytes], *, where: str = "<chunk>") -> Scene:
-    """The Scene stored in a chunk's files, Gaussians in texel order.
-
-    Each attribute is decoded as soon as its images are (webp.ImageDecoder), on both cores.
-    """
+    """The Scene stored in a chunk's files, Gaussians in texel order (each attribute decoded
+    as soon as its images are)."""
     meta = read_meta(files, where=where)
     needed, sizes = checked_images(meta, files, where=where)
     count = int(meta.count)

@@ -43,9 +43,8 @@ def join_u16(low: npt.NDArray[np.uint8], high: npt.NDArray[np.uint8]) -> npt.NDA
 
 
 def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
-    """(mins, maxs, codes) of positions: mins/maxs in log space, codes (N, 3) rounded; a
-    block of rows at a time (every value is its own: the same codes as all at once, without
-    float64 temporaries of every row)."""
+    """(mins, maxs, codes) of positions: ranges in log space, (N, 3) codes; in blocks of rows
+    (the same codes, without float64 temporaries of every row)."""
     if means.shape[0] == 0:
         zeros = np.zeros(3)
         return zeros, zeros.copy(), np.zeros((0, 3), np.uint16)
@@ -62,12 +61,8 @@ def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
 def decode_means(
     low: npt.NDArray[np.uint8], high: npt.NDArray[np.uint8], mins: F64, maxs: F64
 ) -> F32:
-    """Positions from the low and high bytes of their 16-bit codes; a zero range decodes to the
-    min, as splat-transform does.
-
-    Each channel is a lookup in a table of all 65536 codes, computed by the same float64
-    formula: the values are the formula's, at a gather's cost per Gaussian.
-    """
+    """Positions of the low and high bytes of their 16-bit codes (a zero range decodes to the
+    min, as splat-transform does): per channel a gather from a table of all 65536 codes."""
     out = np.empty(low.shape, np.float32)
     for channel in range(low.shape[1]):
         codes = (high[:, channel].astype(np.intp) << 8) | low[:, channel]

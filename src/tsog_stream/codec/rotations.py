@@ -14,15 +14,9 @@ SQRT2 = float(np.sqrt(2.0))
 
 
 def canonical_factor(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.intp]]:
-    """Per-Gaussian factor sign/norm that makes each quaternion unit with its largest part >= 0.
-
-    Returns (factor, index of the largest component). Temporal quaternion coefficients are
-    multiplied by the same factor so base + coefficients keep describing the same rotation.
-    A zero quaternion gets factor 1 (it is replaced by the identity).
-
-    Column by column (numpy reduces an (N, 4) array along its short axis a few values at a
-    time): the norm summed in ``np.linalg.norm``'s order, the same bits.
-    """
+    """(sign/norm making each quaternion unit with its largest part >= 0, that part's index);
+    temporal coefficients are scaled alike. A zero quaternion gets 1 (it becomes the identity).
+    Column by column, the norm summed in ``np.linalg.norm``'s order: the same bits, faster."""
     q = quats.astype(np.float64)
     squares = [q[:, k] * q[:, k] for k in range(4)]
     norm = np.sqrt(((squares[0] + squares[1]) + squares[2]) + squares[3])
@@ -33,9 +27,8 @@ def canonical_factor(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[n
 
 
 def largest_component(q: npt.NDArray[np.floating]) -> npt.NDArray[np.intp]:
-    """Index of each row's largest |component| of (N, 4) ``q``, the first of equals, as
-    ``np.argmax(np.abs(q), axis=1)`` (which it falls back to where a value is not finite: a
-    NaN counts as the largest there)."""
+    """``np.argmax(np.abs(q), axis=1)`` of (N, 4) ``q`` (the first of equals; a NaN counts as
+    the largest), column by column where every value is finite."""
     if not np.isfinite(q).all():
         return np.asarray(np.argmax(np.abs(q), axis=1), np.intp)
     a = [np.abs(q[:, k]) for k in range(4)]
@@ -60,10 +53,7 @@ def canonical_quats(quats: F32) -> tuple[npt.NDArray[np.float64], npt.NDArray[np
 
 
 def encode_quats(quats: F32) -> U8:
-    """(N, 4) texels: the three smaller components as bytes, alpha = 252 + dropped index.
-
-    Every component is made a byte, then each texel keeps the three beside the dropped one
-    (the same bytes as gathering them first, in less time)."""
+    """(N, 4) texels: the three smaller components as bytes, alpha = 252 + dropped index."""
     q, largest = canonical_quats(quats)
     codes = np.clip(np.rint(255.0 * (q * SQRT2 * 0.5 + 0.5)), 0, 255).astype(np.uint8)
     out = np.empty((q.shape[0], 4), np.uint8)
@@ -76,10 +66,8 @@ def encode_quats(quats: F32) -> U8:
 def decode_quats(texels: U8) -> F32:
     """Unit (w, x, y, z) quaternions from smallest-three texels; a bad tag gives identity.
 
-    Built column by column from byte lookup tables, the values of the float64 formula, without
-    a per-Gaussian gather over four components. Each column picks among its candidates by
-    the bits of all-ones/zero masks of the tag (exact, and cheap where ``np.where`` over
-    booleans was not; docs/design/chunk-codec.md).
+    Column by column from byte tables holding the float64 formula's values, each column
+    picked by bit masks of the tag: exact, and cheaper than ``np.where`` (chunk-codec.md).
     """
     tag = texels[:, 3] - np.uint8(QUAT_TAG_BASE)  # a bad tag wraps above 3
     s0, s1, s2 = (np.take(_COMPONENT_BITS_OF_BYTE, texels[:, k]) for k in range(3))

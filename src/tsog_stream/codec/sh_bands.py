@@ -1,10 +1,8 @@
 """SH-band chunks: a chunk's bands beyond DC stored as a chunk of their own.
 
-A layered stream stores its base layer with DC colour only and the base's higher SH bands in
-an SH-band chunk of the next layer, so the first picture waits for no SH. The SH-band chunk
-holds the host's ``shN`` palette and labels, texel for texel in the host's order (the Morton
-order of the host's positions, which both encoders compute alike); a reader adds them to the
-host's decoded Gaussians. See docs/spec.md ("SH-band chunks").
+A layered stream's base holds DC colour only, so its first picture waits for no SH; its bands
+go in an SH-band chunk of the next layer: the host's ``shN`` palette and labels in the host's
+texel order, which a reader adds to the host's Gaussians (docs/spec.md, "SH-band chunks").
 """
 
 from __future__ import annotations
@@ -20,10 +18,10 @@ from .._version import __version__
 from ..errors import InputError, IntegrityError, SogError
 from ..model import Scene
 from ..schemas import ShBandsMeta, dump_sh_meta, parse_sh_meta
+from .budgets import QUALITY_MAX, Slacks, budget_fraction
 from .bundle import read_bundle
 from .chunk import checked_images, texel_order
 from .layout import image_size
-from .precision import QUALITY_MAX, Slacks, budget_fraction
 from .sog_decode import decode_sh
 from .sog_encode import FractionDone, encode_sh_palette
 from .webp import ImageDecoder, encode_many
@@ -68,29 +66,18 @@ def encode_sh_bands(
     seed: int = 0,
     quality: int = QUALITY_MAX,
     on_palette: FractionDone | None = None,
-    given_up: bool = False,
 ) -> dict[str, bytes]:
-    """Files of the SH-band chunk of ``host`` (the Gaussians its chunk is encoded from, in any
-    order: they are put in the host chunk's texel order here), meta.json last; ``quality``
-    sets the palette's slack as for a whole chunk; ``on_palette`` hears the palette fitting's
-    fraction done. ``given_up``: as :func:`~tsog_stream.codec.chunk.encode_chunk`'s (the
-    host's rows ordered in its own arrays, its bands handed to the palette's fit: a copy of
-    the host and of its bands were each beside it)."""
+    """Files of the SH-band chunk of ``host`` (its chunk's Gaussians, in any order), meta.json
+    last; ``quality`` sets the palette's slack as for a whole chunk."""
     if len(host) == 0 or host.gaussians.sh_bands == 0:
         raise InputError("an SH-band chunk needs Gaussians with SH bands beyond DC")
     order = texel_order(host)
-    ordered = host.reordered(order).gaussians if given_up else host.gaussians.subset(order)
+    in_place = np.array_equal(order, np.arange(len(host)))  # read only: never written here
+    ordered = host.gaussians if in_place else host.gaussians.subset(order)
     width, height = image_size(len(ordered))
     slack = Slacks.at(budget_fraction(quality)).bands
     images, shn = encode_sh_palette(
-        ordered,
-        width,
-        height,
-        seed,
-        lambda _msg: None,
-        on_palette=on_palette,
-        given_up=given_up,
-        slack=slack,
+        ordered, width, height, seed, lambda _msg: None, on_palette=on_palette, slack=slack
     )
     meta = {
         "version": C.SOG_VERSION,

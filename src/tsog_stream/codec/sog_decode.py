@@ -1,8 +1,7 @@
 """SOG v2 decoder: validated meta + WebP images -> static Gaussians in texel order.
 
-Formulas follow splat-transform's reader so both decoders agree to float32 rounding:
-opacity logits are clamped to alpha in [1e-6, 1 - 1e-6]; labels past the palette give zero SH;
-an unknown quaternion tag gives the identity rotation.
+Formulas follow splat-transform's reader (agreeing to float32 rounding): alpha clamped to
+[1e-6, 1 - 1e-6], labels past the palette give zero SH, an unknown quaternion tag the identity.
 """
 
 from __future__ import annotations
@@ -26,8 +25,7 @@ F32 = npt.NDArray[np.float32]
 
 
 def _lookup(codebook: list[float], indices: U8) -> F32:
-    """Codebook values of byte indices (the schema holds every codebook to 256 entries), one
-    gather per channel of the last axis."""
+    """Codebook values (256 entries, by the schema) of byte indices, a gather per channel."""
     table = np.asarray(codebook, dtype=np.float32)
     out = np.empty(indices.shape, np.float32)
     for channel in range(indices.shape[-1]):
@@ -48,10 +46,8 @@ def decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
     rows, width = centroid_image.shape[:2]
     entries = centroid_image.reshape(rows * (width // coeffs), coeffs, 4)
     usable = max(0, min(int(shn.count), entries.shape[0]))  # the schema says count >= 1
-    # One gather over the palette's bytes (per-channel gathers over strided ones are slower),
-    # then whole rows by label, each in two halves on both cores, which the last plane's
-    # decode leaves idle. mode="clip" writes straight into ``out`` (bytes < 256 entries;
-    # labels checked).
+    # One gather over the palette's bytes, then whole rows by label, each in two halves on
+    # both cores; mode="clip" writes straight into ``out`` (bytes < 256; labels checked).
     table = np.asarray(shn.codebook, dtype=np.float32)
     palette = entries[:usable, :, :3]
     values = np.empty(palette.shape, np.float32)
@@ -72,9 +68,8 @@ def decode_sh(shn: Any, images: Mapping[str, U8], count: int) -> F32:
 
 
 def decode_sog(meta: Any, decoder: ImageDecoder) -> Callable[[], Gaussians]:
-    """Schedule the decoding of each attribute as its images arrive (the costliest first:
-    its images are decoded first); the returned function waits for them and gives the
-    Gaussians (in texel order) of a parsed ChunkMeta."""
+    """Schedule each attribute's decoding as its images arrive (costliest first); the function
+    returned waits and gives the Gaussians (texel order) of a parsed ChunkMeta."""
     count = int(meta.count)
     shn = meta.shN
     rest = (

@@ -14,22 +14,14 @@ import numpy.typing as npt
 
 from .. import constants as C
 from ..columns import row_blocks
-from ..inplace import swap_row_axes
-from ..machine import release_freed_memory
 from ..model import Gaussians
 from ..opacity import logit_to_alpha
 from ..quantize import assign_codebook, build_codebook, short_codebook
 from ..sh_palette import fit_palette, palette_size
+from .budgets import Budgets, Slacks
+from .coarsen import coarsen_alpha, coarsen_positions, coarsen_rotations, thin_labels
 from .layout import texels, to_image
 from .positions import encode_means, split_u16
-from .precision import (
-    Budgets,
-    Slacks,
-    coarsen_alpha,
-    coarsen_positions,
-    coarsen_rotations,
-    thin_labels,
-)
 from .rotations import encode_quats
 from .webp import ImageEncoder
 
@@ -62,7 +54,7 @@ def _codebook_texels(
 ) -> tuple[U8, list[float]]:
     """One shared 256-entry codebook over (N, 3) columns (entries short to write, see
     short_codebook), fitted to ``weights`` when given (one per value); texels of the
-    per-column indices, moved to fewer distinct entries within ``slack`` (codec/precision.py)."""
+    per-column indices, moved to fewer distinct entries within ``slack`` (codec/coarsen.py)."""
     codebook = short_codebook(build_codebook(columns, weights))
     labels = assign_codebook(columns, codebook).reshape(columns.shape)
     labels, codebook = thin_labels(labels, codebook, slack)
@@ -71,12 +63,8 @@ def _codebook_texels(
 
 def scale_importance(gaussians: Gaussians) -> npt.NDArray[np.float64]:
     """(N, 3) weights of the scale codebook's fit: each Gaussian's alpha times the square
-    root of its footprint's area (its two largest sigmas), on all three of its axes. A
-    label's error resizes the footprint by a share of itself, which shows in proportion to
-    the Gaussian's opacity and size; fitted by count, the entries went to the tiny and the
-    faint that no view draws (coffee10 at quality 100: 40.6 -> 45.5 dB rendered; every
-    bench_rate scene the same or better, docs/design/quantizers.md). The square root: alpha²
-    times the area, the squared error's own weight, gave captures 1-2 dB less."""
+    root of its footprint's area (its two largest sigmas), on all three of its axes: a
+    label's error shows in proportion to opacity and size (docs/design/quantizers.md)."""
     alpha = logit_to_alpha(gaussians.opacities).reshape(-1)
     logs = np.sort(gaussians.scales.astype(np.float64), axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -84,18 +72,11 @@ def scale_importance(gaussians: Gaussians) -> npt.NDArray[np.float64]:
     return np.broadcast_to(weight[:, None], gaussians.scales.shape)
 
 
-def _vectors_for_fit(gaussians: Gaussians, given_up: bool) -> npt.NDArray[np.float32]:
+def _vectors_for_fit(gaussians: Gaussians) -> npt.NDArray[np.float32]:
     """(N, 3K) f_rest vectors in PLY order (channel-major: all R coefficients, then G, then
-    B), the vectors the palette is fitted on. The SH bands of Gaussians their owner gave up
-    are dropped from them and, when writable, rearranged so in their own memory and handed
-    to the fit (a transposed copy would hold them twice); else a copy."""
+    B), the vectors the palette is fitted on."""
     n, k, _ = gaussians.shN.shape
-    bands = gaussians.shN
-    if given_up:
-        gaussians.shN = np.zeros((n, 0, 3), np.float32)
-        if bands.flags.writeable and bands.flags.c_contiguous:
-            return swap_row_axes(bands).reshape(n, 3 * k)
-    return np.ascontiguousarray(bands.transpose(0, 2, 1).reshape(n, 3 * k))
+    return np.ascontiguousarray(gaussians.shN.transpose(0, 2, 1).reshape(n, 3 * k))
 
 
 def encode_sh_palette(
@@ -106,12 +87,10 @@ def encode_sh_palette(
     note: Progress,
     *,
     on_palette: FractionDone | None = None,
-    given_up: bool = False,
     slack: float = 0.0,
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Palette (k-means on f_rest), its codebook, the centroid image and the label image;
     ``on_palette`` hears the fitting's fraction done (most of an SH chunk's encoding).
-    ``given_up``: the Gaussians' SH bands are dropped once read (their owner is done).
     ``slack``: the view-dependent colour error the palette may add (Slacks.bands)."""
     coeffs, bands = gaussians.shN.shape[1], gaussians.sh_bands
 
@@ -120,15 +99,12 @@ def encode_sh_palette(
         if on_palette is not None:
             on_palette(fraction)
 
-    if given_up:  # a job's part: what the codebooks freed goes back before the fit's peak
-        release_freed_memory()
     centroids, labels = fit_palette(
-        _vectors_for_fit(gaussians, given_up),
+        _vectors_for_fit(gaussians),
         palette_size(len(gaussians)),
         seed=seed,
         progress=fitted,
         slack=slack,
-        given_up=given_up,
     )
     count = centroids.shape[0]
     codebook = short_codebook(build_codebook(centroids))
@@ -157,13 +133,12 @@ def encode_geometry(
     gaussians: Gaussians, width: int, height: int, images: ImageEncoder, budgets: Budgets | None
 ) -> dict[str, Any]:
     """Positions and rotations of Gaussians already in texel order: their images handed to
-    ``images``, their SOG keys of meta.json returned; with ``budgets`` (codec/precision.py)
-    they keep only the bits they need. Made a block of rows at a time (all at once, their
-    temporaries were about two thirds of the window's own arrays)."""
+    ``images``, their SOG keys of meta.json returned; with ``budgets`` they keep only the bits
+    they need. Made a block of rows at a time."""
     mins, maxs, codes = encode_means(gaussians.means)
     quats = np.empty((len(gaussians), 4), np.uint8)
     limits = (budgets.base_position(), budgets.rotation) if budgets is not None else None
-    for rows in row_blocks(len(gaussians)):  # every row on its own: the codes of all at once
+    for rows in row_blocks(len(gaussians)):
         quats[rows] = encode_quats(gaussians.quats[rows])
         if limits is not None:
             means = gaussians.means[rows].astype(np.float64)
@@ -193,14 +168,10 @@ def encode_appearance(
     progress: Progress | None = None,
     slacks: Slacks | None = None,
     on_palette: FractionDone | None = None,
-    given_up: bool = False,
 ) -> dict[str, Any]:
     """Scales, colours, opacities and SH bands of Gaussians already in texel order: their
-    images handed to ``images``, their SOG keys of meta.json returned; with
-    ``slacks`` labels and opacity bytes move within them. The SH palette, if any, is fitted
-    last (``on_palette`` hears its fraction done). With ``given_up`` the Gaussians' scales,
-    opacities and colours are let go once their images are made, and the SH bands as the
-    palette's fit starts."""
+    images handed to ``images``, their SOG keys of meta.json returned; with ``slacks`` labels
+    and opacity bytes move within them. The SH palette is fitted last."""
     note = progress or (lambda _msg: None)
     note("scale codebook")
     scale_texels, scale_codebook = _codebook_texels(
@@ -209,7 +180,7 @@ def encode_appearance(
         weights=scale_importance(gaussians),
     )
     images.add({C.SCALES: to_image(scale_texels, width, height)})
-    del scale_texels  # each texel array goes once its image is made: not held through the fit
+    del scale_texels  # not held through the fit
     note("colour codebook")
     alpha = opacity_bytes(gaussians.opacities)
     if slacks is not None:
@@ -218,8 +189,6 @@ def encode_appearance(
     sh0_texels, sh0_codebook = _codebook_texels(gaussians.sh0, alpha, colour_slack)
     images.add({C.SH0: to_image(sh0_texels, width, height)})
     del sh0_texels, alpha
-    if given_up:
-        gaussians.let_go("scales", "opacities", "sh0")
     meta: dict[str, Any] = {
         "scales": {"codebook": scale_codebook, "files": [C.SCALES]},
         "sh0": {"codebook": sh0_codebook, "files": [C.SH0]},
@@ -233,7 +202,6 @@ def encode_appearance(
             seed,
             note,
             on_palette=on_palette,
-            given_up=given_up,
             slack=slacks.bands if slacks is not None else 0.0,
         )
         images.add(sh_images)

@@ -1,8 +1,6 @@
-"""TSOG images: the timeline and the temporal polynomial coefficients, 16-bit split into l/u.
-
-Every value is quantised linearly over a per-channel [min, max] (per order for coefficients)
-and stored as a low-byte image (``_l``) and a high-byte image (``_u``), index-aligned with the
-SOG images. Channels map to R, G, B, A in order; unused channels hold 0 and alpha 255.
+"""TSOG images: the timeline and the temporal coefficients as 16-bit codes over a per-channel
+[min, max] (per order for coefficients), in a low-byte (``_l``) and a high-byte (``_u``) image
+index-aligned with the SOG images; channels are R, G, B, A, unused ones 0 (alpha 255).
 """
 
 from __future__ import annotations
@@ -19,9 +17,10 @@ from ..columns import down
 from ..errors import InputError
 from ..model import Timeline, TimelineType
 from ..temporal import scale_cap
+from .budgets import Budgets
+from .coarsen import coarsen_motion, coarsen_timeline
 from .layout import from_image, to_image
 from .positions import dequantize_u16, join_u16, quantize_u16, split_u16
-from .precision import Budgets, coarsen_motion, coarsen_timeline
 from .rotations import canonical_factor
 
 U8 = npt.NDArray[np.uint8]
@@ -29,16 +28,17 @@ F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 
 
-def _u16_texels(codes: npt.NDArray[np.uint16]) -> tuple[U8, U8]:
-    """(low, high) (N, 4) texels of up to four 16-bit channels; alpha 255 unless a 4th channel."""
-    n, channels = codes.shape
-    low, high = split_u16(codes)
-    out_l = np.zeros((n, 4), np.uint8)
-    out_u = np.zeros((n, 4), np.uint8)
-    out_l[:, 3] = out_u[:, 3] = 255
-    out_l[:, :channels] = low
-    out_u[:, :channels] = high
-    return out_l, out_u
+def _u16_images(
+    codes: npt.NDArray[np.uint16], names: tuple[str, str], width: int, height: int
+) -> dict[str, U8]:
+    """The low and high images of up to four 16-bit channels; alpha 255 unless a 4th."""
+    images = {}
+    for name, part in zip(names, split_u16(codes), strict=True):
+        texels = np.zeros((len(codes), 4), np.uint8)
+        texels[:, 3] = 255
+        texels[:, : codes.shape[1]] = part
+        images[name] = to_image(texels, width, height)
+    return images
 
 
 def _codes(
@@ -70,8 +70,7 @@ def _whole_frames(timeline: Timeline, mins: F64, maxs: F64) -> bool:
 
 @dataclass(frozen=True)
 class TimelineCodes:
-    """A timeline's 16-bit codes as a chunk stores them (R = frame/start/centre, G =
-    duration/scale) and their per-channel range."""
+    """A timeline's 16-bit codes (R = frame/start/centre, G = duration/scale) and ranges."""
 
     type: TimelineType
     codes: npt.NDArray[np.uint16]
@@ -86,8 +85,7 @@ class TimelineCodes:
 def _timeline_values(
     kind: TimelineType, codes: npt.NDArray[np.uint16], mins: F64, maxs: F64
 ) -> F64:
-    """(N, 2) timeline values of their codes as a reader takes them: type-0 frame ids rounded
-    to integers (G unused: 0)."""
+    """(N, 2) timeline values as a reader takes them: type-0 frame ids rounded (G: 0)."""
     values = dequantize_u16(codes, mins, maxs)
     if kind is TimelineType.FRAME:
         values[:, 0] = np.rint(values[:, 0])
@@ -104,17 +102,15 @@ def quantize_timeline(timeline: Timeline, budget: F64 | None = None) -> Timeline
     if timeline.type is TimelineType.CENTER_SCALE:
         values[:, 1] = np.minimum(values[:, 1], scale_cap(timeline))
     mins, maxs = _ranges(values)
-    exact = timeline.type is TimelineType.FRAME or _whole_frames(timeline, mins, maxs)
-    if _whole_frames(timeline, mins, maxs):
+    whole = _whole_frames(timeline, mins, maxs)
+    if whole:
         maxs = mins + C.U16_MAX  # a step of exactly one frame: start and duration decode exactly
     if timeline.type is TimelineType.FRAME and maxs[0] - mins[0] > C.U16_MAX:
-        raise InputError(
-            f"frame ids span {maxs[0] - mins[0]:.0f} frames; one chunk holds at most "
-            f"{C.U16_MAX + 1} (split the scene with tsog segment)",
-            where="timeline",
-        )
+        span = f"frame ids span {maxs[0] - mins[0]:.0f} frames; one chunk holds at most"
+        found = f"{span} {C.U16_MAX + 1} (split the scene with tsog segment)"
+        raise InputError(found, where="timeline")
     codes = quantize_u16(values, mins, maxs)
-    if budget is not None and not exact:
+    if budget is not None and not (whole or timeline.type is TimelineType.FRAME):
         codes = coarsen_timeline(codes, mins, maxs, budget)
     return TimelineCodes(timeline.type, codes, mins, maxs)
 
@@ -123,11 +119,7 @@ def timeline_images(
     timeline: Timeline, codes: TimelineCodes, width: int, height: int
 ) -> tuple[dict[str, U8], dict[str, Any]]:
     """Timeline images and ``timeline`` meta of a timeline's codes."""
-    low, high = _u16_texels(codes.codes)
-    images = {
-        C.TIMELINE_L: to_image(low, width, height),
-        C.TIMELINE_U: to_image(high, width, height),
-    }
+    images = _u16_images(codes.codes, (C.TIMELINE_L, C.TIMELINE_U), width, height)
     meta: dict[str, Any] = {"type": int(timeline.type)}
     if timeline.fps is not None:
         meta["fps"] = float(timeline.fps)
@@ -149,8 +141,7 @@ def decode_timeline(meta: Any, images: Mapping[str, U8], count: int) -> Timeline
 
 def stored_temporal(temporal: Mapping[str, F32]) -> dict[str, F64]:
     """The coefficients as ``meta.json`` stores them (docs/spec.md §6): opacity's in the A
-    channel of ``sh0``, as in SOG's ``sh0.webp`` (R, G, B zero when only opacity is dynamic;
-    the shorter of the two padded with zero orders), everything else as it is."""
+    channel of ``sh0`` as in SOG's ``sh0.webp`` (the shorter padded with zeros), others as is."""
     stored = {a: np.asarray(c, np.float64) for a, c in temporal.items() if a != "opacity"}
     if "opacity" not in temporal:
         return stored
@@ -171,12 +162,11 @@ def encode_temporal(
     height: int,
     budgets: Budgets | None = None,
 ) -> tuple[dict[str, U8], dict[str, Any]]:
-    """Coefficient images and the ``temporal`` meta object, attributes in TEMPORAL_CHANNELS order.
-    With ``budgets`` (codec/precision.py) the means' motion keeps only the bits its position
-    budget needs over each Gaussian's lifespan; other attributes keep 16 bits.
+    """Coefficient images and the ``temporal`` meta, attributes in TEMPORAL_CHANNELS order;
+    with ``budgets`` (codec/precision.py) motion keeps only the bits its budget needs.
 
-    Quaternion coefficients are scaled by the factor that canonicalises the base quaternion
-    (sign and norm), so base + coefficients stay consistent with the stored base rotation.
+    Quaternion coefficients are scaled by the factor that canonicalises the base quaternion,
+    so base + coefficients stay consistent with the stored base rotation.
     """
     images: dict[str, U8] = {}
     meta: dict[str, Any] = {}
@@ -193,19 +183,12 @@ def encode_temporal(
             mins, maxs = _ranges(values)
             codes = quantize_u16(values, mins, maxs)
             if budgets is not None:
+                orders = coeffs.shape[1]
                 codes = coarsen_motion(
-                    codes,
-                    mins,
-                    maxs,
-                    attr=attr,
-                    order=order,
-                    orders=coeffs.shape[1],
-                    budgets=budgets,
+                    codes, mins, maxs, attr=attr, order=order, orders=orders, budgets=budgets
                 )
-            low, high = _u16_texels(codes)
             names = (C.temporal_file(attr, order, "l"), C.temporal_file(attr, order, "u"))
-            images[names[0]] = to_image(low, width, height)
-            images[names[1]] = to_image(high, width, height)
+            images.update(_u16_images(codes, names, width, height))
             entry["mins"].append([float(v) for v in mins])
             entry["maxs"].append([float(v) for v in maxs])
             entry["files"].extend(names)
@@ -214,8 +197,7 @@ def encode_temporal(
 
 
 def _used_orders(entry: Any, channels: slice) -> int:
-    """Orders of an entry up to its last one whose range is not exactly [0, 0] on ``channels``
-    (orders the writer added only to pad a shorter polynomial)."""
+    """Orders up to the last whose range on ``channels`` is not [0, 0] (the rest are padding)."""
     zero = [
         all(lo == hi == 0.0 for lo, hi in zip(mins[channels], maxs[channels], strict=True))
         for mins, maxs in zip(entry.mins, entry.maxs, strict=True)
@@ -226,12 +208,9 @@ def _used_orders(entry: Any, channels: slice) -> int:
 def decode_temporal(
     meta: Mapping[str, Any], images: Mapping[str, U8], count: int
 ) -> dict[str, F32]:
-    """attr -> (N, order, channels) coefficients from the ``temporal`` meta object and images.
-
-    Every stored form is read (docs/spec.md §6): opacity in the A channel of a 4-channel
-    ``sh0``, or as its own attribute (spec 0.2); ``quats`` in 4 channels (w, x, y, z) or in
-    the paper's 3 (x, y, z; w's coefficient is 0).
-    """
+    """attr -> (N, order, channels) coefficients of the ``temporal`` meta and images, in
+    every stored form (docs/spec.md §6): opacity in sh0's A channel or its own attribute;
+    ``quats`` in 4 channels or the paper's 3 (x, y, z; w's coefficient 0)."""
     out: dict[str, F32] = {}
     for attr, entry in meta.items():
         channels = len(entry.mins[0])
@@ -252,8 +231,8 @@ def decode_temporal(
 
 
 def _split_sh0(entry: Any, coeffs: F32) -> dict[str, F32]:
-    """sh0's colour coefficients (R, G, B) and opacity's (A) from a 4-channel entry, each
-    without the all-zero orders (or the all-zero colour) the writer adds for the other."""
+    """sh0's colour (R, G, B) and opacity (A) coefficients of a 4-channel entry, each without
+    the zero orders the writer padded it with."""
     parts: dict[str, F32] = {}
     colour_orders = _used_orders(entry, slice(0, 3))
     if colour_orders:

@@ -1,6 +1,6 @@
-"""Lossless WebP planes: exact RGBA in, exact RGBA out, encoded and decoded in parallel threads.
+"""Lossless WebP planes: exact RGBA in, exact RGBA out, encoded and decoded on threads.
 
-Pillow releases the GIL while libwebp encodes, so a thread pool uses both cores.
+Pillow releases the GIL inside libwebp, so the process's thread pools keep both cores busy.
 ``exact=True`` keeps the RGB of texels whose alpha is 0 (sh0 opacity byte 0, padding).
 """
 
@@ -10,10 +10,8 @@ import io
 import os
 import struct
 import threading
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
-from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import numpy as np
@@ -26,7 +24,7 @@ from ..machine import usable_cores
 from .webp_header import Size, webp_size
 
 _pillow_webp: Any
-try:  # the libwebp decoder Pillow's WebP plugin reads through (see _libwebp_rgba)
+try:  # the libwebp decoder Pillow's WebP plugin opens every WebP with (see _libwebp_rgba)
     from PIL import _webp as _pillow_webp
 except ImportError:  # pragma: no cover - a Pillow built without WebP fails on any WebP
     _pillow_webp = None
@@ -37,9 +35,9 @@ T = TypeVar("T")
 WEBP_METHOD = 3
 """libwebp method 0-6 (effort)."""
 WEBP_QUALITY = 50
-"""For lossless WebP 'quality' is the compression effort too: 50 with method 3 is within
-about 1 % of the size of 100 / 4, and much faster (docs/design/chunk-codec.md)."""
-Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS  # Pillow warns above this and refuses above twice it
+"""Lossless 'quality' is effort too: within about 1 % of 100/4's size, much faster
+(docs/design/chunk-codec.md)."""
+Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS  # any size webp_size passes: Pillow never warns
 PILLOW_ERRORS = (
     OSError,
     ValueError,
@@ -49,10 +47,8 @@ PILLOW_ERRORS = (
     TypeError,
     struct.error,
     Image.DecompressionBombError,
-    Image.DecompressionBombWarning,
 )
-"""What Pillow and its libwebp decoder raise on a damaged or hostile image: each becomes a
-SogError naming the image."""
+"""What Pillow raises on a damaged image: each becomes a SogError naming the image."""
 
 
 def encode_webp(image: U8) -> bytes:
@@ -65,10 +61,11 @@ def encode_webp(image: U8) -> bytes:
 
 
 def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
-    """Decode WebP bytes to an (H, W, 4) uint8 array without colour management or premultiply.
+    """An (H, W, 4) uint8 array (read-only) of WebP bytes, exactly as stored: no colour
+    management, no premultiplying, alpha 255 where the file has none.
 
-    The size is read from the header and checked (against ``expected`` too, when given)
-    before any pixel is decoded; Pillow's decompression-bomb signals become SogError.
+    The header is checked whole (and against ``expected``) before Pillow sees the bytes:
+    libwebp allocates the canvas when it opens a file. Any damage raises SogError.
     """
     width, height = webp_size(data, where=where)
     if expected is not None and (width, height) != expected:
@@ -78,28 +75,20 @@ def decode_webp(data: bytes, *, where: str, expected: Size | None = None) -> U8:
         direct = _libwebp_rgba(data, (width, height))
         if direct is not None:
             return direct
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", Image.DecompressionBombWarning)
-            img = Image.open(io.BytesIO(data), formats=["WEBP"])
-        with img:
+        with Image.open(io.BytesIO(data), formats=["WEBP"]) as img:
             if img.size != (width, height):
                 raise SogError(f"header says {width}x{height}, image is {img.size}", where=where)
             rgba = img if img.mode == "RGBA" else img.convert("RGBA")
-            arr = np.asarray(rgba, dtype=np.uint8)
-    except SogError:
-        raise
+            return np.asarray(rgba, np.uint8).reshape(height, width, 4)
     except PILLOW_ERRORS as exc:
         raise SogError(f"corrupt WebP image: {exc}", where=where) from exc
-    return arr.reshape(height, width, 4)
 
 
 def _libwebp_rgba(data: bytes, size: Size) -> U8 | None:
-    """The image's RGBA bytes as libwebp decodes them, through the decoder Pillow's WebP
-    plugin opens every WebP with, without the three copies Pillow's public path makes (its
-    image memory, the RGBA conversion of an image without alpha, the array). None where this
-    Pillow's decoder answers otherwise than expected (the public path then decodes it);
-    corrupt data raises what Pillow raises. The array is read-only: decoders read their
-    planes, never write them."""
+    """The RGBA bytes libwebp decodes, read-only, from the decoder Pillow's WebP plugin opens
+    every WebP with, without the copies of Pillow's public path (1.2-1.4x the CPU of a chunk's
+    planes: docs/design/dependencies.md). None where this Pillow's decoder is not the one
+    expected (the public path then decodes); corrupt data raises what Pillow raises."""
     decoder_type = getattr(_pillow_webp, "WebPAnimDecoder", None)
     if decoder_type is None:
         return None
@@ -108,58 +97,44 @@ def _libwebp_rgba(data: bytes, size: Size) -> U8 | None:
     except TypeError:  # another signature: not the decoder expected
         return None
     info = decoder.get_info()
+    # RGBX: no alpha in the file, libwebp writes 255
     if not (isinstance(info, tuple) and len(info) == 5 and info[0] == size):
         return None
-    if info[4] not in ("RGBA", "RGBX"):  # RGBX: no alpha in the file, libwebp writes 255
+    if info[4] not in ("RGBA", "RGBX"):
         return None
     frame = decoder.get_next()
     if frame is None:
         raise EOFError("libwebp decoded no frame")
-    pixels = frame[0]
     width, height = size
-    if not isinstance(pixels, bytes) or len(pixels) != width * height * 4:
+    if not isinstance(frame[0], bytes) or len(frame[0]) != width * height * 4:
         return None
-    return np.frombuffer(pixels, np.uint8).reshape(height, width, 4)
+    return np.frombuffer(frame[0], np.uint8).reshape(height, width, 4)
 
 
 MAX_DECODE_THREADS = 8
-"""Images decoded at once on a machine of up to 4 cores (a chunk has 5-15), twice the cores
-above that. More threads than cores measured faster: a thread waiting on fresh pages leaves
-its core to another (docs/design/chunk-codec.md)."""
-
-
-@dataclass(frozen=True)
-class _Pools:
-    """The process's thread pools: WebP decodes, work on decoded images, WebP encodes, and
-    the helper a piece of work splits onto (:func:`in_two`)."""
-
-    decoding: ThreadPoolExecutor
-    working: ThreadPoolExecutor
-    encoding: ThreadPoolExecutor
-    helping: ThreadPoolExecutor
+"""Images decoded at once up to 4 cores, twice the cores above: a thread waiting on fresh
+pages leaves its core to another (docs/design/chunk-codec.md)."""
 
 
 class _SharedPools:
-    """The process's thread pools (:class:`_Pools`), made on first use and kept: a pool per
-    chunk started its threads on every decode, each start waiting for the new thread to take
-    the GIL from the running decodes (a 100k-Gaussian chunk decoded 10-15 % slower)."""
+    """The process's pools (decoding, working on decoded images, encoding, and the helper of
+    :func:`in_two`), made on first use and kept: starting threads per chunk cost 10-15 %."""
+
+    _lock: threading.Lock
+    _pools: dict[str, ThreadPoolExecutor] | None
+    _cores: int | None = None
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._pools: _Pools | None = None
-        self._cores: int | None = None
+        self.forget()
 
-    def get(self) -> _Pools:
-        """The pools, made on the first call."""
+    def get(self) -> dict[str, ThreadPoolExecutor]:
+        """The pools by name, made on the first call."""
         with self._lock:
             if self._pools is None:
                 cores = self._cores or usable_cores()
-                self._pools = _Pools(
-                    decoding=ThreadPoolExecutor(max(MAX_DECODE_THREADS, 2 * cores), "tsog-webp"),
-                    working=ThreadPoolExecutor(cores, "tsog-decode"),
-                    encoding=ThreadPoolExecutor(cores, "tsog-encode"),
-                    helping=ThreadPoolExecutor(1, "tsog-help"),
-                )
+                sizes = {"decoding": max(MAX_DECODE_THREADS, 2 * cores), "working": cores}
+                sizes |= {"encoding": cores, "helping": 1}
+                self._pools = {k: ThreadPoolExecutor(n, f"tsog-{k}") for k, n in sizes.items()}
             return self._pools
 
     def cores(self) -> int:
@@ -168,17 +143,14 @@ class _SharedPools:
             return self._cores or usable_cores()
 
     def size_for(self, cores: int) -> None:
-        """Pools for ``cores`` from now on: pools of another size are dropped (work already
-        handed to them finishes; their idle threads end with them) and made anew on next use."""
+        """Pools for ``cores`` from now on (pools of another size end once idle)."""
         with self._lock:
             if cores != self._cores:
-                self._cores = cores
-                self._pools = None
+                self._cores, self._pools = cores, None
 
     def forget(self) -> None:
-        """In a forked child: the parent's pool threads do not exist there, so make new ones."""
-        self._lock = threading.Lock()
-        self._pools = None
+        """No pools yet (and in a forked child: the parent's threads do not exist there)."""
+        self._lock, self._pools = threading.Lock(), None
 
 
 _SHARED_POOLS = _SharedPools()
@@ -186,9 +158,8 @@ os.register_at_fork(after_in_child=_SHARED_POOLS.forget)
 
 
 def use_cores(cores: int) -> None:
-    """Size the codec's thread pools for ``cores`` cores in this process from now on, where
-    a scheduler gave it fewer than :func:`~tsog_stream.machine.usable_cores` says: a Dask
-    worker declared with one thread beside others on the same machine."""
+    """Size this process's codec pools for ``cores``: a Dask worker given fewer threads than
+    :func:`~tsog_stream.machine.usable_cores` says."""
     _SHARED_POOLS.size_for(max(1, cores))
 
 
@@ -202,15 +173,14 @@ SPLIT_LEAST = 16384
 
 
 def in_two(count: int, part: Callable[[int, int], object], *, least: int = SPLIT_LEAST) -> None:
-    """``part(start, stop)`` over rows [0, ``count``) in two halves, the first on the process's
-    helper thread and the second here (numpy releases the GIL), for work that runs when the
-    other core has nothing left to do: the SH bands' gathers after the last plane of a chunk.
-    Fewer than ``least`` rows are done here at once. The first half's error propagates."""
+    """``part(start, stop)`` over rows [0, ``count``) in two halves, the first on the helper
+    thread (numpy releases the GIL): for work left when the other core is idle, such as the SH
+    gathers after a chunk's last plane. Under ``least`` rows, all here; either error propagates."""
     if count < least:
         part(0, count)
         return
     half = count // 2
-    first = _SHARED_POOLS.get().helping.submit(part, 0, half)
+    first = _SHARED_POOLS.get()["helping"].submit(part, 0, half)
     try:
         part(half, count)
     finally:
@@ -218,26 +188,20 @@ def in_two(count: int, part: Callable[[int, int], object], *, least: int = SPLIT
 
 
 class ImageEncoder:
-    """Encodes images to lossless WebP on the process's encoding threads (one per core), each
-    from the moment it is added: an encoder adds its images as it makes them, so the first
-    ones are compressed while it computes the rest (the WebP of a chunk, encoded all at the
-    end, was 45 % of a .splatv capture's encode time with the main thread idle).
-
-    Leaving it cancels what has not started and waits for the rest, so nothing of it runs on
-    after an error.
-    """
+    """Encodes images to WebP on the process's encoding threads from the moment each is added,
+    so the first are compressed while the rest are computed (encoding all at the end left the
+    main thread idle for 45 % of an encode). Leaving it cancels what has not started and waits
+    for the rest, so nothing runs on after an error."""
 
     def __init__(self) -> None:
-        self._pool = _SHARED_POOLS.get().encoding
+        self._pool = _SHARED_POOLS.get()["encoding"]
         self._files: dict[str, Future[bytes]] = {}
 
     def __enter__(self) -> ImageEncoder:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for future in self._files.values():
-            future.cancel()
-        wait(self._files.values())
+        _cancel_and_wait(self._files.values())
 
     def add(self, images: Mapping[str, U8]) -> None:
         """Start encoding each image (a name added twice is refused: it would be lost)."""
@@ -259,23 +223,20 @@ def encode_many(images: Mapping[str, U8]) -> dict[str, bytes]:
 
 
 class ImageDecoder:
-    """Decodes WebP images on threads and runs work on them as soon as they are ready.
+    """Decodes WebP images on threads and runs work on each set as soon as it is decoded, so
+    one attribute's arithmetic overlaps the next image's decode.
 
-    Pillow and numpy release the GIL, so one attribute's arithmetic overlaps the next image's
-    decode. Images are decoded in the order work asks for them (declare the heaviest work
-    first); work runs on a pool of its own, so waiting for images never holds up a decode.
-    Both pools are the process's (:class:`_SharedPools`); leaving the decoder cancels what of
-    its own has not started and waits for the rest, so nothing of it runs on after an error.
+    Images are decoded in the order work asks for them (declare the costliest first); work
+    waits on a pool of its own, never holding up a decode. Leaving it cancels what has not
+    started and waits for the rest, so nothing runs on after an error.
     """
 
     def __init__(
         self, files: Mapping[str, bytes], *, where: str, sizes: Mapping[str, Size] | None = None
     ) -> None:
-        self._files = files
-        self._where = where
-        self._sizes = sizes or {}
+        self._files, self._where, self._sizes = files, where, sizes or {}
         pools = _SHARED_POOLS.get()
-        self._decoding, self._working = pools.decoding, pools.working
+        self._decoding, self._working = pools["decoding"], pools["working"]
         self._images: dict[str, Future[U8]] = {}
         self._work: list[Future[Any]] = []
 
@@ -283,27 +244,26 @@ class ImageDecoder:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        futures: list[Future[Any]] = [*self._work, *self._images.values()]
-        for future in futures:
-            future.cancel()
-        wait(futures)
+        _cancel_and_wait([*self._work, *self._images.values()])
 
     def then(self, names: Sequence[str], work: Callable[[Mapping[str, U8]], T]) -> Future[T]:
         """``work`` run on the named images once they are decoded (their errors propagate)."""
-        images = {name: self._decode(name) for name in names}
-        future = self._working.submit(
-            lambda: work({name: image.result() for name, image in images.items()})
-        )
-        self._work.append(future)
-        return future
+        for name in names:  # decoding starts on first request
+            if name not in self._images:
+                where, size = f"{self._where}/{name}", self._sizes.get(name)
+                future = self._decoding.submit(
+                    decode_webp, self._files[name], where=where, expected=size
+                )
+                self._images[name] = future
+        images = {name: self._images[name] for name in names}
+        done = self._working.submit(lambda: work({n: f.result() for n, f in images.items()}))
+        self._work.append(done)
+        return done
 
-    def _decode(self, name: str) -> Future[U8]:
-        """The decoding of one image, started on first request (called from one thread)."""
-        if name not in self._images:
-            self._images[name] = self._decoding.submit(
-                decode_webp,
-                self._files[name],
-                where=f"{self._where}/{name}",
-                expected=self._sizes.get(name),
-            )
-        return self._images[name]
+
+def _cancel_and_wait(futures: Any) -> None:
+    """Cancel what has not started, wait for the rest."""
+    futures = list(futures)
+    for future in futures:
+        future.cancel()
+    wait(futures)

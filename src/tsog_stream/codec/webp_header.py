@@ -1,10 +1,8 @@
-"""WebP headers read without decoding: the size an image declares, checked whole before
-libwebp (which allocates the whole canvas when it opens a file) or Pillow sees the bytes, and
-the most bytes an image of a given size may take.
+"""WebP headers read without decoding: an image's declared size, checked whole before libwebp
+(which allocates the canvas on opening) sees the bytes, and the most bytes a size may take.
 
-A RIFF file: ``RIFF``, its size, ``WEBP``, then chunks (kind, size, payload, padded to even).
-A still image's first chunk is ``VP8L`` (lossless), ``VP8 `` (lossy) or ``VP8X`` (extended:
-flags and a canvas size, then optional chunks and one VP8L or VP8 image).
+A RIFF file: ``RIFF``, its size, ``WEBP``, then chunks (kind, size, payload, padded to even);
+a still's first chunk is ``VP8L``, ``VP8 `` or ``VP8X`` (flags, canvas, then one VP8L/VP8).
 """
 
 from __future__ import annotations
@@ -15,35 +13,26 @@ from ..errors import SogError
 Size = tuple[int, int]
 VP8L_SIGNATURE = 0x2F
 WEBP_BYTES_PER_TEXEL = 8
-"""Most bytes a reader accepts per texel of a WebP image: twice what lossless WebP needs for
-incompressible RGBA noise (4.0 bytes a texel, measured from 64x64 up)."""
+"""Most bytes a reader accepts per texel: twice lossless WebP's 4.0 for RGBA noise."""
 WEBP_FIXED_BYTES = 64 << 10
-"""Bytes a WebP may take beyond :data:`WEBP_BYTES_PER_TEXEL` for its headers and code tables
-(a 4x4 image of noise: 158 bytes)."""
-RIFF_HEAD = 12
-"""``RIFF``, the little-endian size of what follows it, ``WEBP``."""
-CHUNK_HEAD = 8
-"""A RIFF chunk's four-letter kind and little-endian payload size."""
+"""Bytes beyond those for headers and code tables (a 4x4 image of noise takes 158)."""
+RIFF_HEAD = 12  # "RIFF", the size of what follows, "WEBP"
+CHUNK_HEAD = 8  # a chunk's four-letter kind and payload size
 VP8X_ANIMATION = 0x02
-"""The VP8X flag of an animated WebP (a chunk's images are stills)."""
 VP8_START_CODE = b"\x9d\x01\x2a"
 MIN_PAYLOAD = {b"VP8X": 10, b"VP8L": 5, b"VP8 ": 10}
 """Fewest payload bytes of each first chunk that carries a size."""
 
 
 def max_webp_bytes(texels: int) -> int:
-    """The most bytes a WebP image of ``texels`` texels may take (see WEBP_BYTES_PER_TEXEL):
-    a member or file above it is refused before it is inflated or read."""
+    """The most bytes a WebP of ``texels`` texels may take: more is refused unread."""
     return WEBP_BYTES_PER_TEXEL * texels + WEBP_FIXED_BYTES
 
 
 def webp_size(data: bytes, *, where: str) -> Size:
-    """(width, height) from the headers of a WebP (VP8, VP8L or VP8X), nothing decoded.
-
-    Read before Pillow sees the bytes: libwebp allocates the whole canvas when it opens a file.
-    The RIFF size must be the file's, the first chunk must fit in it, a VP8X canvas must be
-    the size of the image it holds (not animated), and no side may pass the WebP limit.
-    """
+    """(width, height) from a WebP's headers, nothing decoded: the RIFF size must be the
+    file's, the first chunk must fit, a VP8X canvas (not animated) must be its image's size,
+    and no side may pass the WebP limit."""
     if len(data) < RIFF_HEAD + CHUNK_HEAD or data[:4] != b"RIFF" or data[8:12] != b"WEBP":
         raise SogError("not a WebP image (no RIFF/WEBP signature)", where=where)
     riff = int.from_bytes(data[4:8], "little") + 8
@@ -68,8 +57,7 @@ def webp_size(data: bytes, *, where: str) -> Size:
 
 
 def _chunk(data: bytes, at: int, where: str) -> tuple[bytes, bytes]:
-    """(kind, payload) of the RIFF chunk at ``at``, which must fit in ``data``; a first chunk
-    that carries a size must hold enough bytes for it."""
+    """(kind, payload) of the RIFF chunk at ``at``, which must fit, with room for any size."""
     if at + CHUNK_HEAD > len(data):
         raise SogError(f"ends at byte {len(data)}, inside a chunk header", where=where)
     kind = data[at : at + 4]

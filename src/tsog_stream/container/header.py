@@ -7,7 +7,7 @@ flag bit it does not understand in ``required_flags``; it MAY ignore ``optional_
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from typing import ClassVar, Final
 
 from ..constants import CONTAINER_MAGIC as MAGIC
@@ -18,14 +18,14 @@ VERSION_MINOR: Final = 1
 """1: payloads may start right after an index at offset 128 (a compact container)."""
 HEADER_SIZE: Final = 128
 PREFIX_SIZE: Final = 16 * 1024
-"""What a reader fetches first; the index sits inside it whenever it fits (one request), and
-payloads start here unless the container is compact (they follow the index)."""
+"""What a reader fetches first: the index whenever it fits (one request), then payloads
+(or payloads right after the index in a compact container)."""
 COMPACT_MAX: Final = 4 * 1024 * 1024
-"""Payload bytes up to which writers make a container compact (payloads right after the
-index); beyond them the 16 KiB prefix costs under 0.4 % of the file."""
+"""Payload bytes up to which writers make a container compact: beyond, the 16 KiB prefix
+costs under 0.4 % of the file."""
 KNOWN_REQUIRED_FLAGS: Final = 0
 INDEX_ZSTD: Final = 1
-"""Index compression codes (only zstd is defined)."""
+"""The only index compression code defined."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,21 +45,17 @@ class Header:
     file_length: int
     index_sha256: bytes
 
+    @classmethod
+    def of_index(cls, offset: int, index: tuple[bytes, bytes, int], file_length: int) -> Header:
+        """This version's header for ``index`` (its bytes, the SHA-256 and length of its JSON,
+        as :func:`~.index.encode_index` gives them) at ``offset`` of a ``file_length`` file."""
+        data, sha256, raw_length = index
+        current = (VERSION_MAJOR, VERSION_MINOR, 0, 0, INDEX_ZSTD)
+        return cls(*current, offset, len(data), raw_length, file_length, sha256)
+
     def pack(self) -> bytes:
         """The 128 header bytes."""
-        return self.STRUCT.pack(
-            MAGIC,
-            self.version_major,
-            self.version_minor,
-            self.required_flags,
-            self.optional_flags,
-            self.index_codec,
-            self.index_offset,
-            self.index_length,
-            self.index_raw_length,
-            self.file_length,
-            self.index_sha256,
-        )
+        return self.STRUCT.pack(MAGIC, *astuple(self))
 
     @classmethod
     def unpack(cls, data: bytes, *, where: str = "<container>") -> Header:
@@ -100,8 +96,7 @@ class Header:
             )
 
     def payload_area(self) -> tuple[int, int]:
-        """[start, end) where chunk payloads may lie: after an index that starts inside the
-        first 16 KiB (a compact container's payloads follow it at once, others start at 16 KiB),
+        """[start, end) where chunk payloads may lie: after an index inside the first 16 KiB,
         else from 16 KiB up to the index appended after them."""
         if self.index_offset < PREFIX_SIZE:
             return self.index_offset + self.index_length, self.file_length

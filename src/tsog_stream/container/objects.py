@@ -1,18 +1,11 @@
 """Containers in object storage: ranged reads, and writes that never leave half an object.
 
-Reading: :class:`ObjectSource` is a byte source over one stored object (one ranged GET per
-read), so the client opens an ``s3://`` container with the same one 16 KiB request as a file.
-
-Writing ``s3://``: the container goes up as a multipart upload while it is encoded. Its first
-part (the 16 KiB prefix that the header and index fill at the very end, plus payloads up to
-the part size) stays in memory and is uploaded last, then the upload is completed: the object
-appears whole at that moment or not at all. Any failure (Ctrl-C included) aborts the upload.
-A run killed outright cannot abort it: S3 keeps the parts, invisible, until a bucket lifecycle
-rule (``AbortIncompleteMultipartUpload``) removes them. Memory held: two parts (8 MiB each,
-growing with the object: :func:`part_size`).
-
-Other fsspec stores (``gs://``, ``memory://`` ...) get the container built in a local temp file
-and copied with one ``put_file`` at the end (stores without multipart publish objects whole).
+:class:`ObjectSource` is a byte source over one object (a ranged GET per read). ``s3://`` is
+written as a multipart upload while it is encoded; its first part (the prefix the header and
+index fill at the end) is held and uploaded last, then the upload completed: the object appears
+whole or not at all, any failure aborts it (parts of a killed run stay invisible until a bucket
+rule, ``AbortIncompleteMultipartUpload``, removes them). Memory held: two parts. Other fsspec
+stores get the container built in a local temp file and copied with one ``put_file``.
 """
 
 from __future__ import annotations
@@ -28,8 +21,8 @@ from ..errors import SourceError
 from ..io.files import check_output
 from ..io.objects import ObjectPath, is_object_url, object_at, store_errors
 from .ranges import ByteRange
-from .sources import ReadStats
-from .writer import ContainerFile, PayloadWriter
+from .sources import ReadStats, counted
+from .writer import PayloadWriter, container_file
 
 PART_SIZE = 8 << 20
 """Bytes of the first upload parts (S3 wants at least 5 MiB for every part but the last)."""
@@ -37,8 +30,7 @@ MIN_PART_SIZE = 5 << 20
 MAX_PARTS = 10_000
 """S3's limit on the parts of one upload."""
 PARTS_PER_SIZE = 2_000
-"""Parts written at one size before it doubles: 8 MiB parts would cap an object at 78 GiB;
-doubling every 2000 parts reaches 484 GiB by part 10000 (a container of hours of capture)."""
+"""Parts at one size before it doubles: 484 GiB by part 10000 (8 MiB parts: 78 GiB)."""
 
 
 def part_size(number: int, first: int = PART_SIZE) -> int:
@@ -76,22 +68,12 @@ class ObjectSource:
 
     async def read(self, span: ByteRange) -> bytes:
         """The bytes of ``span`` (a SourceError if the object is shorter)."""
-        data = await asyncio.to_thread(self._cat, span) if span.length else b""
-        if len(data) != span.length:
-            raise SourceError(
-                f"asked for bytes [{span.start}, {span.end}), got {len(data)} bytes",
-                where=self.name,
-            )
-        self.stats.add(len(data))
-        return data
+        return counted(await asyncio.to_thread(self._cat, span) if span.length else b"", span, self)
 
 
 class MultipartObject:
-    """A container written as an S3 multipart upload whose first part is uploaded last.
-
-    A :class:`~tsog_stream.container.writer.Sink`: appends go to the parts; a seek back may only
-    land in the first part (the prefix the header and index are written into at finish).
-    """
+    """A container written as an S3 multipart upload whose first part goes up last: a
+    :class:`~.writer.Sink` whose seeks back may only land in that part."""
 
     def __init__(self, target: ObjectPath, part_size: int = PART_SIZE) -> None:
         if part_size < MIN_PART_SIZE:
@@ -191,10 +173,6 @@ def _multipart(target: ObjectPath) -> Iterator[PayloadWriter]:
     upload = MultipartObject(target)
     try:
         yield PayloadWriter(upload)
-    except BaseException:
-        upload.abort()
-        raise
-    try:
         upload.commit()
     except BaseException:
         upload.abort()
@@ -206,7 +184,7 @@ def _staged(target: ObjectPath) -> Iterator[PayloadWriter]:
     """Build in a local temp file, then copy it to the store in one go."""
     with tempfile.TemporaryDirectory(prefix=".tsogs-upload-") as folder:
         local = os.path.join(folder, target.name or "container.tsogs")
-        with ContainerFile(local) as out:
+        with container_file(local) as out:
             yield out
         with store_errors(str(target), "write"):
             target.fs.put_file(local, target.path)
@@ -217,7 +195,7 @@ def container_output(target: str | os.PathLike[str]) -> Iterator[PayloadWriter]:
     """A container being written to a path or storage URL: published whole on success,
     nothing at the destination on failure."""
     if not is_object_url(target):
-        with ContainerFile(target) as out:
+        with container_file(target) as out:
             yield out
         return
     where = object_at(target)
@@ -245,15 +223,3 @@ def put_objects(base: str, files: dict[str, bytes], *, overwrite: bool) -> None:
             with contextlib.suppress(Exception):
                 root.fs.rm_file(obj.path)
         raise
-
-
-__all__ = [
-    "MAX_PARTS",
-    "MIN_PART_SIZE",
-    "PART_SIZE",
-    "MultipartObject",
-    "ObjectSource",
-    "container_output",
-    "part_size",
-    "put_objects",
-]

@@ -1,9 +1,6 @@
-"""Byte sources: the one interface (size, read a range) every container reader runs on.
-
-An async protocol so that HTTP (the client) fits the same reader as memory and local files;
-local files read in a worker thread. Each source counts requests and bytes for reporting.
-:func:`read_index` opens a container over any of them with one request of at most 16 KiB
-(a second one when the index does not fit that prefix).
+"""Byte sources: the one async interface (size, read a range) every container reader runs on,
+so HTTP, object stores, memory and local files share one reader; each counts its requests and
+bytes. :func:`read_index` opens a container over any of them in one request of <= 16 KiB.
 """
 
 from __future__ import annotations
@@ -49,12 +46,12 @@ class ByteSource(Protocol):
         ...
 
 
-def _checked(data: bytes, span: ByteRange, name: str) -> bytes:
-    """``data`` if it has the span's length, else a SourceError saying what was short."""
+def counted(data: bytes, span: ByteRange, source: ByteSource) -> bytes:
+    """``data``, counted in the source's stats, if it has the span's length; else SourceError."""
     if len(data) != span.length:
-        raise SourceError(
-            f"asked for bytes [{span.start}, {span.end}), got {len(data)} bytes", where=name
-        )
+        found = f"asked for bytes [{span.start}, {span.end}), got {len(data)} bytes"
+        raise SourceError(found, where=source.name)
+    source.stats.add(len(data))
     return data
 
 
@@ -72,9 +69,7 @@ class MemorySource:
 
     async def read(self, span: ByteRange) -> bytes:
         """A slice of the data."""
-        out = _checked(self.data[span.start : span.end], span, self.name)
-        self.stats.add(len(out))
-        return out
+        return counted(self.data[span.start : span.end], span, self)
 
 
 class FileSource:
@@ -86,8 +81,7 @@ class FileSource:
         self.stats = ReadStats()
 
     async def size(self) -> int:
-        """Current size of the file (a FIFO, device or socket is refused: reading it could
-        block forever or never end)."""
+        """Current size of the file (a FIFO, device or socket is refused: it may never end)."""
         try:
             st = await asyncio.to_thread(os.stat, self.path)
         except OSError as exc:
@@ -107,9 +101,7 @@ class FileSource:
             data = await asyncio.to_thread(self._pread, span)
         except OSError as exc:
             raise SourceError(f"cannot read: {exc.strerror}", where=self.name) from exc
-        out = _checked(data, span, self.name)
-        self.stats.add(len(out))
-        return out
+        return counted(data, span, self)
 
 
 async def read_index(source: ByteSource) -> StreamIndex:

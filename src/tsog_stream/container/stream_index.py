@@ -1,8 +1,7 @@
 """An opened container as a pure value: which chunks a time needs and where their bytes are.
 
-Sans-I/O: the functions here take the bytes a reader fetched (the 16 KiB prefix, the index if
-it did not fit, a chunk) and return checked values; :func:`.sources.read_index` does the
-reading over any byte source, :mod:`tsog_stream.client` everything after opening.
+Sans-I/O: bytes a reader fetched (the prefix, the index, a chunk) in, checked values out;
+:func:`.sources.read_index` reads them over any byte source, :mod:`tsog_stream.client` the rest.
 """
 
 from __future__ import annotations
@@ -15,15 +14,14 @@ from functools import cached_property
 from ..errors import InputError, IntegrityError
 from ..model import TIME_EPSILON
 from ..schemas.manifest import ChunkEntry, Manifest, check_layout, parse_manifest
-from .header import INDEX_ZSTD, PREFIX_SIZE, VERSION_MAJOR, VERSION_MINOR, Header
+from .header import PREFIX_SIZE, Header
 from .index import decode_index
 from .ranges import ByteRange
 
 WINDOW_EPSILON = 1e-9
-"""Fraction of a window by which a time just before a window start counts as inside it, so
-t = k * window_s lands in window k despite float rounding. The segmenter assigns Gaussians to
-windows and readers choose windows with this same rule, so a Gaussian starting at t is found
-at t (the web player's manifest.js mirrors it)."""
+"""Fraction of a window by which a time just before its start counts as inside, so that
+t = k * window_s is in window k despite rounding: the segmenter, readers and the player's
+manifest.js share this rule, so a Gaussian starting at t is found at t."""
 MANIFEST = "manifest.json"
 """The index of the unpacked layout (``manifest.json`` + ``chunks/NNNNNN.sog``)."""
 
@@ -40,8 +38,8 @@ class StreamIndex:
 
     @property
     def opening_bytes(self) -> int:
-        """Bytes of the file a reader holds after opening it: the first 16 KiB of a packed
-        container (a compact one's first chunks begin there), nothing of an unpacked one."""
+        """Bytes a reader holds after opening: a packed container's first 16 KiB (a compact
+        one's first chunks begin there)."""
         return min(PREFIX_SIZE, self.size) if self.packed else 0
 
     @property
@@ -71,8 +69,7 @@ class StreamIndex:
         return sum(1 for n in self.manifest.nodes if n.level == 0)
 
     def _window(self, t: float, windows: int) -> int:
-        """The window holding ``t``, by the segmenter's rule (float rounding snapped forward,
-        so t = k * window_s is in window k), clipped to the scene's windows."""
+        """The window holding ``t`` (:data:`WINDOW_EPSILON`), clipped to the scene's."""
         x = (t - self.manifest.scene.start_s) / self.manifest.window_s + WINDOW_EPSILON
         return min(math.floor(min(max(x, 0.0), float(windows))), windows - 1)
 
@@ -90,13 +87,12 @@ class StreamIndex:
         self, start: float, end: float, layers: int | None = None
     ) -> list[ChunkEntry]:
         """Chunks holding Gaussians visible at some time in [start, end], in file order, of
-        the first ``layers`` quality layers (None: all).
+        the first ``layers`` quality layers (None: all); none outside the scene's range, but
+        a static scene shows the same at every time.
 
-        Windows are chosen by index (not by comparing with their stored float edges, which
-        round differently from frame times), so a time is in exactly one window and each
-        Gaussian is shown once; a chunk is kept when its own visible interval meets the query
-        within the evaluation's time tolerance. Nothing is chosen outside the scene's range,
-        except in a static scene (no timeline), which shows the same at every time.
+        Windows are chosen by index, not by their stored float edges (which round unlike frame
+        times), so each Gaussian is shown once; a chunk is kept when its own interval meets
+        the query within the evaluation's tolerance.
         """
         if not (math.isfinite(start) and math.isfinite(end)):
             raise InputError(f"times must be finite numbers of seconds, got [{start}, {end}]")
@@ -130,11 +126,8 @@ class StreamIndex:
 def check_file_length(header: Header, size: int, *, where: str) -> None:
     """The header's file length must be the file's: anything else is truncation or appending."""
     if header.file_length != size:
-        raise IntegrityError(
-            f"header says the file has {header.file_length} bytes, it has {size} (truncated or "
-            "appended to)",
-            where=where,
-        )
+        found = f"header says the file has {header.file_length} bytes, it has {size}"
+        raise IntegrityError(f"{found} (truncated or appended to)", where=where)
 
 
 def index_span(header: Header) -> ByteRange:
@@ -150,29 +143,17 @@ def container_index(header: Header, index_bytes: bytes, *, where: str) -> Stream
 
 
 def unpacked_index(manifest_json: bytes, *, where: str) -> StreamIndex:
-    """The index of an unpacked layout, with header fields describing the container that
-    ``tsog pack`` would build from it (chunks first, then the index)."""
+    """The index of an unpacked layout, with the header ``tsog pack`` would give it."""
     manifest = parse_manifest(manifest_json, where=where)
     end = max((c.offset + c.length for c in manifest.chunks), default=PREFIX_SIZE)
-    header = Header(
-        version_major=VERSION_MAJOR,
-        version_minor=VERSION_MINOR,
-        required_flags=0,
-        optional_flags=0,
-        index_codec=INDEX_ZSTD,
-        index_offset=end,
-        index_length=len(manifest_json),
-        index_raw_length=len(manifest_json),
-        file_length=end + len(manifest_json),
-        index_sha256=hashlib.sha256(manifest_json).digest(),
-    )
+    index = (manifest_json, hashlib.sha256(manifest_json).digest(), len(manifest_json))
+    header = Header.of_index(end, index, end + len(manifest_json))
     return StreamIndex(header, manifest, where, packed=False)
 
 
 def verify_chunk(chunk: ChunkEntry, data: bytes, *, where: str) -> bytes:
     """``data`` if its SHA-256 matches the index, else IntegrityError naming the chunk."""
     if hashlib.sha256(data).hexdigest() != chunk.sha256:
-        raise IntegrityError(
-            f"chunk {chunk.id} does not match its SHA-256 in the index", where=where
-        )
+        found = f"chunk {chunk.id} does not match its SHA-256 in the index"
+        raise IntegrityError(found, where=where)
     return data

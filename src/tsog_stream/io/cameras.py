@@ -1,9 +1,10 @@
 """Capture cameras from the files trainers leave: 3DGS ``cameras.json`` and COLMAP models.
 
 A COLMAP model is ``cameras`` (intrinsics) plus ``images`` (one pose per registered image),
-both ``.txt`` or both ``.bin``, usually in ``sparse/0``. Poses are world-to-camera
-(quaternion w, x, y, z and translation); each becomes a :class:`CaptureCamera` (camera centre
-and camera-to-world rotation), in image-name order as 3DGS orders them. Lens distortion is not
+both ``.txt`` or both ``.bin``, usually in ``sparse/0``. Each COLMAP camera is read as a
+:class:`~tsog_stream.schemas.cameras.Camera` standing at the origin; each pose
+(world-to-camera quaternion w, x, y, z and translation) places its camera (camera centre and
+camera-to-world rotation), in image-name order as 3DGS orders them. Lens distortion is not
 kept (the renderers are pinhole). Every count and length is checked against the bytes left
 before anything is allocated; the 2D points of ``images`` are skipped, never held.
 
@@ -27,9 +28,9 @@ from typing import Any, BinaryIO, Final
 
 import numpy as np
 
-from ..constants import MAX_CAMERA_FILE_BYTES, MAX_CAMERAS
+from ..constants import MAX_CAMERA_FILE_BYTES, MAX_CAMERA_SIDE, MAX_CAMERAS
 from ..errors import FormatError, InputError, SourceError
-from ..schemas.cameras import CaptureCamera, HeaderCamera, cameras_from_json
+from ..schemas.cameras import Camera, HeaderCamera, cameras_from_json
 from .files import open_regular, read_head
 from .splatv import read_splatv_cameras
 
@@ -68,25 +69,15 @@ CAMERA_RECORD: Final = struct.Struct("<iiQQ")
 IMAGE_RECORD: Final = struct.Struct("<i7di")
 POINT2D_BYTES: Final = 24
 COUNT: Final = struct.Struct("<Q")
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """One COLMAP camera: size, focal lengths and principal point in pixels."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
+AT_ORIGIN: Final = ((0.0, 0.0, 0.0), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
+"""(position, rotation) of a COLMAP camera before an image places it."""
 
 
 @dataclass(frozen=True)
 class FoundCameras:
     """Cameras read from a file, where they came from, and what was left out."""
 
-    cameras: list[CaptureCamera]
+    cameras: list[Camera]
     source: str
     notes: list[str]
 
@@ -133,7 +124,7 @@ def find_cameras(input_path: str | os.PathLike[str]) -> FoundCameras | None:
     return None
 
 
-def parse_cameras_json(data: bytes, *, where: str) -> list[CaptureCamera]:
+def parse_cameras_json(data: bytes, *, where: str) -> list[Camera]:
     """The cameras of a 3DGS ``cameras.json`` held in memory: a JSON list parsed an entry at
     a time, refused at its MAX_CAMERAS + 1st entry (parsed whole, a few MB of ``{}`` entries
     take gigabytes first)."""
@@ -248,8 +239,8 @@ class Pose:
     qvec: tuple[float, float, float, float]
     tvec: tuple[float, float, float]
 
-    def camera(self, intrinsics: dict[int, Intrinsics], *, where: str) -> CaptureCamera:
-        """The capture camera of this image."""
+    def camera(self, intrinsics: dict[int, Camera], *, where: str) -> Camera:
+        """``intrinsics``' camera of this image, placed where the image was taken."""
         k = intrinsics.get(self.camera_id)
         if k is None:
             raise FormatError(
@@ -262,7 +253,7 @@ class Pose:
         c2w = w2c.T
         centre = -c2w @ np.array(self.tvec)
         try:
-            return CaptureCamera(
+            return Camera(
                 name=self.name[:255],
                 width=k.width,
                 height=k.height,
@@ -289,8 +280,8 @@ def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
     )
 
 
-def _intrinsics(model: str, width: int, height: int, params: list[float], where: str) -> Intrinsics:
-    """The pinhole part of a COLMAP camera's parameters."""
+def _intrinsics(model: str, width: int, height: int, params: list[float], where: str) -> Camera:
+    """The pinhole part of a COLMAP camera's parameters, the camera standing at the origin."""
     if not all(map(math.isfinite, params)):
         raise FormatError(f"{model} camera has non-finite parameters", where=where)
     if model in ONE_FOCAL:
@@ -298,15 +289,18 @@ def _intrinsics(model: str, width: int, height: int, params: list[float], where:
         fx = fy = f
     else:
         fx, fy, cx, cy = params[:4]
-    if not (0 < width <= 1 << 16 and 0 < height <= 1 << 16 and fx > 0 and fy > 0):
+    if not (0 < width <= MAX_CAMERA_SIDE and 0 < height <= MAX_CAMERA_SIDE and fx > 0 and fy > 0):
         raise FormatError(f"{model} camera has a bad size or focal length", where=where)
-    return Intrinsics(width, height, fx, fy, cx, cy)
+    position, rotation = AT_ORIGIN
+    return Camera(
+        width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy, position=position, rotation=rotation
+    )
 
 
-def parse_colmap_cameras_text(text: str, *, where: str) -> dict[int, Intrinsics]:
+def parse_colmap_cameras_text(text: str, *, where: str) -> dict[int, Camera]:
     """``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS...`` per line, ``#`` comments."""
     by_name = {name: count for name, count in COLMAP_MODELS.values()}
-    out: dict[int, Intrinsics] = {}
+    out: dict[int, Camera] = {}
     lines = io.StringIO(text, newline=None)  # a line at a time, never a list of them
     for number, line in enumerate(lines, 1):
         fields = line.split()
@@ -390,13 +384,13 @@ def _remaining(f: BinaryIO) -> int:
     return end - here
 
 
-def parse_colmap_cameras_bin(f: BinaryIO, *, where: str) -> dict[int, Intrinsics]:
+def parse_colmap_cameras_bin(f: BinaryIO, *, where: str) -> dict[int, Camera]:
     """``cameras.bin``: uint64 count, then per camera int32 id, int32 model, uint64 width,
     uint64 height and the model's float64 parameters."""
     (count,) = COUNT.unpack(_read_exactly(f, COUNT.size, where))
     if count > min(MAX_IMAGES, _remaining(f) // CAMERA_RECORD.size):
         raise FormatError(f"declares {count} cameras, more than its bytes can hold", where=where)
-    out: dict[int, Intrinsics] = {}
+    out: dict[int, Camera] = {}
     for _ in range(count):
         cid, model_id, width, height = CAMERA_RECORD.unpack(
             _read_exactly(f, CAMERA_RECORD.size, where)
@@ -444,7 +438,7 @@ def cameras_for_input(
     input_path: str | os.PathLike[str],
     *,
     explicit: str | os.PathLike[str] | None = None,
-    own: list[CaptureCamera] | None = None,
+    own: list[Camera] | None = None,
 ) -> FoundCameras | None:
     """The cameras an input goes with: ``explicit`` (``--cameras``; its errors are the
     caller's), else those the input carries (``own``, a format's header: marked as
@@ -453,7 +447,7 @@ def cameras_for_input(
     if explicit is not None:
         return read_cameras(explicit)
     if own:
-        header: list[CaptureCamera] = [HeaderCamera.of(camera) for camera in own]
+        header: list[Camera] = [HeaderCamera.of(camera) for camera in own]
         return FoundCameras(header, f"{os.fspath(input_path)} (its own)", [])
     try:
         return find_cameras(input_path)

@@ -1,26 +1,11 @@
 """PlayCanvas "compressed PLY" (SuperSplat, splat-transform): packed chunks -> Gaussians.
 
-Layout, one ``chunk`` row per 256 consecutive vertices:
-
-* ``chunk``: float min_x, min_y, min_z, max_x, max_y, max_z, min/max_scale_x..z (log scale),
-  and optionally min/max_r, g, b (colour bounds).
-* ``vertex``: uint32 ``packed_position`` (11/10/11 bits x, y, z within the chunk bounds),
-  ``packed_rotation`` (top 2 bits: index of the largest quaternion component; then 3 x 10 bits,
-  the other components in order, each mapped from [0, 1] to [-1/sqrt2, 1/sqrt2]; the largest is
-  rebuilt as the positive root, and components are w, x, y, z = rot_0..3), ``packed_scale``
-  (11/10/11 bits within the scale bounds) and ``packed_color`` (8 bits each r, g, b, alpha).
-* optional ``sh``: uchar f_rest_0..3K-1, channel-major like plain PLY.
-
-Formulas (checked attribute by attribute against @playcanvas/splat-transform 3.7.0 in
-``tests/test_compressed_ply.py``): unorm(v, bits) = v / (2^bits - 1); lerp(a, b, t) =
-a (1 - t) + b t in float64, rounded once to float32 like the reference; f_dc = (colour - 0.5) /
-SH_C0; opacity = logit(alpha / 255); f_rest = 8 (u - 0.5) with u = 0 for byte 0, 1 for byte 255,
-else (byte + 0.5) / 256.
-
-Decision: the reference turns alpha bytes 0 and 255 into -inf and +inf. We clamp alpha to
-[ALPHA_EPS, 1 - ALPHA_EPS] (logits of about -13.8 and +13.8): finite, and sigmoid of the result
-still quantises back to the same byte. The count of clamped values is given in a note.
-"""
+One ``chunk`` row (position, log-scale and optional colour bounds) per 256 vertices; each vertex
+packs position and scale (11/10/11 bits within the bounds), a smallest-three rotation and
+rgba bytes into uint32s; an optional ``sh`` element holds f_rest as bytes. The formulas follow
+@playcanvas/splat-transform 3.7.0 (checked attribute by attribute in
+tests/test_compressed_ply.py), except that alpha bytes 0 and 255 give logits of +-13.8 (noted),
+not the reference's infinities."""
 
 from __future__ import annotations
 

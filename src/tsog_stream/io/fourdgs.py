@@ -1,23 +1,10 @@
 """.4dgs files (the 4dgs container of Avala AI) <-> Scene, through the optional ``fourdgs`` package.
 
-The 4dgs model (temporal model "gaussian-birth", format version 1): every Gaussian has a
-position at its temporal centre ``mu_t`` (seconds), a velocity (units per second), a temporal
-``sigma_t`` (seconds; +inf = never fades), a hard validity window ``[win_lo, win_hi)``
-(seconds) and static scale (linear), rotation (x, y, z, w), colour (rgb = 0.5 + SH_C0 f_dc,
-clipped to [0, 1]), alpha and SH coefficients stored as bytes on [-4, 4]. At time t it is
-visible when ``win_lo <= t < win_hi`` and m = exp(-1/2 ((t - mu_t) / sigma_t)^2) >= the file's
-``cutoff`` (default 0.05); its opacity is alpha m and its centre position + velocity (t - mu_t).
-There are no frames and no fps.
-
-Reading gives type 2 (centre = mu_t, scale = sigma_t, s; velocity = order-1 ``means``), or
-type 1 (the windows, exact) when no Gaussian fades. Writing maps type 2 directly (cutoff 1/255,
-no windows) and types 0/1 to windows of never-fading Gaussians (exact; read back as type 1).
-Temporal coefficients beyond linear motion are refused unless ``lossy=True`` drops them. What
-is lost each way: docs/inputs-sequences-4dgs.md and the returned notes.
-
-``fourdgs`` is imported lazily, so this module imports without it; its exceptions are
-translated into :mod:`tsog_stream.errors` at this boundary.
-"""
+Reading gives type 2 (centre = mu_t, scale = sigma_t, velocity = order-1 ``means``), or type 1
+(the windows, exact) when no Gaussian fades; writing maps type 2 directly and types 0/1 to
+windows of never-fading Gaussians, refusing motion beyond linear unless ``lossy=True``. The
+model and what is lost each way: docs/inputs.md, "`.4dgs`", and the returned notes.
+``fourdgs`` is imported on first use; its exceptions become :mod:`tsog_stream.errors` here."""
 
 from __future__ import annotations
 

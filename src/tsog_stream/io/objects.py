@@ -158,20 +158,9 @@ class ObjectPath:
     def __truediv__(self, name: str) -> ObjectPath:
         return ObjectPath(self.fs, f"{self.path}/{name}", f"{self.url}/{name}")
 
-    @property
-    def name(self) -> str:
-        """The last part of the path."""
-        return PurePosixPath(self.path).name
-
-    @property
-    def stem(self) -> str:
-        """The name without its last suffix."""
-        return PurePosixPath(self.path).stem
-
-    @property
-    def suffix(self) -> str:
-        """The last suffix of the name (with its dot)."""
-        return PurePosixPath(self.path).suffix
+    name = property(lambda self: PurePosixPath(self.path).name, doc="The last part of the path.")
+    stem = property(lambda self: PurePosixPath(self.path).stem, doc="The name without its suffix.")
+    suffix = property(lambda self: PurePosixPath(self.path).suffix, doc="The name's last suffix.")
 
     @property
     def parent(self) -> ObjectPath:

@@ -1,28 +1,12 @@
-"""Plain 3DGS PLY files: bytes <-> :class:`~tsog_stream.model.Gaussians` (sans-I/O core).
+"""Plain 3DGS PLY files: bytes <-> :class:`~tsog_stream.model.Gaussians`.
 
-:func:`parse_ply` maps the ``vertex`` element of the standard 3DGS layout (x y z, f_dc_0..2,
-f_rest_*, opacity, scale_0..2, rot_0..3; any order, any numeric type, ASCII or binary of either
-byte order) to float32 Gaussians with one vectorised gather. :func:`ply_bytes` writes the layout
-every 3DGS tool reads: binary little-endian, all float, normals as zeros. :func:`read_ply` (a
-binary file a block of rows at a time, never whole, to what :func:`parse_ply` gives) and
-:func:`write_ply` are the only functions here that touch files; :func:`write_ply` publishes
-atomically (temporary file in the target folder, then ``os.replace``).
-
-Decisions:
-
-* **Trailing bytes are a note, not an error.** A body longer than the header declares (the real
-  ``cvlab_pc_short.ply`` declares 100 vertices and then holds 14029 more bytes) is read as
-  declared: those rows are complete and intact, the header is the contract, and rejecting the
-  file would help nobody. A body *shorter* than declared is a :class:`PlyError`.
-* **Non-finite values are kept as read** and counted in a note; later stages decide what to do.
-  Absurd finite values (beyond a bound of their kind) are what a wrong byte order in the
-  header gives: many refuse the file, naming the property, a few are clamped
-  (:mod:`~tsog_stream.io.ply_values`).
-* Normals (nx, ny, nz) are ignored. Every other unmapped vertex property is returned in
-  :attr:`PlyContents.extra` (e.g. FreeTimeGS's ``t`` and ``motion_*``) and listed in a note.
-* PlayCanvas compressed PLY is recognised from its header and decoded by
-  :mod:`~tsog_stream.io.compressed_ply`, so :func:`parse_ply` reads both kinds.
-"""
+:func:`parse_ply` maps the standard 3DGS ``vertex`` layout (any property order, any numeric
+type, ASCII or binary of either byte order; PlayCanvas compressed PLY too) to float32 Gaussians;
+:func:`read_ply` reads a binary file a block of rows at a time, never whole; :func:`ply_bytes`
+and :func:`write_ply` (atomic) write the layout every 3DGS tool reads. Bytes past the declared
+rows are a note (the header is the contract), fewer are a PlyError; non-finite values are kept
+and noted, absurd ones refused or clamped (:mod:`~tsog_stream.io.ply_values`); normals are
+ignored and other properties kept as :attr:`PlyContents.extra`."""
 
 from __future__ import annotations
 

@@ -1,18 +1,10 @@
 """PLY container: the text header and the element bodies it describes (sans-I/O, bytes only).
 
-:func:`parse_header` reads ``format`` (ascii, binary_little_endian, binary_big_endian 1.0),
-``element`` and ``property`` lines (every scalar type name and its sized alias, plus ``list``
-properties), ``comment`` and ``obj_info``. :func:`element_dtype` gives the numpy structured dtype
-of an element, and :func:`read_elements` locates every element of the body by byte offset
-(binary) or value offset (ASCII) and decodes the requested ones with one vectorised call each.
-
-Safety: the header must end within :data:`MAX_HEADER_BYTES`, and every declared count is checked
-against the bytes actually present *before* anything is allocated, so a 100-byte file that
-declares 10^12 vertices fails at once with :class:`PlyError`.
-
-Elements with ``list`` properties (mesh faces) have no fixed row size, so they and every element
-after them are skipped with a note; asking to decode one raises :class:`UnsupportedError`.
-"""
+:func:`parse_header` reads ``format`` (ascii, binary little/big endian 1.0), ``element``,
+``property`` (every scalar type and its sized alias, and ``list``), ``comment`` and
+``obj_info``; :func:`read_elements` locates the body's elements and decodes the wanted ones with
+one vectorised call each. Every declared count is checked against the bytes present before
+anything is allocated. Elements from the first one with a list property on are skipped (noted)."""
 
 from __future__ import annotations
 
@@ -34,22 +26,18 @@ MAX_COUNT_DIGITS: Final = 18
 """Longest element count accepted (10^18 rows is far beyond any file)."""
 
 PLY_TYPES: Final[Mapping[str, str]] = {
-    "char": "i1",
-    "int8": "i1",
-    "uchar": "u1",
-    "uint8": "u1",
-    "short": "i2",
-    "int16": "i2",
-    "ushort": "u2",
-    "uint16": "u2",
-    "int": "i4",
-    "int32": "i4",
-    "uint": "u4",
-    "uint32": "u4",
-    "float": "f4",
-    "float32": "f4",
-    "double": "f8",
-    "float64": "f8",
+    name: code
+    for code, names in {
+        "i1": "char int8",
+        "u1": "uchar uint8",
+        "i2": "short int16",
+        "u2": "ushort uint16",
+        "i4": "int int32",
+        "u4": "uint uint32",
+        "f4": "float float32",
+        "f8": "double float64",
+    }.items()
+    for name in names.split()
 }
 """PLY scalar type names (classic and sized aliases) -> numpy type codes without byte order."""
 

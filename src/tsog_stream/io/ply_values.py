@@ -1,19 +1,8 @@
-"""Plausible values of a 3DGS PLY's float properties: a header that names the wrong byte order
-(or a damaged body) is refused at the input, naming the property, instead of its garbage
-reaching the encoder or the renderer.
-
-A float read in the wrong byte order takes its exponent from a mantissa byte: about 40 % of
-such values land beyond :data:`BOUNDS`, where no trainer writes (every real capture of
-tests/data stays far inside them, and each of them byte-swapped is refused: tests/test_ply.py).
-So:
-
-* **Refused**: a property with absurd values (finite, beyond its kind's bound) in more than
-  :data:`REFUSE_SHARE` of its rows: a PlyError naming it and, for a binary file, its format.
-* **Clamped**: fewer (a diverged Gaussian here and there) are clamped to the bound and counted
-  in a note, so later arithmetic (``exp`` of a log scale or a logit) stays finite.
-* **Kept**: non-finite values, as read and noted (``ply_columns.nonfinite_notes``): -inf log scales
-  are flat splats, NaN rotations the identity, and the encoder names NaN positions.
-"""
+"""Plausible values of a 3DGS PLY's float properties: a header naming the wrong byte order (or
+a damaged body) is refused at the input, naming the property, instead of its garbage reaching
+the encoder. About 40 % of floats read in the wrong byte order land beyond :data:`BOUNDS`: a
+property with absurd values in more than :data:`REFUSE_SHARE` of its rows is refused, fewer
+are clamped to the bound (noted); non-finite values are kept (``ply_columns.nonfinite_notes``)."""
 
 from __future__ import annotations
 

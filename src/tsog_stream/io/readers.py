@@ -9,13 +9,13 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Final, Literal
 
 from ..codec.bundle import is_zip
 from ..constants import is_container
 from ..errors import InputError, UnsupportedError
 from ..model import Scene
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from .cameras import cameras_for_input
 from .chunks import is_unbundled, read_chunk
 from .compressed_ply import is_compressed_ply
@@ -36,17 +36,8 @@ from .ply_header import parse_header
 from .sequence import DEFAULT_FPS, detect_sequence, read_ply_sequence, read_sog_sequence
 from .splatv import parse_splatv, sniff_splatv
 
-FORMATS = (
-    "ply",
-    "compressed-ply",
-    "sog",
-    "ply-sequence",
-    "sog-sequence",
-    "freetimegs-ply",
-    "freetimegs-npz",
-    "splatv",
-    "4dgs",
-)
+FORMATS: tuple[str, ...] = ("ply", "compressed-ply", "sog", "ply-sequence", "sog-sequence")
+FORMATS += ("freetimegs-ply", "freetimegs-npz", "splatv", "4dgs")
 """Input formats this version reads (``--format`` values)."""
 STREAMS = ("tsogs", "tsogs-dir")
 """Segmented streams (a container file or its unpacked folder); detected, not loaded whole."""
@@ -75,18 +66,14 @@ class LoadedScene:
     scene: Scene
     format: str
     notes: list[str] = field(default_factory=list)
-    cameras: list[CaptureCamera] = field(default_factory=list)
+    cameras: list[Camera] = field(default_factory=list)
     """Capture cameras: given with ``cameras=``, carried by the file, or found beside it."""
     cameras_source: str = ""
     """Where the cameras were read ("" without cameras)."""
     duration_assumed: bool = False
-    """The scene's length was assumed, not read (a ``.splatv`` read without ``duration_s``:
-    1 s); a container made of it says so (``SceneInfo.duration_assumed``)."""
-
-
-def _is_glob(path: str | os.PathLike[str]) -> bool:
-    """True for a sequence pattern such as ``frames/frame_*.ply``."""
-    return any(c in str(path) for c in "*?[")
+    """The scene's length was assumed, not read (a ``.splatv`` or FreeTimeGS input read without
+    its length: 1 s, :func:`length_flag` sets it); a container made of it says so
+    (``SceneInfo.duration_assumed``)."""
 
 
 def _detect_file(p: Location) -> str:
@@ -127,7 +114,7 @@ def _zip_format(p: Location) -> str:
 
 def detect_format(path: str | os.PathLike[str]) -> str:
     """The format name of the file, folder or glob pattern at ``path``, from its content."""
-    if _is_glob(path):
+    if any(c in str(path) for c in "*?["):  # a glob pattern of frames
         kind = detect_sequence(str(path))
         if kind is None:
             raise InputError("the pattern matches no numbered frames", where=str(path))
@@ -169,14 +156,23 @@ def _read_4d(kind: str, path: str, options: ReadOptions, progress: Progress | No
     return parse_4dgs(data, name=path)
 
 
+APPLIES: Final = {
+    "fps": ("ply-sequence", "sog-sequence"),
+    "duration_s": ("splatv",),
+    "scene_length_s": ("freetimegs-ply", "freetimegs-npz"),
+}
+"""Each per-format read option and the input kinds it applies to."""
+
+
+def length_flag(kind: str) -> str:
+    """The command-line option that sets the length of an input of ``kind`` when its file does
+    not say it (what a "(assumed: pass ...)" hint names)."""
+    return "--scene-length-s" if kind in APPLIES["scene_length_s"] else "--duration-s"
+
+
 def _check_options(kind: str, options: ReadOptions) -> None:
     """Refuse options that do not apply to the input, rather than ignore them silently."""
-    applies = {
-        "fps": ("ply-sequence", "sog-sequence"),
-        "duration_s": ("splatv",),
-        "scene_length_s": ("freetimegs-ply", "freetimegs-npz"),
-    }
-    for option, kinds in applies.items():
+    for option, kinds in APPLIES.items():
         if getattr(options, option) is not None and kind not in kinds:
             flag = "--" + option.replace("_", "-")
             raise InputError(

@@ -1,25 +1,9 @@
 """Frame sequences: numbered per-frame PLY or SOG files -> one type-0 (frame id) Scene.
 
-A sequence is a folder (or a glob pattern such as ``"frames/frame_*.ply"``) of files whose
-names carry a frame number. Frames are ordered by a *natural* sort of their names (``frame_2``
-before ``frame_10``), and frame id = position in that order, so ids are always 0..F-1.
-The kind of each file is told by its magic bytes (``ply`` or a zip), not by its extension;
-a subfolder holding ``meta.json`` counts as an unbundled SOG frame.
-
-Decisions:
-
-* **Gaps in the numbering are noted, not kept.** ``frame_7`` followed by ``frame_10`` gives
-  consecutive ids 6 and 7: a missing file is far more often a dropped export than an intended
-  pause, and keeping the numbers would make empty frames that render nothing.
-* **Mixed SH degrees are padded to the highest degree** with zero coefficients (and noted):
-  a Scene and a SOG chunk hold one degree for all Gaussians, zero higher bands render exactly
-  like the lower degree, and truncating would throw away the richer frames' view dependence.
-* **fps is not stored in PLY or SOG files**; it comes from the caller (default
-  :data:`DEFAULT_FPS`), is recorded in the timeline, and scene_length = F / fps.
-* **Memory**: counts and SH degrees come from a header pass (PLY headers, SOG meta.json), the
-  output arrays are allocated once and filled frame by frame, so the peak is the result plus
-  one frame being decoded. Per-frame extra PLY properties are not kept.
-"""
+A folder or glob pattern of files whose names carry a frame number, in natural order (frame id
+= position: gaps noted, not kept), each told PLY or SOG by its magic bytes; mixed SH degrees are
+padded to the highest. Headers are read first, so the output is allocated once and filled frame
+by frame (peak: the result plus one frame). Decisions: docs/inputs.md, "Frame sequences"."""
 
 from __future__ import annotations
 
@@ -186,6 +170,9 @@ def detect_sequence(path: Source) -> str | None:
     return None
 
 
+_FIELDS: Final = ("means", "scales", "quats", "opacities", "sh0", "shN")
+
+
 class FrameStack:
     """Output arrays allocated once from per-frame (count, SH coefficients), filled in order."""
 
@@ -193,43 +180,31 @@ class FrameStack:
         self.counts = list(counts)
         self.offsets = np.concatenate([[0], np.cumsum(self.counts, dtype=np.int64)])
         total, k = int(self.offsets[-1]), max([*coeffs, pad_to])
-        self.means = np.empty((total, 3), np.float32)
-        self.scales = np.empty((total, 3), np.float32)
-        self.quats = np.empty((total, 4), np.float32)
-        self.opacities = np.empty(total, np.float32)
-        self.sh0 = np.empty((total, 3), np.float32)
-        self.shN = np.zeros((total, k, 3), np.float32)
+        tails = ((3,), (3,), (4,), (), (3,), (k, 3))
+        self.arrays = {
+            n: np.zeros((total, *t), np.float32) for n, t in zip(_FIELDS, tails, strict=True)
+        }
 
     def put(self, index: int, g: Gaussians, where: str) -> None:
-        """Copy frame ``index``; its size must match what its header declared."""
+        """Copy frame ``index``; its size must match what its header declared. The one frame
+        of a one-frame stack is taken as read, never held twice."""
         a, b = int(self.offsets[index]), int(self.offsets[index + 1])
-        if len(g) != b - a or g.shN.shape[1] > self.shN.shape[1]:
+        k = g.shN.shape[1]
+        if len(g) != b - a or k > self.arrays["shN"].shape[1]:
             raise IntegrityError(
-                f"header declared {b - a} Gaussians, decoding gave {len(g)} "
-                f"(SH coefficients {g.shN.shape[1]})",
+                f"header declared {b - a} Gaussians, decoding gave {len(g)} (SH coefficients {k})",
                 where=where,
             )
-        if len(self.counts) == 1 and self._takes(g):
-            self.means, self.scales, self.quats = g.means, g.scales, g.quats
-            self.opacities, self.sh0, self.shN = g.opacities, g.sh0, g.shN
+        theirs = {n: getattr(g, n) for n in _FIELDS}
+        if len(self.counts) == 1 and all(
+            x.shape == y.shape and x.dtype == y.dtype and y.flags.c_contiguous
+            for x, y in zip(self.arrays.values(), theirs.values(), strict=True)
+        ):
+            self.arrays = theirs
             return
-        self.means[a:b] = g.means
-        self.scales[a:b] = g.scales
-        self.quats[a:b] = g.quats
-        self.opacities[a:b] = g.opacities
-        self.sh0[a:b] = g.sh0
-        self.shN[a:b, : g.shN.shape[1]] = g.shN
-
-    def _takes(self, g: Gaussians) -> bool:
-        """Whether the one frame's arrays can be the stack's own, as read (a window of one
-        frame held it twice while it was copied: a 500k SH3 frame's worker 3.1x the frame
-        above its start, with the file's bytes)."""
-        mine = (self.means, self.scales, self.quats, self.opacities, self.sh0, self.shN)
-        theirs = (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN)
-        return all(
-            a.shape == b.shape and a.dtype == b.dtype and b.flags.c_contiguous
-            for a, b in zip(mine, theirs, strict=True)
-        )
+        for name in _FIELDS[:-1]:
+            self.arrays[name][a:b] = theirs[name]
+        self.arrays["shN"][a:b, :k] = g.shN
 
     def scene(
         self,
@@ -240,7 +215,6 @@ class FrameStack:
     ) -> Scene:
         """The type-0 scene: frame id = first + position (or the frames' ``numbers``, for frames
         not in a run), scene_length = total frames / fps."""
-        g = Gaussians(self.means, self.scales, self.quats, self.opacities, self.sh0, self.shN)
         frames = len(self.counts)
         given = range(first, first + frames) if numbers is None else numbers
         ids = np.repeat(np.asarray(given, dtype=np.float64), self.counts)
@@ -248,7 +222,7 @@ class FrameStack:
         timeline = Timeline(
             TimelineType.FRAME, ids, np.zeros_like(ids), fps=fps, scene_length=length
         )
-        return Scene(g, timeline)
+        return Scene(Gaussians(**self.arrays), timeline)
 
 
 def _check_fps(fps: float) -> float:
@@ -455,16 +429,18 @@ def read_ply_sequence(
     source: Source, *, fps: float = DEFAULT_FPS, progress: Progress | None = None
 ) -> Loaded4D:
     """Read numbered per-frame 3DGS PLYs as one type-0 scene (frame k's Gaussians in file order)."""
-    seq = open_sequence(source, fps=fps, kind="ply")
-    loaded = seq.read(progress=progress)
-    return Loaded4D(loaded.scene, seq.notes() + loaded.notes)
+    return _read_all(open_sequence(source, fps=fps, kind="ply"), progress)
 
 
 def read_sog_sequence(
     source: Source, *, fps: float = DEFAULT_FPS, progress: Progress | None = None
 ) -> Loaded4D:
     """Read numbered SOG frames (.sog zips or chunk folders) as one type-0 scene."""
-    seq = open_sequence(source, fps=fps, kind="sog")
+    return _read_all(open_sequence(source, fps=fps, kind="sog"), progress)
+
+
+def _read_all(seq: FrameSequence, progress: Progress | None) -> Loaded4D:
+    """Every frame of ``seq``, the sequence's notes before the frames'."""
     loaded = seq.read(progress=progress)
     return Loaded4D(loaded.scene, seq.notes() + loaded.notes)
 

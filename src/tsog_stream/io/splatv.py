@@ -1,43 +1,10 @@
 """splaTV ``.splatv`` files (Spacetime Gaussians for the web) -> a type-2 :class:`Scene`.
 
-Layout (all little-endian): uint32 magic ``0x674B``, uint32 JSON length, a UTF-8 JSON list of
-chunks ``{"type", "size", ...}`` whose bodies follow the JSON in list order. The ``splat`` chunk
-is the viewer's RGBA32UI texture, 64 bytes (4 texels) per Gaussian:
-
-====== =========== ===========================================================================
-offset type        field
-====== =========== ===========================================================================
-0      f32 x3      position x, y, z
-12     f16 x4      rotation w, x, y, z (raw, not unit length)
-20     f16 x3 + 2  scale (linear sigma: the converter stores ``exp(scale_i)``), padding
-28     u8 x4       r, g, b (= clamp(f_dc * 255): the viewer's colour), a = sigmoid(opacity)*255
-32     f16 x9 + 2  motion: linear x, y, z, then quadratic x, y, z, then cubic x, y, z; padding
-52     f16 x4      omega: rotation rate (w, x, y, z) per unit time
-60     f16 x2      trbf centre, ``exp(trbf_scale)`` = s
-====== =========== ===========================================================================
-
-The viewer (antimatter15/splaTV ``main.js``/``hybrid.js`` vertex shader) evaluates, with
-dt = t - centre and t in [0, 1]: position + m1 dt + m2 dt^2 + m3 dt^3, normalize(rotation +
-omega dt), alpha * exp(-(dt / s)^2), and skips the Gaussian below 0.02. Spacetime Gaussians'
-training code uses the same equations. Mapping to TSOG (docs/inputs.md, "splaTV .splatv"):
-
-* **Time unit.** splaTV time is normalised to [0, 1] over the clip and no clip length is
-  stored (the viewer plays ``0.5 + 0.5 sin(seconds)``). One normalised unit becomes
-  ``duration_s`` seconds (default 1.0), which is also the scene length; times and coefficients
-  are converted once: centre * D, coefficient_k / D^k.
-* **Temporal opacity.** exp(-(dt/s)^2) = exp(-1/2 (dt/sigma)^2) with sigma = s / sqrt(2).
-* Base values are the values at the centre (timeline type 2, t_ref = centre): means with
-  temporal order 3, quats with temporal order 1 (4 channels); an all-zero attribute is omitted.
-* Scales become ln(scale); colour c = byte / 255 becomes f_dc = (c - 0.5) / SH_C0; alpha
-  bytes become logits, clamped to [ALPHA_EPS, 1 - ALPHA_EPS] like compressed PLY.
-
-Dropped, each counted in a note: non-finite positions (a known quirk of the macaburguera
-files) or other non-finite fields; ``s <= 0`` (never visible, e.g. zero padding records).
-Repaired, counted: ``s = +inf`` (f16 overflow of exp) becomes the largest f16; zero scales
-become the smallest f16 (2^-24); a zero rotation (20-95 % of three macaburguera files, kept
-at zero by training, where it renders as the identity) becomes the identity, or its rotation
-rate when it has one (q(t) = omega dt is then the same rotation at every t != 0).
-"""
+Layout (little-endian): uint32 magic ``0x674B``, uint32 JSON length, a JSON list of chunks
+``{"type", "size", ...}`` whose bodies follow in list order; the ``splat`` chunk holds 64-byte
+records (:data:`RECORD`). Time is normalised to [0, 1]: one unit becomes ``duration_s`` seconds
+(assumed 1 s, the file does not say). The field mapping, the viewer's equations it reproduces
+and every repair and drop (each counted in a note): docs/inputs.md, "splaTV .splatv"."""
 
 from __future__ import annotations
 
@@ -52,20 +19,19 @@ import numpy as np
 import numpy.typing as npt
 
 from ..constants import SH_C0
-from ..errors import FormatError, InputError
+from ..errors import FormatError
 from ..model import F32, Gaussians, Scene, Timeline, TimelineType
 from ..opacity import alpha_to_logit
-from ..schemas.cameras import CaptureCamera, cameras_from_json
+from ..schemas.cameras import Camera, cameras_from_json
 from .files import read_bytes, read_head
-from .loaded import Loaded4D
+from .loaded import ASSUMED_LENGTH_S, Loaded4D, length_s
 
 MAGIC: Final = 0x674B
 PREAMBLE: Final = struct.Struct("<II")
 """magic, JSON length."""
 MAX_JSON_BYTES: Final = 16 * 1024 * 1024
 """A JSON header longer than this is rejected before it is read."""
-ASSUMED_DURATION_S: Final = 1.0
-"""Seconds a clip read without duration_s is taken to last (the file does not say)."""
+ASSUMED_DURATION_S: Final = ASSUMED_LENGTH_S
 ASSUMED_DURATION: Final = (
     "splatv time is normalised to [0, 1] and the file does not say how long the clip is: "
     "read as 1 s (pass --duration-s)"
@@ -117,7 +83,7 @@ def parse_splatv(
     data: bytes | memoryview, *, name: str = "<bytes>", duration_s: float | None = None
 ) -> Loaded4D:
     """Decode a ``.splatv`` held in memory; one normalised time unit = ``duration_s`` seconds."""
-    duration = _duration(duration_s)
+    duration = length_s(duration_s, "duration_s")
     chunks, body = _read_header(data, name)
     notes: list[str] = []
     chunk = _locate_splat(chunks, body, len(data), name, notes)
@@ -130,7 +96,7 @@ def parse_splatv(
     return Loaded4D(scene, notes, _header_cameras(chunks, name, notes), duration_assumed=assumed)
 
 
-def read_splatv_cameras(path: str | os.PathLike[str]) -> tuple[list[CaptureCamera], list[str]]:
+def read_splatv_cameras(path: str | os.PathLike[str]) -> tuple[list[Camera], list[str]]:
     """The cameras a ``.splatv`` header carries (reads the header only) and notes on them."""
     head = read_head(path, PREAMBLE.size + MAX_JSON_BYTES)
     chunks, _ = _read_header(head, str(path))
@@ -138,9 +104,7 @@ def read_splatv_cameras(path: str | os.PathLike[str]) -> tuple[list[CaptureCamer
     return _header_cameras(chunks, str(path), notes), notes
 
 
-def _header_cameras(
-    chunks: list[dict[str, Any]], name: str, notes: list[str]
-) -> list[CaptureCamera]:
+def _header_cameras(chunks: list[dict[str, Any]], name: str, notes: list[str]) -> list[Camera]:
     """The ``cameras`` list of the first chunk that has one (3DGS cameras.json entries); an
     unreadable list is noted and ignored: the Gaussians do not depend on it."""
     for i, chunk in enumerate(chunks):
@@ -151,16 +115,6 @@ def _header_cameras(
                 notes.append(f"ignored the file's cameras: {exc}")
                 return []
     return []
-
-
-def _duration(duration_s: float | None) -> float:
-    """The seconds in one normalised time unit (ASSUMED_DURATION_S when not given)."""
-    if duration_s is None:
-        return ASSUMED_DURATION_S
-    if not (isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s > 0):
-        msg = f"must be a positive number of seconds, got {duration_s!r}"
-        raise InputError(msg, where="duration_s")
-    return float(duration_s)
 
 
 def _read_header(data: bytes | memoryview, name: str) -> tuple[list[dict[str, Any]], int]:

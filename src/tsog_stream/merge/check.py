@@ -1,11 +1,8 @@
 """How far a decoded frame is from its source frame, attribute by attribute.
 
-The two sets come in different orders (the encoder sorts by Morton code, merging reorders),
-so Gaussians are paired first: candidates within a small reach of each other's position, each
-pair scored by its position difference plus, much more weakly, its other differences (so two
-Gaussians at one place pair by their other attributes), mutual best
-pairs kept, repeated on the leftovers. Used by ``tsog segment --temporal`` to report the error
-after encoding, by the tests and by the benchmark.
+The two sets come in different orders, so Gaussians are paired first: mutual best pairs
+within a small reach, scored by position and, much more weakly, by the other attributes (so
+two Gaussians at one place pair by those), repeated on the leftovers.
 """
 
 from __future__ import annotations
@@ -15,7 +12,7 @@ import numpy.typing as npt
 
 from ..model import Gaussians
 from .features import COLUMN_GROUPS, MEANS, align_signs, columns, robust_extent, unit_quats
-from .match import I64, candidate_pairs, cell_keys, mutual_best
+from .match import I64, candidate_pairs, cell_keys, in_rounds, mutual_best
 
 F64 = npt.NDArray[np.float64]
 PAIRING_REACH = 1e-3
@@ -28,10 +25,8 @@ the column's spread against the reach): position decides, attributes only break 
 
 def _pairs(a: F64, b: F64, reach: float, scale: F64) -> tuple[I64, I64]:
     """Mutual best pairs of rows of ``a`` and ``b`` within ``reach`` in position."""
-    found_a, found_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-    for _ in range(PAIRING_ROUNDS):
-        rest_a = np.setdiff1d(np.arange(len(a), dtype=np.int64), np.concatenate(found_a))
-        rest_b = np.setdiff1d(np.arange(len(b), dtype=np.int64), np.concatenate(found_b))
+
+    def pair(rest_a: I64, rest_b: I64) -> tuple[I64, I64]:
         keys = cell_keys(np.floor(a[rest_a, MEANS] / reach).astype(np.int64))
         cells = np.floor(b[rest_b, MEANS] / reach).astype(np.int64)
         got_a, got_b, got_cost = [], [], []
@@ -42,13 +37,11 @@ def _pairs(a: F64, b: F64, reach: float, scale: F64) -> tuple[I64, I64]:
             got_b.append(ib[near])
             got_cost.append(np.einsum("ij,ij->i", diff[near], diff[near]))
         if not got_a:
-            break
-        pa, pb = mutual_best(np.concatenate(got_a), np.concatenate(got_b), np.concatenate(got_cost))
-        if pa.size == 0:
-            break
-        found_a.append(rest_a[pa])
-        found_b.append(rest_b[pb])
-    return np.concatenate(found_a), np.concatenate(found_b)
+            return rest_a[:0], rest_b[:0]
+        return mutual_best(np.concatenate(got_a), np.concatenate(got_b), np.concatenate(got_cost))
+
+    rows_a, rows_b = (np.arange(len(x), dtype=np.int64) for x in (a, b))
+    return in_rounds(rows_a, rows_b, [pair] * PAIRING_ROUNDS)
 
 
 def frame_errors(source: Gaussians, decoded: Gaussians) -> tuple[dict[str, float], int]:

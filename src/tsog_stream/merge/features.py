@@ -1,12 +1,8 @@
 """Attribute columns in the spaces a SOG quantises, and how far each may move (the tolerance).
 
-A merged Gaussian stands for one Gaussian over several frames; the tolerance bounds how far its
-value may be from the value of each frame it replaces. Positions are in scene units (by default
-``steps`` times the 16-bit step a per-frame SOG has at that position: SOG quantises
-sign(x) ln(1 + |x|), so the step grows with 1 + |x|); log-scales, f_dc colours and SH
-coefficients in steps of a 256-entry codebook over the reference frame's range; opacity in
-8-bit alpha steps; rotations in steps of a smallest-three byte, on sign-aligned unit
-quaternions.
+The tolerance bounds how far a merged Gaussian may be from each frame it stands for, in the
+steps of a per-frame SOG: 16-bit log-position steps (they grow with 1 + |x|), 256-entry
+codebook steps over the reference frame, 8-bit alpha steps, smallest-three byte steps.
 """
 
 from __future__ import annotations
@@ -48,8 +44,8 @@ class Tolerance:
     position: float | None = None
     """Scene units; None: ``steps`` times the per-frame SOG position step at each Gaussian."""
     steps: float = 0.5
-    """Quantisation steps for every other attribute (and for positions when ``position`` is
-    None); 0.5 keeps a merged frame as close as its per-frame SOG rounding would."""
+    """Quantisation steps for the other attributes (and positions when ``position`` is None);
+    0.5: as close as a per-frame SOG's rounding."""
 
     def __post_init__(self) -> None:
         if self.position is not None and not (np.isfinite(self.position) and self.position >= 0):
@@ -91,17 +87,14 @@ def _codebook_step(values: npt.NDArray[np.float32]) -> float:
 
 EXTENT_QUANTILES = (0.05, 0.95)
 FLOATER_MARGIN = 3.0
-"""The extent used for search reaches is at most this many times the 5th-95th percentile
-spread. Real content stays unchanged: its min-max extent is 1.11-2.16 times that spread per
-axis (the monkey and wave flipbooks, the fireworks frames, donut, guitar and biker)."""
+"""Search reaches come from an extent at most this many times the 5th-95th percentile spread
+(real content: 1.11-2.16, docs/design/temporal-merge.md)."""
 
 
 def robust_extent(means: npt.ArrayLike) -> F64:
-    """Per-axis extent of the finite positions for search reaches: max - min, but at most
-    FLOATER_MARGIN times the spread between the 5th and 95th percentiles, so a few floaters
-    far away do not widen it (three frames of a 2000-Gaussian blob with 2 % floaters 200 units
-    out took 39 s to probe with the min-max extent: the reach covered the whole blob, so
-    matching went quadratic)."""
+    """Per-axis extent of the finite positions for search reaches: max - min, at most
+    FLOATER_MARGIN times the 5th-95th percentile spread, so floaters do not make matching
+    quadratic."""
     points = np.asarray(means, np.float64).reshape(-1, 3)
     points = points[np.all(np.isfinite(points), axis=1)]
     if len(points) == 0:

@@ -1,9 +1,6 @@
 """Polynomial motion: the lowest-order polynomial (0-3) in frame time that keeps every frame of
-a track within tolerance, fitted for many tracks of one length at once.
-
-Order 0 is the midrange (so a static track fits exactly when its range is at most twice the
-tolerance); orders 1-3 are least squares (stored only with enough frames: ``highest_order``).
-Coefficients are per frame**k here; the caller turns them into per second**k.
+a track within tolerance, for many tracks of one length at once: order 0 is the midrange,
+1-3 least squares; coefficients per frame**k.
 """
 
 from __future__ import annotations
@@ -27,22 +24,15 @@ def _projector(length: int, order: int) -> tuple[F64, F64]:
 
 
 def highest_order(length: int) -> int:
-    """Highest order kept for ``length`` frames: 1 up to 5 frames, 2 for 6-7, 3 from 8 on.
-
-    A stored fit must be overdetermined (about two frames per coefficient) to show smooth
-    motion rather than interpolate noise, whose high-order coefficients would be huge and
-    would coarsen the 16-bit coefficient range of the whole chunk.
-    """
+    """Highest order kept for ``length`` frames: 1 up to 5 frames, 2 for 6-7, 3 from 8 on (about
+    two frames per coefficient, so a fit shows motion rather than interpolating noise)."""
     return min(MAX_ORDER, max(1, (length - 2) // 2)) if length >= 2 else 0
 
 
 def fit_tracks(tracks: F64, tol: F64, max_order: int = MAX_ORDER) -> tuple[I64, F64, F64]:
-    """Fit (M, L, C) tracks within per-track tolerances (M, C).
-
-    Orders go up to ``max_order`` and ``L - 1`` (interpolation). Returns (order per track, or -1
-    when none fits; coefficients (M, MAX_ORDER + 1, C), constant first, of the chosen fit or
-    else of the highest order tried; the worst residual (M, C)).
-    """
+    """Fit (M, L, C) tracks within per-track tolerances (M, C), orders up to ``max_order`` and
+    L - 1: (order per track, -1 when none fits; coefficients (M, MAX_ORDER + 1, C) constant
+    first, of the fit chosen or else the highest tried; the worst residual (M, C))."""
     m, length, c = tracks.shape
     orders = np.full(m, -1, np.int64)
     coeffs = np.zeros((m, MAX_ORDER + 1, c))

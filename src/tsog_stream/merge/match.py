@@ -1,14 +1,12 @@
 """Correspondence between two sets of Gaussians: by index where it holds, else by neighbours.
 
-Candidates come from a uniform grid over positions (cell = the largest distance a match may
-span, so a match is always in one of the 27 neighbouring cells); each candidate pair is scored
-by its deviation in tolerance units, and only mutual best pairs within tolerance are kept.
-Vectorised with numpy and processed in batches, so memory stays bounded by the batch.
+Candidates come from a grid over positions whose cell is the reach (a match lies in one of
+27 neighbouring cells), scored in tolerance units; mutual best pairs within tolerance are kept.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from itertools import product
 
@@ -26,6 +24,8 @@ BATCH = 1 << 16
 _OFFSETS = np.array(list(product((-1, 0, 1), repeat=3)), np.int64)
 _BITS = 21
 _BIAS = 1 << (_BITS - 1)
+Pairer = Callable[[I64, I64], tuple[I64, I64]]
+"""Pairs among the given rows of a and of b, as indices into those rows."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,12 +46,8 @@ class Side:
 
 
 def deviation(a: Side, b: Side, ia: I64, ib: I64, *, with_means: bool = True) -> F64:
-    """Largest deviation of each pair in tolerance units (<= 1 means within tolerance).
-
-    The allowance of a pair is the sum of both sides' tolerances (each may be off by its own).
-    Positions are left out when ``with_means`` is False (moving Gaussians are matched on the
-    rest and on distance).
-    """
+    """Largest deviation of each pair in units of both sides' tolerances summed (<= 1: within);
+    positions left out when ``with_means`` is False."""
     allowed = a.tol[ia] + b.tol[ib]
     diff = np.abs(a.cols[ia] - b.cols[ib])
     scaled = np.divide(diff, allowed, out=np.where(diff > 0, np.inf, 0.0), where=allowed > 0)
@@ -122,8 +118,7 @@ def mutual_best(ia: I64, ib: I64, cost: F64) -> tuple[I64, I64]:
 
 
 def _prefilter(a: Side, b: Side, ia: I64, ib: I64) -> npt.NDArray[np.bool_]:
-    """Cheap first cut of candidate pairs: alpha, then colour within tolerance (most pairs
-    of a dense neighbourhood fail here, before every column and quaternion is compared)."""
+    """Cheap first cut of candidate pairs: alpha, then colour within tolerance."""
     keep = np.ones(ia.size, bool)
     for part in (ALPHA, SH0):
         rows = np.flatnonzero(keep)
@@ -163,19 +158,37 @@ def by_neighbours(a: Side, b: Side, reach: F64, *, moving: bool = False) -> tupl
 def correspond(
     a: Side, b: Side, reach: F64, *, moving: bool = False, rounds: int = MATCH_ROUNDS
 ) -> tuple[I64, I64]:
-    """Pairs (index in a, index in b): by index first, the rest by neighbours.
+    """Pairs (index in a, index in b): by index first, the rest by neighbours, repeated on
+    what is left so twins that lost a mutual-best tie to each other still pair up."""
+    found = by_index(a, b) if not moving else (np.zeros(0, np.int64), np.zeros(0, np.int64))
 
-    Neighbour matching is repeated on what is left (``rounds`` times at most), so twins (two
-    Gaussians at one place) that lost a mutual-best tie to each other still pair up.
-    """
-    ia, ib = by_index(a, b) if not moving else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    found_a, found_b = [ia], [ib]
-    for _ in range(rounds):
-        rest_a = np.setdiff1d(np.arange(len(a), dtype=np.int64), np.concatenate(found_a))
-        rest_b = np.setdiff1d(np.arange(len(b), dtype=np.int64), np.concatenate(found_b))
-        na, nb = by_neighbours(a.take(rest_a), b.take(rest_b), reach, moving=moving)
-        if na.size == 0:
+    def neighbours(rest_a: I64, rest_b: I64) -> tuple[I64, I64]:
+        return by_neighbours(a.take(rest_a), b.take(rest_b), reach, moving=moving)
+
+    return in_rounds(_all(len(a)), _all(len(b)), [neighbours] * rounds, found)
+
+
+def in_rounds(
+    rows_a: I64,
+    rows_b: I64,
+    rounds: Iterable[Pairer],
+    found: tuple[I64, I64] | None = None,
+    *,
+    until_empty: bool = True,
+) -> tuple[I64, I64]:
+    """Pairs of ``rows_a`` and ``rows_b``: ``found``, then each round's on the rows still
+    unpaired; with ``until_empty`` the first round finding none ends them (it repeats)."""
+    found_a, found_b = ([found[0]], [found[1]]) if found else ([_all(0)], [_all(0)])
+    for pair in rounds:
+        rest_a = np.setdiff1d(rows_a, np.concatenate(found_a))
+        rest_b = np.setdiff1d(rows_b, np.concatenate(found_b))
+        ia, ib = pair(rest_a, rest_b)
+        if until_empty and ia.size == 0:
             break
-        found_a.append(rest_a[na])
-        found_b.append(rest_b[nb])
+        found_a.append(rest_a[ia])
+        found_b.append(rest_b[ib])
     return np.concatenate(found_a), np.concatenate(found_b)
+
+
+def _all(count: int) -> I64:
+    return np.arange(count, dtype=np.int64)

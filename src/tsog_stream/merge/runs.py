@@ -1,19 +1,17 @@
-"""Frames -> few Gaussians: runs of frames in which a Gaussian stays within tolerance become one
-Gaussian with a lifespan (timeline type 1), and (with ``fit``) runs in which it changes smoothly
-get polynomial coefficients on the attributes that change (position, scale, colour, opacity,
-rotation: the track channels of :mod:`.tracks`).
+"""Frames -> few Gaussians: a run of frames in which a Gaussian stays within tolerance becomes
+one Gaussian with a lifespan (timeline type 1); with ``fit``, a run in which it changes
+smoothly gets polynomial coefficients on the track channels (:mod:`.tracks`) that change.
 
-Frames arrive one at a time; the merger keeps the runs still open and the Gaussians of the runs
-it closed, so memory is the merged result plus one frame (plus a bounded track history per
-moving run). A run stays static while every column's range is at most twice the tolerance (its
-midrange is then within tolerance of every frame). A moving run keeps its track for at most
-``max_frames`` frames and stays open while a polynomial of order <= 3 keeps every channel of
-every frame within tolerance; its SH rest coefficients must stay static.
+Frames arrive one at a time (memory: the result plus one frame). A run stays static while each
+column's range is at most twice the tolerance (its midrange then within tolerance of every
+frame); a moving run stays open for at most ``max_frames`` frames while a polynomial of order
+<= 3 keeps every channel within tolerance and its SH rest stays static.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+from typing import TypeAlias
 
 import numpy as np
 import numpy.typing as npt
@@ -35,7 +33,7 @@ from .features import (
     unit_quats,
 )
 from .fit import MAX_ORDER, fit_tracks, highest_order, per_second
-from .match import I64, Side, correspond
+from .match import I64, Side, correspond, in_rounds
 from .tracks import (
     COLUMN_OF,
     TRACK_GROUPS,
@@ -55,15 +53,14 @@ DEFAULT_REACH = 0.02
 NEAR_REACH = 0.25
 """The first, cheap search around a predicted position: this fraction of the full reach."""
 ATTRIBUTE_REACH = 32.0
-"""The second, wider search also lets attributes differ from the prediction by this many
-tolerances (one frame gives no rate of change); the fit over the run then decides."""
+"""The second search lets attributes differ from the prediction by this many tolerances (one
+frame gives no rate of change); the fit over the run decides."""
 
 
 @dataclass
 class _Runs:
     """Open runs: per-column range, quaternion range and reference, first frame, index in the
-    previous frame, frames so far, and the track of the first ``max_frames`` frames (as wide as
-    the longest run needs: a run of n frames reads columns 0..n-1 only)."""
+    previous frame, frames so far, and the track of the first ``max_frames`` frames."""
 
     lo: F64
     hi: F64
@@ -91,16 +88,9 @@ class _Runs:
         return int(self.start.shape[0])
 
 
-@dataclass
-class _Closed:
-    """Gaussians of closed runs: columns, quaternions, start, length, and motion per frame**k
-    (orders 1..MAX_ORDER x the 14 track channels)."""
-
-    cols: list[F64] = field(default_factory=list)
-    quats: list[F64] = field(default_factory=list)
-    start: list[I64] = field(default_factory=list)
-    length: list[I64] = field(default_factory=list)
-    motion: list[F64] = field(default_factory=list)
+_Closed: TypeAlias = tuple[F64, F64, I64, I64, F64]
+"""Gaussians of closed runs: columns, quaternions, start, length, and motion per frame**k
+(orders 1..MAX_ORDER x the 14 track channels)."""
 
 
 @dataclass
@@ -137,13 +127,13 @@ class FrameMerger:
         self.reach = np.zeros(3) if reach is None else np.asarray(reach, np.float64)
         self.stats = MergeStats()
         self._open: _Runs | None = None
-        self._closed = _Closed()
+        self._closed: list[_Closed] = []
 
     @property
     def held(self) -> int:
         """Gaussians held so far: closed runs' and open runs'."""
         open_runs = len(self._open) if self._open is not None else 0
-        return sum(len(c) for c in self._closed.start) + open_runs
+        return sum(len(c[2]) for c in self._closed) + open_runs
 
     def _side(self, cols: F64, quats: F64) -> Side:
         tol = tolerances(cols, self.steps, self.tolerance)
@@ -209,26 +199,26 @@ class FrameMerger:
         return np.asarray(ok & np.all(qhi - qlo <= 2 * quat_tolerance(self.tolerance), axis=1))
 
     def _moving_pairs(self, runs: _Runs, idx: I64, b: Side, bidx: I64) -> tuple[I64, I64]:
-        """(run, Gaussian of b) pairs that continue a run along a polynomial path.
+        """(run, Gaussian of b) pairs that continue a run along a polynomial path: searched
+        near the predicted position first (cheap; most tracks go where they went), then the
+        leftovers within the full reach."""
 
-        Searched near the predicted position first (a small reach: cheap, and most tracks go
-        where they went), then the leftovers within the full reach.
-        """
-        found_a, found_b = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)]
-        for reach, loose in ((self.reach * NEAR_REACH, 1.0), (self.reach, ATTRIBUTE_REACH)):
-            rest = np.setdiff1d(idx, np.concatenate(found_a))
-            free = np.setdiff1d(bidx, np.concatenate(found_b))
-            ra, rb = self._moving_pairs_within(runs, rest, b, free, reach=reach, loose=loose)
-            found_a.append(ra)
-            found_b.append(rb)
-        return np.concatenate(found_a), np.concatenate(found_b)
+        def near(rest: I64, free: I64) -> tuple[I64, I64]:
+            reach = self.reach * NEAR_REACH
+            return self._moving_pairs_within(runs, rest, b, free, reach=reach, loose=1.0)
+
+        def far(rest: I64, free: I64) -> tuple[I64, I64]:
+            loose = ATTRIBUTE_REACH
+            return self._moving_pairs_within(runs, rest, b, free, reach=self.reach, loose=loose)
+
+        return in_rounds(idx, bidx, [near, far], until_empty=False)
 
     def _moving_pairs_within(
         self, runs: _Runs, idx: I64, b: Side, bidx: I64, *, reach: F64, loose: float
     ) -> tuple[I64, I64]:
-        """Moving pairs whose Gaussian is within ``reach`` of the run's predicted position and
-        within ``loose`` times the tolerance of its predicted attributes (a run seen in one
-        frame has no rate of change yet); the polynomial fit decides."""
+        """Moving pairs (indices into ``idx`` and ``bidx``) within ``reach`` of the run's
+        predicted position and ``loose`` tolerances of its predicted attributes, that a
+        polynomial fits."""
         if idx.size == 0 or bidx.size == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         sub = runs.take(idx)
@@ -246,7 +236,7 @@ class FrameMerger:
             pick = np.flatnonzero(sub.count[ia] == n)
             track = np.concatenate([sub.history[ia[pick], :n], new[pick, None]], axis=1)
             fits[pick] = fit_tracks(track, tol[pick])[0] >= 0
-        return idx[ia[fits]], bidx[ib[fits]]
+        return ia[fits], ib[fits]
 
     def _extend(self, runs: _Runs, b: Side, ib: I64) -> _Runs:
         """The runs with one more frame each, b[ib]."""
@@ -286,12 +276,9 @@ class FrameMerger:
         )
 
     def _close(self, runs: _Runs, end: int) -> None:
-        """Turn runs ending before frame ``end`` into Gaussians.
-
-        A moving run is stored as one Gaussian with motion when a polynomial of an order its
-        length supports (``highest_order``) fits it, else as one Gaussian per frame. Only the
-        attributes that changed get coefficients; the others keep their midrange.
-        """
+        """Turn runs ending before frame ``end`` into Gaussians: a moving run as one Gaussian
+        with motion on the attributes that changed when a polynomial of an order its length
+        supports fits it, else as one Gaussian per frame."""
         if len(runs) == 0:
             return
         cols, quats = (runs.lo + runs.hi) / 2, (runs.qlo + runs.qhi) / 2
@@ -322,11 +309,8 @@ class FrameMerger:
             self._unfold(runs.take(unfit), cols[unfit])
         kept = np.flatnonzero(keep)
         self._note_worst(deviation[kept], qdev[kept])
-        self._closed.cols.append(cols[kept])
-        self._closed.quats.append(quats[kept])
-        self._closed.start.append(runs.start[kept])
-        self._closed.length.append(end - runs.start[kept])
-        self._closed.motion.append(motion[kept])
+        start = runs.start[kept]
+        self._closed.append((cols[kept], quats[kept], start, end - start, motion[kept]))
 
     def _unfold(self, runs: _Runs, cols: F64) -> None:
         """Store runs as one static Gaussian per frame (values from their track)."""
@@ -339,11 +323,8 @@ class FrameMerger:
         deviation = (runs.hi - runs.lo)[rows] / 2
         deviation[:, :SH_REST] = 0.0  # each frame keeps its own values but SH rest
         self._note_worst(deviation, np.zeros_like(quats))
-        self._closed.cols.append(out)
-        self._closed.quats.append(quats)
-        self._closed.start.append(runs.start[rows] + frames)
-        self._closed.length.append(np.ones(rows.size, np.int64))
-        self._closed.motion.append(np.zeros((rows.size, MAX_ORDER, TRACK_WIDTH)))
+        ones, still = np.ones(rows.size, np.int64), np.zeros((rows.size, MAX_ORDER, TRACK_WIDTH))
+        self._closed.append((out, quats, runs.start[rows] + frames, ones, still))
 
     def _note_worst(self, deviation: F64, quats: F64) -> None:
         """Keep the largest deviation of a merged value from a frame it stands for."""
@@ -358,13 +339,16 @@ class FrameMerger:
         if self._open is not None:
             self._close(self._open, self.stats.frames)
             self._open = None
-        c = self._closed
-        width = 10 + 3 * self.sh_coeffs
-        cols = np.concatenate(c.cols) if c.cols else np.zeros((0, width))
-        quats = np.concatenate(c.quats) if c.quats else np.zeros((0, 4))
-        start = np.concatenate(c.start) if c.start else np.zeros(0, np.int64)
-        length = np.concatenate(c.length) if c.length else np.zeros(0, np.int64)
-        motion = np.concatenate(c.motion) if c.motion else np.zeros((0, MAX_ORDER, TRACK_WIDTH))
+        none: _Closed = (
+            np.zeros((0, 10 + 3 * self.sh_coeffs)),
+            np.zeros((0, 4)),
+            np.zeros(0, np.int64),
+            np.zeros(0, np.int64),
+            np.zeros((0, MAX_ORDER, TRACK_WIDTH)),
+        )
+        cols, quats, start, length, motion = (
+            np.concatenate([e, *(c[i] for c in self._closed)]) for i, e in enumerate(none)
+        )
         order = np.lexsort((length, start))
         g = gaussians_from(cols[order], quats[order], self.sh_coeffs)
         self.stats.gaussians_out = len(g)
@@ -381,8 +365,7 @@ class FrameMerger:
 
 
 def _widened(history: F64, width: int) -> F64:
-    """A copy of ``history`` with room for at least ``width`` frames (zeros beyond its own):
-    tracks grow as runs do, so a probe of 8 frames never holds 32 frames per Gaussian."""
+    """A copy of ``history`` with room for at least ``width`` frames (zeros beyond its own)."""
     out = np.zeros((history.shape[0], max(width, history.shape[1]), history.shape[2]))
     out[:, : history.shape[1]] = history
     return out

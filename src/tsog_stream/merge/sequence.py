@@ -1,8 +1,7 @@
 """Merge a frame sequence into one scene: the ``--temporal`` modes of ``tsog segment``.
 
-``off`` keeps one Gaussian per frame (timeline type 0, the paper's conversion); ``merge`` turns
-runs of unchanged Gaussians into lifespans (type 1); ``fit`` also gives smoothly moving ones
-polynomial motion. Frames are read one at a time, so memory is the merged scene plus a frame.
+``off`` keeps one Gaussian per frame (type 0); ``merge`` turns runs of unchanged Gaussians into
+lifespans (type 1); ``fit`` also gives smoothly moving ones polynomial motion.
 """
 
 from __future__ import annotations
@@ -22,18 +21,14 @@ from .runs import DEFAULT_REACH, FrameMerger, MergeStats
 TemporalMode = Literal["off", "merge", "fit"]
 TEMPORAL_MODES: Final = ("off", "merge", "fit")
 SOG_FRAME_STEPS: Final = 1.0
-"""Default tolerance in steps for SOG frames: each frame is already rounded to its own
-codebooks, so one unchanged Gaussian differs between frames by up to a step."""
-
+"""Default tolerance in steps for SOG frames (each already rounded to its own codebooks)."""
 FIT_PAYS_BELOW: Final = 0.8
-"""``fit`` keeps its motion only when it stores at most this share of the frames' Gaussians:
-above it (little follows a path), the coefficient images every Gaussian of a chunk then carries
-outweigh the Gaussians saved, and ``merge`` is smaller (measured: docs/design/temporal-merge.md)."""
+"""``fit`` keeps its motion only when it stores at most this share of the frames' Gaussians
+(above, the coefficient images outweigh what it saves: docs/design/temporal-merge.md)."""
 MAX_HELD: Final = 4_000_000
 """Gaussians a merge may hold in memory (a few GiB) before the sequence is stored per frame."""
 PROBE_FRAMES: Final = 8
-"""Consecutive frames of each probe: enough that a polynomial through them can fail (fewer
-always fit) and that unchanged Gaussians show (out of 8 frames, at best 1 in 8 is kept)."""
+"""Consecutive frames of each probe: enough that a polynomial through them can fail."""
 PROBE_SAMPLES: Final = 3
 """Probes, at the start, middle and end of the sequence."""
 PROBE_GAUSSIANS: Final = 4096
@@ -60,12 +55,8 @@ def merge_frames(
     tolerance: Tolerance | None = None,
     max_held: int | None = None,
 ) -> tuple[Scene | None, MergeStats]:
-    """Frames in order (all padded to ``sh_coeffs``) as one type-1 scene, and what merging did.
-
-    Quantisation steps and the motion search reach come from the first frame. The scene is
-    None when the merger came to hold more than ``max_held`` Gaussians (memory bound: the
-    caller then stores the frames one window at a time instead).
-    """
+    """Frames in order (all padded to ``sh_coeffs``) as one type-1 scene, and what merging did;
+    steps and reach from the first frame. None when it would hold more than ``max_held``."""
     if mode not in ("merge", "fit"):
         raise InputError(f"expected merge or fit, got {mode!r}", where="temporal")
     merger: FrameMerger | None = None
@@ -93,14 +84,9 @@ def probe_merge(
     seq: FrameSequence, mode: TemporalMode, tolerance: Tolerance | None = None
 ) -> tuple[TemporalMode | None, str]:
     """The mode worth running on the whole sequence (None: store it per frame) and why, from
-    merging up to PROBE_SAMPLES runs of PROBE_FRAMES frames (runs never overlap: a short
-    sequence gets fewer) cropped to a central box of about PROBE_GAUSSIANS (the same box in
-    every frame of a run), each run read once for every mode tried: a second or so whatever
-    the sequence, where merging a whole flipbook that carries nothing over took minutes. A
-    run in which fitting found no Gaussian continuing from one frame to the next is not merged
-    again (merging looks for a part of what fitting looks for, from the same start: it would
-    find nothing either; 24 frames of 40k: 2.13 -> 1.97 s, fitting's own search is the most
-    of a probe)."""
+    merging up to PROBE_SAMPLES runs of PROBE_FRAMES frames cropped to a central box of about
+    PROBE_GAUSSIANS (docs/design/segmenter.md). A run fitting paired nothing in is not merged
+    again (merging looks for a part of what fitting does)."""
     if seq.count < 2:
         return None, "one frame: nothing to merge"
     tol = default_tolerance(seq, tolerance)
@@ -113,7 +99,7 @@ def probe_merge(
         for m in modes:
             _, stats = merge_frames(frames, mode=m, **options)  # type: ignore[arg-type]
             kept[m] = min(kept[m], stats.gaussians_out / max(stats.gaussians_in, 1))
-            if stats.pairs == 0:  # fitting paired nothing: merging, a part of it, pairs nothing
+            if stats.pairs == 0:
                 break
     if kept.get("fit", 1.0) <= FIT_PAYS_BELOW:
         return "fit", ""
@@ -166,11 +152,8 @@ def merge_sequence(
     progress: Progress | None = None,
     max_held: int | None = MAX_HELD,
 ) -> tuple[Scene | None, MergeStats]:
-    """A frame sequence, read one frame at a time, as one merged scene (see merge_frames).
-
-    None (with a note saying why) when a probe of a few frame pairs finds that too few
-    Gaussians carry over to pay for merging, or when merging would hold too much memory.
-    """
+    """A frame sequence, read a frame at a time, as one merged scene (see merge_frames); None
+    (with a note why) when a probe finds merging does not pay, or it would hold too much."""
 
     def frames() -> Iterator[Gaussians]:
         for k in range(seq.count):

@@ -1,10 +1,7 @@
-"""Tracks: the 14 channels of a Gaussian that may follow a polynomial in time.
+"""Tracks: the 14 channels of a Gaussian that may follow a polynomial in time (spec §6).
 
-A moving run records, frame by frame, its position, log-scales, f_dc colour, opacity (as a
-logit, the space TSOG's temporal opacity lives in) and sign-aligned quaternion: the channels of
-``temporal`` (spec §6). SH rest coefficients never move. This module turns columns into track
-values and back, gives each channel its tolerance, and splits fitted coefficients into the
-per-attribute ``temporal`` arrays.
+Position, log-scales, f_dc, opacity as a logit (TSOG's temporal opacity space) and the
+sign-aligned quaternion; SH rest coefficients never move.
 """
 
 from __future__ import annotations
@@ -15,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..constants import ALPHA_EPS
+from ..opacity import logit_to_alpha
 from .features import ALPHA, MEANS, SCALES, SH0, Steps, Tolerance, quat_tolerance, tolerances
 
 F64 = npt.NDArray[np.float64]
@@ -48,11 +46,8 @@ def track_values(cols: F64, quats: F64) -> F64:
 
 
 def track_tolerance(cols: F64, steps: Steps, tol: Tolerance) -> F64:
-    """(M, 14) tolerances of the track channels of rows of columns.
-
-    The opacity tolerance is in alpha steps; in logit space it widens by 1 / (alpha (1 - alpha)),
-    the derivative of the sigmoid.
-    """
+    """(M, 14) tolerances of the track channels of rows of columns (the alpha tolerance
+    widened by 1 / (alpha (1 - alpha)) in logit space)."""
     per_column = tolerances(cols, steps, tol)
     out = np.empty((cols.shape[0], TRACK_WIDTH))
     out[:, :LOGIT] = per_column[:, :LOGIT]
@@ -66,7 +61,7 @@ def apply_track(cols: F64, track: F64) -> tuple[F64, F64]:
     """Columns with the track's values written in (alpha from the logit), and its quaternions."""
     out = cols.copy()
     out[:, :LOGIT] = track[:, :LOGIT]
-    out[:, ALPHA] = (1.0 / (1.0 + np.exp(-track[:, LOGIT])))[:, None]
+    out[:, ALPHA] = logit_to_alpha(track[:, LOGIT])[:, None]
     return out, track[:, QUATS].copy()
 
 
@@ -84,14 +79,3 @@ def predict(history: F64, count: npt.NDArray[np.int64]) -> F64:
     last = history[rows, count - 1]
     prev = history[rows, np.maximum(count - 2, 0)]
     return np.asarray(2 * last - prev, np.float64)
-
-
-__all__ = [
-    "TRACK_GROUPS",
-    "TRACK_WIDTH",
-    "apply_track",
-    "predict",
-    "static_groups",
-    "track_tolerance",
-    "track_values",
-]

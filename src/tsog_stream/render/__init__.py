@@ -19,8 +19,9 @@ from ..errors import InputError
 from ..framing import look_at
 from ..io.files import atomic_write_bytes
 from ..model import Gaussians
+from ..schemas.cameras import Camera
 from . import raster_numba
-from .camera import Camera, from_capture, load_cameras_json, orbit_cameras, scene_orbit
+from .camera import from_capture, load_cameras_json, orbit_cameras, scene_orbit
 from .project import Projected, project
 from .raster import bin_tiles, rasterize_numpy
 
@@ -87,8 +88,11 @@ def warm() -> None:
     one = Gaussians.from_arrays(
         np.zeros((1, 3)), np.full((1, 3), -1.0), [[1.0, 0, 0, 0]], [4.0], [[0.5, 0.5, 0.5]]
     )
-    eye = look_at((0.0, 0.0, -4.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0))
-    render(one, Camera(16, 16, 16.0, 16.0, 8.0, 8.0, eye), backend="numba")
+    ahead = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # 4 units before it, looking on
+    camera = Camera(
+        width=16, height=16, fx=16.0, fy=16.0, position=(0.0, 0.0, -4.0), rotation=ahead
+    )
+    render(one, camera, backend="numba")
 
 
 def to_uint8(image: npt.ArrayLike) -> npt.NDArray[np.uint8]:

@@ -1,17 +1,18 @@
-"""Pinhole cameras for the CPU renderer: capture cameras (3DGS ``cameras.json``, COLMAP,
-``.splatv``) and generated orbits.
+"""What the renderer may draw with a :class:`~tsog_stream.schemas.cameras.Camera` (the one
+camera type): cameras of a file sized for a picture and held to the rasterizer's budgets
+(:func:`from_capture`, :func:`stretched`), :func:`check_drawable` for any other, and orbits.
 
 Convention (the 3DGS / COLMAP / OpenCV one): camera x right, y down, z forward;
-``world_to_camera`` maps world points to that frame. ``cx``/``cy`` are measured with the image
-spanning [0, width] x [0, height] (pixel i covers [i, i + 1)), so a centred camera has
-``cx = width / 2``; the rasterizer evaluates pixel *indices* (see docs/design/renderer.md).
+:func:`~tsog_stream.framing.world_to_camera` maps world points to that frame. ``cx``/``cy`` are
+measured with the image spanning [0, width] x [0, height] (pixel i covers [i, i + 1)), so a
+centred camera has ``cx = width / 2``; the rasterizer evaluates pixel *indices* (see
+docs/design/renderer.md).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
@@ -19,12 +20,11 @@ import numpy.typing as npt
 
 from ..constants import RENDER_MAX_SIDE
 from ..errors import InputError
-from ..framing import look_at, world_to_camera
+from ..framing import look_at, vec3
 from ..io.cameras import read_cameras
 from ..model import Gaussians
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera as Camera  # noqa: PLC0414 - re-exported for callers
 
-F64 = npt.NDArray[np.float64]
 RENDER_MAX_PIXELS: Final = 4096 * 4096
 """Most pixels one image may have (any camera; explicit sizes over it are refused, sizes
 taken from a camera file shrunk to fit): the rasterizer holds about 60 bytes a pixel."""
@@ -39,73 +39,18 @@ FOCAL_PER_SIDE: Final = (0.02, 50.0)
 that side from 1.1 to 175 degrees (a camera file's focal lengths are held to it)."""
 
 
-@dataclass(frozen=True, slots=True)
-class Camera:
-    """A pinhole camera: image size, intrinsics in pixels and a (4, 4) world-to-camera matrix."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    world_to_camera: F64
-    name: str = ""
-
-    def __post_init__(self) -> None:
-        check_image_size(self.width, self.height)
-        lo, hi = FOCAL_PER_SIDE
-        if not (
-            lo * self.width <= self.fx <= hi * self.width
-            and lo * self.height <= self.fy <= hi * self.height
-        ):
-            raise InputError(
-                f"focal lengths must be {lo:g} to {hi:g} times the image side they span, got "
-                f"fx={self.fx} fy={self.fy} for {self.width}x{self.height}"
-            )
-        if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
-            raise InputError(f"principal point must be finite, got cx={self.cx} cy={self.cy}")
-        w2c = np.array(self.world_to_camera, dtype=np.float64)
-        if w2c.shape != (4, 4) or not np.all(np.isfinite(w2c)):
-            raise InputError(f"world_to_camera must be a finite (4, 4) matrix, got {w2c.shape}")
-        if not np.array_equal(w2c[3], [0.0, 0.0, 0.0, 1.0]) or abs(np.linalg.det(w2c)) < 1e-12:
-            raise InputError(
-                "world_to_camera must be an invertible affine matrix (last row 0 0 0 1)"
-            )
-        w2c.setflags(write=False)
-        object.__setattr__(self, "world_to_camera", w2c)
-
-    def __eq__(self, other: object) -> bool:
-        """Equal when every field is (the matrix compared element by element)."""
-        if not isinstance(other, Camera):
-            return NotImplemented
-        mine = (self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.name)
-        theirs = (other.width, other.height, other.fx, other.fy, other.cx, other.cy, other.name)
-        return mine == theirs and np.array_equal(self.world_to_camera, other.world_to_camera)
-
-    def __hash__(self) -> int:
-        """A hash consistent with ``__eq__`` (so cameras can key caches)."""
-        scalars = (self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.name)
-        return hash((scalars, self.world_to_camera.tobytes()))
-
-    @property
-    def position(self) -> F64:
-        """The camera centre in world coordinates (-R^-1 t; -R^T t for a rigid transform)."""
-        rot = self.world_to_camera[:3, :3]
-        return np.asarray(np.linalg.solve(rot, -self.world_to_camera[:3, 3]), dtype=np.float64)
-
-    def scaled(self, width: int, height: int) -> Camera:
-        """The same camera rendering ``width`` x ``height`` pixels (intrinsics scaled per axis)."""
-        sx, sy = width / self.width, height / self.height
-        return Camera(
-            width,
-            height,
-            self.fx * sx,
-            self.fy * sy,
-            self.cx * sx,
-            self.cy * sy,
-            self.world_to_camera,
-            self.name,
+def check_drawable(camera: Camera) -> None:
+    """Refuse a camera the rasterizer must not draw: its size (:func:`check_image_size`) and
+    focal lengths outside :data:`FOCAL_PER_SIDE` of the sides they span. :func:`from_capture`
+    and :func:`stretched` hold a camera file's values inside them; a camera made by hand is
+    checked here, before any pixel is allocated."""
+    check_image_size(camera.width, camera.height)
+    lo, hi = FOCAL_PER_SIDE
+    w, h, fx, fy = camera.width, camera.height, camera.fx, camera.fy
+    if not (lo * w <= fx <= hi * w and lo * h <= fy <= hi * h):
+        raise InputError(
+            f"focal lengths must be {lo:g} to {hi:g} times the image side they span, got "
+            f"fx={fx} fy={fy} for {w}x{h}"
         )
 
 
@@ -147,6 +92,7 @@ def orbit_cameras(
     """
     if count < 1:
         raise InputError(f"need at least one camera, got {count}")
+    check_image_size(width, height)
     if not (radius > 0 and math.isfinite(radius)):
         raise InputError(f"orbit radius must be positive and finite, got {radius}")
     if not 0 < fov_deg < 180:
@@ -163,8 +109,21 @@ def orbit_cameras(
     for k in range(count):
         phi = 2 * math.pi * k / count
         offset = math.cos(elev) * (math.cos(phi) * a + math.sin(phi) * b) + math.sin(elev) * u
-        w2c = look_at(c + radius * offset, c, u)
-        cams.append(Camera(width, height, focal, focal, width / 2, height / 2, w2c, f"orbit{k}"))
+        eye = c + radius * offset
+        c2w = look_at(eye, c, u)[:3, :3].T
+        rotation = (vec3(c2w[0]), vec3(c2w[1]), vec3(c2w[2]))
+        cams.append(
+            Camera(
+                name=f"orbit{k}",
+                width=width,
+                height=height,
+                fx=focal,
+                fy=focal,
+                position=vec3(eye),
+                rotation=rotation,
+            )
+        )
+    check_drawable(cams[0])
     return cams
 
 
@@ -208,13 +167,11 @@ def load_cameras_json(
     return [stretched(c, width, height) for c in read_cameras(path).cameras]
 
 
-def _size(
-    capture: CaptureCamera, width: int | None, height: int | None, budget: int
-) -> tuple[int, int]:
+def _size(capture: Camera, width: int | None, height: int | None, budget: int) -> tuple[int, int]:
     """The requested size. A side left None follows the capture's aspect ratio, held within
     :data:`MAX_ASPECT`, and such a size is shrunk, its shape kept, to ``budget`` pixels
     (both None: the capture's own size, held the same way); a size given whole is the
-    caller's, checked by :class:`Camera`."""
+    caller's, checked by :func:`check_drawable`."""
     for label, value in (("width", width), ("height", height)):
         if value is not None and value < 1:
             raise InputError(f"{label} must be positive, got {value}")
@@ -253,8 +210,29 @@ def _sane(focal: float, centre: float, side: int) -> tuple[float, float]:
     return min(max(focal, lo * side), hi * side), min(max(centre, 0.0), float(side))
 
 
+def _drawn(
+    capture: Camera, w: int, h: int, x: tuple[float, float], y: tuple[float, float]
+) -> Camera:
+    """``capture``'s pose and name drawing ``w`` x ``h`` pixels, with the (focal length,
+    principal point) ``x`` and ``y`` held to sane values (:func:`_sane`); checked drawable."""
+    (fx, cx), (fy, cy) = _sane(*x, w), _sane(*y, h)
+    camera = Camera(
+        name=capture.name,
+        width=w,
+        height=h,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        position=capture.position,
+        rotation=capture.rotation,
+    )
+    check_drawable(camera)
+    return camera
+
+
 def from_capture(
-    capture: CaptureCamera,
+    capture: Camera,
     width: int | None,
     height: int | None = None,
     *,
@@ -268,13 +246,13 @@ def from_capture(
     w, h = _size(capture, width, height, budget)
     scale = h / capture.height
     cx, cy = capture.principal_point
-    fx, cx = _sane(capture.fx * scale, w / 2 + (cx - capture.width / 2) * scale, w)
-    fy, cy = _sane(capture.fy * scale, h / 2 + (cy - capture.height / 2) * scale, h)
-    return Camera(w, h, fx, fy, cx, cy, world_to_camera(capture), capture.name)
+    x = capture.fx * scale, w / 2 + (cx - capture.width / 2) * scale
+    y = capture.fy * scale, h / 2 + (cy - capture.height / 2) * scale
+    return _drawn(capture, w, h, x, y)
 
 
 def stretched(
-    capture: CaptureCamera,
+    capture: Camera,
     width: int | None,
     height: int | None,
     *,
@@ -285,6 +263,4 @@ def stretched(
     w, h = _size(capture, width, height, budget)
     sx, sy = w / capture.width, h / capture.height
     cx, cy = capture.principal_point
-    fx, cx = _sane(capture.fx * sx, cx * sx, w)
-    fy, cy = _sane(capture.fy * sy, cy * sy, h)
-    return Camera(w, h, fx, fy, cx, cy, world_to_camera(capture), capture.name)
+    return _drawn(capture, w, h, (capture.fx * sx, cx * sx), (capture.fy * sy, cy * sy))

@@ -1,9 +1,7 @@
 """Render a reference and a candidate at the same times and cameras; compare with PSNR/SSIM.
 
-A :class:`Source` is *a scene at time t*: an in-memory scene (:func:`scene_source`) or any
-input the project reads (:func:`tsog_stream.inputs.open_source`). Times are sampled over the
-reference's time range; cameras orbit the reference at each time (or come from a 3DGS
-``cameras.json``).
+A :class:`Source` is a scene at time t (:func:`scene_source`, or any input through
+:func:`tsog_stream.inputs.open_source`); cameras orbit the reference or come from a cameras.json.
 """
 
 from __future__ import annotations
@@ -11,7 +9,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from types import TracebackType
 from typing import Any
 
@@ -22,13 +20,12 @@ from ..constants import EVAL_MAX_TIMES, RENDER_MAX_SIDE, RENDER_MAX_VIEWS
 from ..errors import InputError
 from ..framing import default_view
 from ..model import Gaussians, Scene
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from ..temporal import time_range
 from . import render, to_uint8
 from .camera import (
     DEFAULT_PIXELS,
     RENDER_MAX_PIXELS,
-    Camera,
     check_image_size,
     from_capture,
     load_cameras_json,
@@ -38,7 +35,6 @@ from .metrics import mse, psnr_from_mse, ssim
 
 Span = tuple[float, float]
 DEFAULT_WIDTH = 640
-"""Image width of renders when none is given (orbits: 640x480)."""
 StepCallback = Callable[[int, int], None]
 """Called with (steps done, steps in all) while an evaluation runs."""
 
@@ -56,21 +52,19 @@ class Source:
     notes: list[str] = field(default_factory=list)
     fps: float | None = None
     """Frame rate of a frame-based scene (timeline types 0 and 1 with ``fps``), else None."""
-    cameras: list[CaptureCamera] = field(default_factory=list)
+    cameras: list[Camera] = field(default_factory=list)
     """Capture cameras the input carries, sits beside, or its container stores."""
-    opening: Callable[[], CaptureCamera | None] = lambda: None
+    opening: Callable[[], Camera | None] = lambda: None
     """Where a viewer opens the scene (framing.default_view), computed when asked."""
     pieces: Callable[[float], Iterator[Scene]] | None = None
-    """The scenes of the chunks that show t, a chunk at a time (a container); None: ``frame``
-    whole."""
+    """The scenes of the chunks that show t, one at a time (a container); None: ``frame``."""
 
     def at(self, t: float) -> Gaussians:
         """The Gaussians visible at ``t`` seconds."""
         return self.frame(t)
 
     def scenes_at(self, t: float) -> Iterator[Scene]:
-        """Scenes whose Gaussians visible at ``t`` together are :meth:`at`'s, a chunk at a time
-        (a caller that keeps a few evaluates only those: ``temporal.opacity_at``)."""
+        """Scenes whose Gaussians visible at ``t`` together are :meth:`at`'s."""
         if self.pieces is None:
             yield Scene(self.frame(t))
         else:
@@ -89,9 +83,7 @@ class Source:
         self.close()
 
 
-def scene_source(
-    scene: Scene, name: str = "scene", cameras: Sequence[CaptureCamera] = ()
-) -> Source:
+def scene_source(scene: Scene, name: str = "scene", cameras: Sequence[Camera] = ()) -> Source:
     """An in-memory scene as a :class:`Source` (for scripts, tests and benchmarks)."""
     timeline = scene.timeline
     span = time_range(timeline) if timeline is not None else None
@@ -108,14 +100,9 @@ def scene_source(
 
 
 def sample_times(span: Span | None, count: int, fps: float | None = None) -> list[float]:
-    """``count`` times at the centres of equal slices of ``span``; [0.0] for a static scene.
-
-    Centres rather than edges: a lifespan's end is exclusive, so the last second of a scene
-    may show nothing, and the midpoints keep every sample inside the range. With ``fps`` (a
-    frame-based reference) each time moves back to the start of its frame: the reference holds
-    a frame for 1/fps while a candidate with fitted motion moves on, and what is compared is
-    the frames themselves.
-    """
+    """``count`` times at the centres of equal slices of ``span`` (a lifespan's end is
+    exclusive); [0.0] for a static scene. With ``fps`` each moves back to its frame's start,
+    so frames are compared with frames, not with a fitted motion between them."""
     if not 1 <= count <= EVAL_MAX_TIMES:
         raise InputError(f"expected 1-{EVAL_MAX_TIMES} times, got {count}", where="--times")
     if span is None:
@@ -131,7 +118,7 @@ def sample_times(span: Span | None, count: int, fps: float | None = None) -> lis
 
 
 def pick_evenly(items: Sequence[Camera], count: int | None) -> list[Camera]:
-    """``count`` items spread evenly over ``items`` (all of them when ``count`` is None)."""
+    """``count`` items spread evenly over ``items`` (all when ``count`` is None)."""
     if count is None or count >= len(items):
         return list(items)
     if count < 1:
@@ -218,10 +205,8 @@ def opening_camera(
     source: Source, camera: int | None, width: int | None, height: int | None
 ) -> Camera:
     """Capture camera ``camera`` of the source, or (None) the view it opens from, drawn at
-    ``width`` x ``height`` as a player window shows it
-    (:func:`~tsog_stream.render.camera.from_capture`). Neither given: 640 wide, the camera's
-    aspect ratio, at most DEFAULT_PIXELS; one given: the other follows, at most
-    RENDER_MAX_PIXELS; both: refused beyond them (one line)."""
+    ``width`` x ``height`` as a player window shows it (:func:`.camera.from_capture`); neither
+    given: DEFAULT_WIDTH wide at the camera's aspect."""
     if camera is not None:
         if not source.cameras:
             raise InputError(
@@ -260,13 +245,7 @@ class EvalRow:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe: an infinite PSNR (identical images) is written as null."""
-        return {
-            "t": self.t,
-            "view": self.view,
-            "psnr": json_psnr(self.psnr),
-            "ssim": self.ssim,
-            "mse": self.mse,
-        }
+        return {**asdict(self), "psnr": json_psnr(self.psnr)}
 
 
 @dataclass(frozen=True)
@@ -333,24 +312,6 @@ class EvalReport:
         }
 
 
-def compare_views(
-    reference: Gaussians,
-    candidate: Gaussians,
-    cameras: Sequence[Camera],
-    style: RenderStyle,
-    on_view: Callable[[], None] | None = None,
-) -> list[tuple[float, float, float]]:
-    """(PSNR, SSIM, MSE) of the candidate's image against the reference's, per camera."""
-    out = []
-    for camera in cameras:
-        a, b = style.image(reference, camera), style.image(candidate, camera)
-        err = mse(a, b)
-        out.append((psnr_from_mse(err), ssim(a, b), err))
-        if on_view is not None:
-            on_view()
-    return out
-
-
 def evaluate(
     reference: Source,
     candidate: Source,
@@ -367,21 +328,16 @@ def evaluate(
     moments = sample_times(reference.span, times, reference.fps)
     fixed = setup.fixed()
     total = len(moments) * (len(fixed) if fixed is not None else setup.views or 4)
-    done = [0]
-
-    def step() -> None:
-        done[0] += 1
-        if on_step is not None:
-            on_step(done[0], total)
-
     rows: list[EvalRow] = []
     size = (0, 0)
     for t in moments:
         ref_frame, cand_frame = reference.at(t), candidate.at(t)
         cameras = fixed if fixed is not None else setup.around(ref_frame, t)
         size = (cameras[0].width, cameras[0].height)
-        for view, (p, s, e) in enumerate(
-            compare_views(ref_frame, cand_frame, cameras, style, step)
-        ):
-            rows.append(EvalRow(t, view, p, s, e))
+        for view, camera in enumerate(cameras):
+            a, b = style.image(ref_frame, camera), style.image(cand_frame, camera)
+            err = mse(a, b)
+            rows.append(EvalRow(t, view, psnr_from_mse(err), ssim(a, b), err))
+            if on_step is not None:
+                on_step(len(rows), total)
     return EvalReport(reference.name, candidate.name, size[0], size[1], tuple(rows))

@@ -3,16 +3,16 @@ labelled series (the benchmarks' rate-distortion curves)."""
 
 from __future__ import annotations
 
-import io
 import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
+import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from ..io.files import atomic_write_bytes
+from . import save_png
 from .evaluate import EvalReport
 
 SIZE = (800, 420)
@@ -41,8 +41,8 @@ def _ticks(low: float, high: float) -> list[float]:
 
 
 def _y_range(values: Sequence[float]) -> tuple[float, float]:
-    """The range shown: the finite values with some room (not below 0 when none is
-    negative: seconds and bytes have no negative axis); 0-100 when none is finite."""
+    """The finite values with some room (not below 0 when none is negative); 0-100 when none
+    is finite."""
     finite = [v for v in values if math.isfinite(v)]
     if not finite:
         return 0.0, 100.0
@@ -128,8 +128,7 @@ def _overlap(a: tuple[float, float, float, float], b: tuple[float, float, float,
 
 
 def _legend(draw: ImageDraw.ImageDraw, font: Font, series: Sequence[Series]) -> None:
-    """Colour keys above the plot area, right-aligned; on two rows when one would run off
-    the left edge."""
+    """Colour keys above the plot area, right-aligned, on two rows when one is too long."""
     widths = [40 + font.getlength(s.label) + 18 for s in series]
     rows = _legend_rows(widths)
     for (first, stop, width), y in zip(rows, LEGEND_ROWS_Y[len(rows)], strict=True):
@@ -145,8 +144,8 @@ LEGEND_ROWS_Y: Final = {1: (40,), 2: (31, 48)}
 
 
 def _legend_rows(widths: Sequence[float]) -> list[tuple[int, int, float]]:
-    """(first, stop, width) of the keys on each row: one row if it fits across the chart,
-    else two, the first as full as it can be (the charts here have at most four keys)."""
+    """(first, stop, width) of the keys on each row: one row if it fits, else two, the first
+    as full as it can be."""
     room = SIZE[0] - MARGIN[2] - 8  # from the left edge, as the y label
     if sum(widths) <= room or len(widths) < 2:
         return [(0, len(widths), sum(widths))]
@@ -193,9 +192,7 @@ def psnr_chart(report: EvalReport) -> Image.Image:
 
 def write_png(image: Image.Image, path: str | os.PathLike[str]) -> None:
     """Publish ``image`` atomically as a PNG at ``path``."""
-    buffer = io.BytesIO()
-    image.save(buffer, format="PNG")
-    atomic_write_bytes(path, buffer.getvalue())
+    save_png(np.asarray(image), path)
 
 
 def write_psnr_plot(report: EvalReport, path: str | os.PathLike[str]) -> None:

@@ -14,8 +14,11 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 import numpy.typing as npt
 
+from ..framing import rotation, world_to_camera
 from ..model import Gaussians
-from .camera import Camera
+from ..opacity import logit_to_alpha
+from ..schemas.cameras import Camera
+from .camera import check_drawable
 from .sh import sh_colors
 
 F64 = npt.NDArray[np.float64]
@@ -79,10 +82,11 @@ def quat_to_rotmat(quats: npt.NDArray[np.floating]) -> F64:
 def _screen_rows(p_view: F64, camera: Camera) -> tuple[F64, F64]:
     """The two rows (N, 3) of T = J W: the guard-banded projection Jacobian times the view."""
     z = p_view[:, 2]
-    view = camera.world_to_camera[:3, :3]
+    view = rotation(camera).T
+    cx, cy = camera.principal_point
     rows = []
     for axis, (f, c, size) in enumerate(
-        ((camera.fx, camera.cx, camera.width), (camera.fy, camera.cy, camera.height))
+        ((camera.fx, cx, camera.width), (camera.fy, cy, camera.height))
     ):
         centre, half = (size / 2 - c) / f, size / (2 * f)
         lo, hi = centre - GUARD_BAND * half, centre + GUARD_BAND * half
@@ -127,23 +131,18 @@ def _tile_rects(xy: F64, radius: I64, camera: Camera) -> I64:
 def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False) -> Projected:
     """Cull and project ``gaussians`` for ``camera``; see the module docstring for the maths.
 
-    Works in blocks of :data:`BLOCK` Gaussians (temporaries stay in cache; same results).
+    Works in blocks of :data:`BLOCK` Gaussians (temporaries stay in cache; same results); a
+    camera :func:`~tsog_stream.render.camera.check_drawable` refuses raises InputError.
     """
+    check_drawable(camera)
     n = len(gaussians)
     if n <= BLOCK:
         return _project_block(gaussians, camera, antialiased)
     parts = []
+    g = gaussians
     for lo in range(0, n, BLOCK):
-        rows = slice(lo, lo + BLOCK)  # views, no copies
-        g = gaussians
-        part = Gaussians(
-            g.means[rows],
-            g.scales[rows],
-            g.quats[rows],
-            g.opacities[rows],
-            g.sh0[rows],
-            g.shN[rows],
-        )
+        r = slice(lo, lo + BLOCK)  # views, no copies
+        part = Gaussians(g.means[r], g.scales[r], g.quats[r], g.opacities[r], g.sh0[r], g.shN[r])
         block = _project_block(part, camera, antialiased)
         parts.append(replace(block, index=block.index + lo))
     columns = (np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Projected))
@@ -152,7 +151,7 @@ def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False) 
 
 def _project_block(gaussians: Gaussians, camera: Camera, antialiased: bool) -> Projected:
     """:func:`project` of one block of Gaussians."""
-    w2c = camera.world_to_camera
+    w2c = world_to_camera(camera)
     view = w2c[:3, :3]
     p_view = gaussians.means.astype(np.float64) @ view.T + w2c[:3, 3]
     keep = np.flatnonzero(p_view[:, 2] > NEAR)
@@ -161,7 +160,7 @@ def _project_block(gaussians: Gaussians, camera: Camera, antialiased: bool) -> P
     a0, b, c0 = screen_covariances(p_view, gaussians.scales[keep], gaussians.quats[keep], camera)
     a, c = a0 + LOW_PASS, c0 + LOW_PASS
     det = a * c - b * b
-    opacity = 1.0 / (1.0 + np.exp(-gaussians.opacities[keep].astype(np.float64)))
+    opacity = logit_to_alpha(gaussians.opacities[keep])
     if antialiased:
         with np.errstate(divide="ignore", invalid="ignore"):
             opacity = opacity * np.sqrt(np.maximum(0.0, (a0 * c0 - b * b) / det))
@@ -170,10 +169,11 @@ def _project_block(gaussians: Gaussians, camera: Camera, antialiased: bool) -> P
         mid = 0.5 * (a + c)
         lambda1 = mid + np.sqrt(np.maximum(0.1, mid * mid - det))
         radius_f = np.ceil(3.0 * np.sqrt(lambda1))
+    cx, cy = camera.principal_point
     xy = np.stack(
         [
-            camera.fx * p_view[:, 0] / z + camera.cx - 0.5,
-            camera.fy * p_view[:, 1] / z + camera.cy - 0.5,
+            camera.fx * p_view[:, 0] / z + cx - 0.5,
+            camera.fy * p_view[:, 1] / z + cy - 0.5,
         ],
         axis=1,
     )
@@ -183,10 +183,9 @@ def _project_block(gaussians: Gaussians, camera: Camera, antialiased: bool) -> P
     rect = _tile_rects(np.where(ok[:, None], xy, 0.0), radius, camera)
     ok &= (rect[:, 1] > rect[:, 0]) & (rect[:, 3] > rect[:, 2])
     sel = keep[ok]
+    eye = np.array(camera.position, dtype=np.float64)
     if sel.shape[0] == len(gaussians):  # everything visible: skip copying the SH arrays
-        color = sh_colors(gaussians.means, gaussians.sh0, gaussians.shN, camera.position)
+        color = sh_colors(gaussians.means, gaussians.sh0, gaussians.shN, eye)
     else:
-        color = sh_colors(
-            gaussians.means[sel], gaussians.sh0[sel], gaussians.shN[sel], camera.position
-        )
+        color = sh_colors(gaussians.means[sel], gaussians.sh0[sel], gaussians.shN[sel], eye)
     return Projected(sel, xy[ok], conic[ok], opacity[ok], color, z[ok], radius[ok], rect[ok])

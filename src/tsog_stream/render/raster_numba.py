@@ -1,9 +1,6 @@
-"""The numba compositor: the numpy path's maths as per-pixel loops over each tile's list.
+"""The numba compositor: the numpy path's maths as the reference's sequential per-pixel loop.
 
-Optional (``pip install tsog-stream[render]``); :func:`available` is False when numba cannot be
-imported and the numpy path is used instead. The loop is the reference's sequential one:
-skip power > 0 and alpha < 1/255, stop before T * (1 - alpha) < 1e-4, accumulate
-colour * alpha * T in float64.
+Optional (``pip install tsog-stream[render]``): without numba, :func:`available` is False.
 """
 
 from __future__ import annotations
@@ -82,11 +79,8 @@ def _tiles_kernel(  # pragma: no cover - compiled by numba, checked against nump
 
 
 def skip_below(opacity: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Per Gaussian, a power below which alpha is surely < 1/255, so exp() can be skipped.
-
-    ln(ALPHA_MIN / opacity) less a margin (1e-9, far above the few ulps of rounding in exp,
-    log and the product), so skipping never changes a decision the full test would make.
-    """
+    """Per Gaussian, a power below which alpha is surely < 1/255 (less a 1e-9 margin, far above
+    rounding), so exp() can be skipped without changing a decision."""
     with np.errstate(divide="ignore"):
         return np.log(ALPHA_MIN / opacity) - 1e-9
 
@@ -107,10 +101,8 @@ def _kernel() -> Any:
 def rasterize_numba(
     proj: Projected, bins: TileBins, width: int, height: int, background: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float32]:
-    """The (H, W, 3) image composited by the numba kernel.
-
-    Launches are serialised: numba's fallback "workqueue" threading layer is not thread-safe.
-    """
+    """The (H, W, 3) image composited by the numba kernel; launches are serialised (numba's
+    fallback "workqueue" threading layer is not thread-safe)."""
     image = np.zeros((height, width, 3), np.float64)
     cutoff = skip_below(proj.opacity)[:, None]
     packed = np.concatenate([proj.xy, proj.conic, proj.opacity[:, None], proj.color, cutoff], 1)

@@ -1,8 +1,8 @@
-"""Schemas of TSOG chunk ``meta.json`` (SOG v2 + ``timeline``/``temporal``), pydantic at the edge.
+"""Schemas of the JSON a TSOG file holds (chunk ``meta.json``, the index), pydantic at the edge.
 
 Parse with :func:`parse_meta`, write with :func:`dump_meta`; both raise
-:class:`~tsog_stream.errors.MetaError` naming the failing field. The JSON Schema shipped in
-``docs/schema/meta.schema.json`` is :func:`meta_json_schema` (see scripts/export_schemas.py).
+:class:`~tsog_stream.errors.MetaError` naming the failing field. ``docs/schema/`` ships
+:func:`meta_json_schema_text` (scripts/export_schemas.py).
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ from .validate import (
     dump_sh_meta,
     listed_files,
     meta_document,
-    meta_json_schema,
     meta_json_schema_text,
     parse_any_meta,
     parse_meta,
@@ -39,7 +38,6 @@ __all__ = [
     "dump_sh_meta",
     "listed_files",
     "meta_document",
-    "meta_json_schema",
     "meta_json_schema_text",
     "parse_any_meta",
     "parse_meta",

@@ -1,10 +1,12 @@
-"""Capture cameras: the pydantic model the container index stores, and the 3DGS JSON edge.
+"""The one camera type (:class:`Camera`), and the 3DGS ``cameras.json`` edge.
 
-A capture camera is a pinhole camera as 3DGS's ``cameras.json`` writes it: image size,
-focal lengths and principal point in pixels, the camera centre (``position``) and the
-camera-to-world ``rotation`` (rows of a 3x3 matrix whose columns are the camera's x right,
-y down and z forward axes in world coordinates: the COLMAP/OpenCV convention). See
-docs/spec.md §9 ("cameras" and "view").
+Every reader produces a :class:`Camera` (cameras.json, COLMAP, a ``.splatv`` header, the
+manifest), framing makes one, and the renderer draws with one (render/camera.py sizes it for a
+picture and holds it to what the rasterizer may allocate). It is a pinhole camera as 3DGS's
+``cameras.json`` writes it: image size, focal lengths and principal point in pixels, the camera
+centre (``position``) and the camera-to-world ``rotation`` (rows of a 3x3 matrix whose columns
+are the camera's x right, y down and z forward axes in world coordinates: the COLMAP/OpenCV
+convention). See docs/spec.md §9 ("cameras" and "view").
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ ORTHONORMAL_TOLERANCE = 1e-3
 NAME_MAX = 255
 
 
-class CaptureCamera(BaseModel):
-    """One camera of the capture (or a view chosen for the scene), 3DGS ``cameras.json`` style."""
+class Camera(BaseModel):
+    """A pinhole camera: one of the capture, a view chosen for the scene, or one to draw with."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -44,7 +46,7 @@ class CaptureCamera(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _rotation_is_a_rotation(self) -> CaptureCamera:
+    def _rotation_is_a_rotation(self) -> Camera:
         r = self.rotation
         for i in range(3):
             for j in range(3):
@@ -63,25 +65,25 @@ class CaptureCamera(BaseModel):
         return cx, cy
 
 
-class HeaderCamera(CaptureCamera):
+class HeaderCamera(Camera):
     """A camera a format's header carries (a ``.splatv``'s): a converter's choice of view,
     not the pose of a captured image, so a viewer trusts it less (framing.opening_view).
 
-    Equal to (and hashed like) the :class:`CaptureCamera` with the same fields: the kind is
+    Equal to (and hashed like) the :class:`Camera` with the same fields: the kind is
     where the camera came from, not what it is, and a container stores both alike."""
 
     @classmethod
-    def of(cls, camera: CaptureCamera) -> HeaderCamera:
+    def of(cls, camera: Camera) -> HeaderCamera:
         """``camera`` marked as a header's."""
         return cls.model_validate(camera.model_dump())
 
     def __eq__(self, other: object) -> bool:
         """Field by field, whatever the kind of either camera."""
-        if not isinstance(other, CaptureCamera):
+        if not isinstance(other, Camera):
             return NotImplemented
         return self.__dict__ == other.__dict__
 
-    __hash__ = CaptureCamera.__hash__
+    __hash__ = Camera.__hash__
 
 
 def _determinant(r: tuple[Vec3, Vec3, Vec3]) -> float:
@@ -93,10 +95,10 @@ def _determinant(r: tuple[Vec3, Vec3, Vec3]) -> float:
     )
 
 
-CameraList = Annotated[list[CaptureCamera], Field(max_length=MAX_CAMERAS)]
+CameraList = Annotated[list[Camera], Field(max_length=MAX_CAMERAS)]
 
 
-def cameras_from_json(entries: Any, *, where: str) -> list[CaptureCamera]:
+def cameras_from_json(entries: Any, *, where: str) -> list[Camera]:
     """The cameras of a 3DGS ``cameras.json`` list (``id``/``img_name``/``width``/``height``/
     ``position``/``rotation``/``fx``/``fy``; other keys ignored), in file order.
 
@@ -114,8 +116,8 @@ def cameras_from_json(entries: Any, *, where: str) -> list[CaptureCamera]:
 _JSON_KEYS = ("width", "height", "fx", "fy", "cx", "cy", "position", "rotation")
 
 
-def _json_camera(entry: Any, index: int, where: str) -> CaptureCamera:
-    """One cameras.json entry as a CaptureCamera."""
+def _json_camera(entry: Any, index: int, where: str) -> Camera:
+    """One cameras.json entry as a Camera."""
     if not isinstance(entry, dict):
         raise FormatError(f"camera {index} is not a JSON object", where=where)
     fields = {key: entry[key] for key in _JSON_KEYS if key in entry}
@@ -126,6 +128,6 @@ def _json_camera(entry: Any, index: int, where: str) -> CaptureCamera:
         if isinstance(value, float) and value.is_integer():
             fields[side] = int(value)
     try:
-        return CaptureCamera.model_validate(fields)
+        return Camera.model_validate(fields)
     except ValidationError as exc:
         raise to_meta_error(exc, prefix=f"[{index}]", where=where) from None

@@ -1,23 +1,21 @@
-"""The container index (``manifest.json`` when unpacked): pydantic models and their checks.
-
-The index says what the scene is, how time is cut into nodes (windows and, for layered
-policies, coarser levels) and, for every chunk, where its bytes are, what it holds (count, time
-interval, bounding box) and its SHA-256. See docs/spec.md §8.2.
+"""The container index (``manifest.json`` when unpacked), docs/spec.md §8.2: what the scene
+is, how time is cut into nodes (windows, and coarser levels), and each chunk's bytes, content
+(count, interval, box) and SHA-256, as pydantic models and their checks.
 """
 
 from __future__ import annotations
 
 import json
 import re
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic.dataclasses import dataclass
 
 from ..constants import MAX_LAYERS_READ, MAX_PSNR_DB, TEMPORAL_CHANNELS
 from ..errors import IntegrityError, MetaError
-from .cameras import CameraList, CaptureCamera
-from .sog_meta import to_meta_error
+from .cameras import Camera, CameraList
+from .sog_meta import schema_text, to_meta_error
 
 POLICIES = ("duplicate", "hierarchy", "hybrid")
 Policy = Literal["duplicate", "hierarchy", "hybrid"]
@@ -32,9 +30,8 @@ class _Model(BaseModel):
 
 
 _STRICT = ConfigDict(extra="forbid")
-"""Records an index holds one per node or chunk are slotted, frozen pydantic dataclasses, not
-models: a third of the memory and half the parse time at 160k chunks (no per-instance dict or
-fields-set)."""
+"""Records held one per node or chunk are slotted, frozen pydantic dataclasses, not models: a
+third of the memory and half the parse time at 160k chunks."""
 
 
 @dataclass(frozen=True, slots=True, config=_STRICT)
@@ -159,7 +156,7 @@ class Manifest(_Model):
     cameras: CameraList = Field(
         default_factory=list, description="capture cameras the input carried or sat beside"
     )
-    view: CaptureCamera | None = Field(
+    view: Camera | None = Field(
         default=None,
         description="where a viewer opens: the first capture camera, else a framing of the "
         "scene's dense core (null in indexes written before cameras were stored)",
@@ -227,11 +224,8 @@ def _check_sh_chunks(chunks: list[ChunkEntry], sh_bands: int) -> None:
 
 
 def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manifest:
-    """Validate index JSON; a bad document raises MetaError naming the field.
-
-    Parsed straight from the bytes (pydantic's JSON parser: half the time and a third less
-    memory than building Python objects first, which matters at the 64 MiB index cap).
-    """
+    """Validate index JSON (MetaError naming the field), parsed straight from the bytes:
+    half the time and a third less memory than Python objects first, at the 64 MiB cap."""
     try:
         return Manifest.model_validate_json(data)
     except ValidationError as exc:
@@ -243,10 +237,8 @@ def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manife
 
 
 def dump_manifest(manifest: Manifest) -> bytes:
-    """Compact, deterministic JSON of the index; a single-layer index is written as before
-    layers existed (no ``layers``, no chunk ``layer``), a base chunk never names its layer, a
-    chunk of Gaussians has no ``sh_of`` and a scene whose length was read has no
-    ``duration_assumed``."""
+    """Compact, deterministic JSON of the index, without the keys at their defaults that older
+    indexes lack (``layers`` empty, a chunk's ``layer`` 0 and ``sh_of``, ``duration_assumed``)."""
     data = manifest.model_dump(mode="json")
     if not data["layers"]:
         del data["layers"]
@@ -274,13 +266,6 @@ def check_layout(manifest: Manifest, payload_start: int, payload_end: int, *, wh
         previous_end = end
 
 
-def manifest_json_schema() -> dict[str, Any]:
-    """JSON Schema of the index (for docs/schema/)."""
-    schema = Manifest.model_json_schema()
-    schema["title"] = "tsog-stream container index (manifest.json)"
-    return schema
-
-
 def manifest_json_schema_text() -> str:
-    """The index JSON Schema as deterministic text (sorted keys, indent 2, final newline)."""
-    return json.dumps(manifest_json_schema(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
+    """JSON Schema of the index as docs/schema/ ships it."""
+    return schema_text(Manifest, title="tsog-stream container index (manifest.json)")

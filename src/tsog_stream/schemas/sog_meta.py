@@ -1,12 +1,11 @@
-"""Pydantic models of the SOG v2 ``meta.json`` (docs/spec.md; /work/shared/spec/sog-v2.md §2).
-
-Shared building blocks live here too: :data:`FiniteFloat`, :data:`FileName`, the JSON-value
-check for free-form keys (``asset``, ``extras``, unknown top-level keys) and
-:func:`field_error`, which lets a validator name a sub-field of the object it checks.
+"""Pydantic models of the SOG v2 ``meta.json`` (docs/spec.md), and the schemas' shared parts:
+:data:`FiniteFloat`, :data:`FileName`, the JSON-value check of free-form keys, and
+:func:`field_error`, with which a validator names a sub-field of the object it checks.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
 from typing import Annotated, Any, Literal, TypeVar
@@ -28,31 +27,28 @@ from ..errors import MetaError
 
 SUFFIX_KEY = "tsog_suffix"
 """Error-context key holding the path of the culprit below the validated object."""
-
 FILE_NAME_MAX_BYTES = 255
 """Longest file name (UTF-8 bytes) accepted: the common file-system limit."""
-
 MAX_COUNT = WEBP_MAX_SIDE * WEBP_MAX_SIDE
 """More Gaussians than this cannot fit in a WebP image."""
-
-
 DOCUMENT = "<document>"
 """``MetaError.field`` for problems with the document as a whole (encoding, JSON syntax)."""
-
-
-def custom_error(message: str, *, suffix: str | None = None) -> PydanticCustomError:
-    """A validation error with a finished ``message`` (never re-formatted: it may hold braces).
-
-    ``suffix`` (e.g. ``mins[1]``) names the culprit below the object being validated.
-    """
-    ctx: dict[str, str] = {} if suffix is None else {SUFFIX_KEY: suffix}
-    ctx["message"] = message  # last: pydantic substitutes context keys in order
-    return PydanticCustomError("tsog_error", "{message}", ctx)
+SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
 
 
 def field_error(suffix: str, message: str) -> PydanticCustomError:
-    """A validation error about ``suffix`` (e.g. ``mins[1]``) below the object being checked."""
-    return custom_error(message, suffix=suffix)
+    """A validation error about ``suffix`` (e.g. ``mins[1]``; "" for the object itself) below
+    the object being checked, with a finished ``message`` (never re-formatted: it may hold
+    braces)."""
+    # the message last: pydantic substitutes context keys in order
+    return PydanticCustomError("tsog_error", "{message}", {SUFFIX_KEY: suffix, "message": message})
+
+
+def schema_text(model: type[BaseModel], **keys: str) -> str:
+    """``model``'s JSON Schema with ``keys`` added, serialised deterministically (sorted keys,
+    indent 2, final newline) as docs/schema/ ships it."""
+    schema = model.model_json_schema() | keys
+    return json.dumps(schema, indent=2, sort_keys=True, ensure_ascii=False) + "\n"
 
 
 def describe(value: object) -> str:
@@ -120,18 +116,16 @@ def to_meta_error(exc: ValidationError, *, prefix: str = "", where: str | None =
 ModelT = TypeVar("ModelT", bound=BaseModel)
 
 
-def validate_into(
-    cls: type[ModelT], data: Any, *, prefix: str = "", where: str | None = None
-) -> ModelT:
+def validate_into(cls: type[ModelT], data: Any, *, where: str | None = None) -> ModelT:
     """``cls.model_validate(data)`` with pydantic's error translated to :class:`MetaError`."""
     try:
         return cls.model_validate(data)
     except ValidationError as exc:
-        raise to_meta_error(exc, prefix=prefix, where=where) from None
+        raise to_meta_error(exc, where=where) from None
 
 
 def _check_file_name(name: str) -> str:
-    """Accept only a plain file name inside the chunk folder (no path, no escape, portable)."""
+    """Only a plain, portable file name inside the chunk folder (no path, no escape)."""
     problem = None
     if name in ("", ".", ".."):
         problem = "a non-empty name other than '.' and '..'"
@@ -141,52 +135,42 @@ def _check_file_name(name: str) -> str:
         problem = "a name without ':' (no drive letters or stream names)"
     elif any(ord(ch) < 0x20 or ord(ch) == 0x7F for ch in name):
         problem = "a name without control characters (NUL included)"
-    else:
-        try:
-            size = len(name.encode("utf-8"))
-        except UnicodeEncodeError:
-            problem = "a name that is valid Unicode (no lone surrogates)"
-        else:
-            if size > FILE_NAME_MAX_BYTES:
-                problem = f"a name of at most {FILE_NAME_MAX_BYTES} UTF-8 bytes ({size} here)"
+    elif not _utf8(name):
+        problem = "a name that is valid Unicode (no lone surrogates)"
+    elif (size := len(name.encode("utf-8"))) > FILE_NAME_MAX_BYTES:
+        problem = f"a name of at most {FILE_NAME_MAX_BYTES} UTF-8 bytes ({size} here)"
     if problem is not None:
-        raise custom_error(f"expected {problem}, found {describe(name)}")
+        raise field_error("", f"expected {problem}, found {describe(name)}")
     return name
 
 
-def _text_problem(text: str) -> str | None:
-    """Why ``text`` cannot be written as UTF-8 JSON (a lone surrogate), or None."""
+def _json_problem(value: object, path: str) -> tuple[str, str] | None:
+    """(path, what is wrong) for the first non-JSON, non-finite or non-UTF-8 item of ``value``."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return path, f"a finite number, found {describe(value)}"
+    if isinstance(value, str) and not _utf8(value):
+        return path, "valid Unicode text, found a lone surrogate"
+    if value is None or isinstance(value, int | float | str):
+        return None
+    if isinstance(value, list | tuple):
+        value = {f"[{i}]": item for i, item in enumerate(value)}
+    elif isinstance(value, dict):
+        for key in value:
+            if not isinstance(key, str) or not _utf8(key):
+                return path, f"object keys to be valid strings, found {describe(key)}"
+        value = {f".{key}": item for key, item in value.items()}
+    else:
+        return path, f"a JSON value, found {describe(value)}"
+    return next(filter(None, (_json_problem(v, path + k) for k, v in value.items())), None)
+
+
+def _utf8(text: str) -> bool:
+    """True unless ``text`` holds a lone surrogate (no UTF-8 for it)."""
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:
-        return "valid Unicode text, found a lone surrogate"
-    return None
-
-
-def _json_problem(value: object, path: str) -> tuple[str, str] | None:
-    """(path, what is wrong) for the first non-JSON or non-finite item inside ``value``."""
-    if isinstance(value, float):
-        return None if math.isfinite(value) else (path, f"a finite number, found {describe(value)}")
-    if isinstance(value, str):
-        problem = _text_problem(value)
-        return None if problem is None else (path, problem)
-    if value is None or isinstance(value, int):
-        return None
-    if isinstance(value, dict):
-        for key, item in value.items():
-            if not isinstance(key, str) or _text_problem(key):
-                return path, f"object keys to be valid strings, found {describe(key)}"
-            found = _json_problem(item, f"{path}.{key}")
-            if found:
-                return found
-        return None
-    if isinstance(value, list | tuple):
-        for i, item in enumerate(value):
-            found = _json_problem(item, f"{path}[{i}]")
-            if found:
-                return found
-        return None
-    return path, f"a JSON value, found {describe(value)}"
+        return False
+    return True
 
 
 def check_json_value(value: Any, path: str = "") -> Any:
@@ -217,10 +201,8 @@ Text = Annotated[StrictStr, AfterValidator(check_json_value)]
 """A string that can be written as UTF-8."""
 
 Codebook = Annotated[
-    tuple[FiniteFloat, ...],
-    Field(min_length=CODEBOOK_SIZE, max_length=CODEBOOK_SIZE),
+    tuple[FiniteFloat, ...], Field(min_length=CODEBOOK_SIZE, max_length=CODEBOOK_SIZE)
 ]
-
 
 Vec3 = Annotated[tuple[FiniteFloat, ...], Field(min_length=3, max_length=3)]
 """Exactly three finite floats (one per axis or colour channel)."""
@@ -231,8 +213,8 @@ Files2 = Annotated[tuple[FileName, ...], Field(min_length=2, max_length=2)]
 
 
 def check_ranges(mins: Sequence[float], maxs: Sequence[float], row: str = "") -> None:
-    """Raise a field error naming ``mins{row}[i]`` for the first channel with min > max, or
-    with a bound outside float32 (decoded values are float32: ±1e308 would become inf and NaN)."""
+    """A field error at ``mins{row}[i]`` of the first channel with min > max or a bound past
+    float32 (decoded values are float32: ±1e308 would become inf and NaN)."""
     for i, (lo, hi) in enumerate(zip(mins, maxs, strict=False)):
         name = f"mins{row}[{i}]"
         if lo > hi:
@@ -270,11 +252,8 @@ class MeansMeta(FrozenModel):
         for key, values in (("mins", self.mins), ("maxs", self.maxs)):
             for i, v in enumerate(values):
                 if abs(v) > MAX_LOG_POSITION:
-                    raise field_error(
-                        f"{key}[{i}]",
-                        f"expected |{key}[{i}]| <= {MAX_LOG_POSITION} (a position that fits a "
-                        f"float32), found {v!r}",
-                    )
+                    found = f"<= {MAX_LOG_POSITION} (a position that fits a float32), found {v!r}"
+                    raise field_error(f"{key}[{i}]", f"expected |{key}[{i}]| {found}")
         return self
 
 

@@ -1,13 +1,11 @@
-"""Pydantic models of the TSOG additions to ``meta.json``: ``timeline`` and ``temporal``.
-
-A TSOG chunk's meta is a SOG v2 meta (:class:`~.sog_meta.SogMeta`) plus two optional keys
-(docs/spec.md, "meta.json"; paper section 3). :class:`ChunkMeta` is the whole document;
-:class:`ShBandsMeta` is the meta of an SH-band chunk (the higher bands of another chunk).
+"""Pydantic models of the TSOG ``meta.json`` (docs/spec.md, "meta.json"): :class:`ChunkMeta`,
+a SOG v2 meta plus optional ``timeline`` and ``temporal``, and :class:`ShBandsMeta`, the meta
+of an SH-band chunk (the higher bands of another chunk).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BeforeValidator, Field, StrictInt, model_validator
@@ -17,9 +15,6 @@ from ..constants import (
     SOG_VERSION,
     STORED_CHANNELS,
     TEMPORAL_CHANNELS,
-    TIMELINE_L,
-    TIMELINE_U,
-    temporal_file,
 )
 from ..model import TimelineType
 from .sog_meta import (
@@ -33,10 +28,8 @@ from .sog_meta import (
     Vec2,
     check_json_value,
     check_ranges,
-    custom_error,
     describe,
     field_error,
-    validate_into,
 )
 
 PositiveFloat = Annotated[FiniteFloat, Field(gt=0)]
@@ -48,7 +41,7 @@ def _strict_int(value: Any) -> Any:
     """Let only a JSON integer through (no bool, no 2.0, no "2") before enum validation."""
     if isinstance(value, int) and not isinstance(value, bool):
         return value
-    raise custom_error(f"expected an integer 0, 1 or 2, found {describe(value)}")
+    raise field_error("", f"expected an integer 0, 1 or 2, found {describe(value)}")
 
 
 class TimelineMeta(FrozenModel):
@@ -74,39 +67,14 @@ class TimelineMeta(FrozenModel):
     def _consistent(self) -> TimelineMeta:
         """fps only for frame-based types; type 0 leaves G at 0; mins <= maxs."""
         if self.fps is not None and self.type is TimelineType.CENTER_SCALE:
-            raise field_error(
-                "fps", "expected no fps for type 2 (centre/scale); fps is for 0 and 1"
-            )
-        if self.type is TimelineType.FRAME:
-            for key, values in (("mins", self.mins), ("maxs", self.maxs)):
-                if values[1] != 0.0:
-                    raise field_error(
-                        f"{key}[1]", f"expected 0 (G is unused for type 0), found {values[1]!r}"
-                    )
+            found = "expected no fps for type 2 (centre/scale); fps is for 0 and 1"
+            raise field_error("fps", found)
+        for key, values in (("mins", self.mins), ("maxs", self.maxs)):
+            if self.type is TimelineType.FRAME and values[1] != 0.0:
+                found = f"expected 0 (G is unused for type 0), found {values[1]!r}"
+                raise field_error(f"{key}[1]", found)
         check_ranges(self.mins, self.maxs)
         return self
-
-    @classmethod
-    def build(
-        cls,
-        type: int,
-        mins: Sequence[float],
-        maxs: Sequence[float],
-        *,
-        fps: float | None = None,
-        scene_length: float | None = None,
-        files: tuple[str, str] = (TIMELINE_L, TIMELINE_U),
-    ) -> TimelineMeta:
-        """A validated ``timeline`` from numbers (numpy scalars welcome); raises MetaError."""
-        data = {
-            "type": int(type),
-            "fps": None if fps is None else float(fps),
-            "scene_length": None if scene_length is None else float(scene_length),
-            "mins": [float(v) for v in mins],
-            "maxs": [float(v) for v in maxs],
-            "files": list(files),
-        }
-        return validate_into(cls, data, prefix="timeline")
 
 
 class TemporalAttributeMeta(FrozenModel):
@@ -121,26 +89,21 @@ class TemporalAttributeMeta(FrozenModel):
     @model_validator(mode="after")
     def _shapes(self) -> TemporalAttributeMeta:
         """Rows of one width, maxs shaped like mins, two files per order, mins <= maxs."""
-        width = len(self.mins[0])
+        width, orders = len(self.mins[0]), self.orders
         if width == 0:
             raise field_error("mins[0]", "expected at least one channel, found an empty row")
         for k, row in enumerate(self.mins):
             if len(row) != width:
                 raise field_error(f"mins[{k}]", f"expected {width} values, found {len(row)}")
-        if len(self.maxs) != self.orders:
-            raise field_error(
-                "maxs", f"expected {self.orders} rows like mins, found {len(self.maxs)}"
-            )
+        if len(self.maxs) != orders:
+            raise field_error("maxs", f"expected {orders} rows like mins, found {len(self.maxs)}")
         for k, row in enumerate(self.maxs):
             if len(row) != width:
-                raise field_error(
-                    f"maxs[{k}]", f"expected {width} values (like mins[0]), found {len(row)}"
-                )
-        if len(self.files) != 2 * self.orders:
-            raise field_error(
-                "files",
-                f"expected {2 * self.orders} file names (2 per order), found {len(self.files)}",
-            )
+                found = f"expected {width} values (like mins[0]), found {len(row)}"
+                raise field_error(f"maxs[{k}]", found)
+        if len(self.files) != 2 * orders:
+            found = f"expected {2 * orders} file names (2 per order), found {len(self.files)}"
+            raise field_error("files", found)
         for k in range(self.orders):
             check_ranges(self.mins[k], self.maxs[k], row=f"[{k}]")
         return self
@@ -155,44 +118,14 @@ class TemporalAttributeMeta(FrozenModel):
         """Values per order (the attribute's channel count)."""
         return len(self.mins[0])
 
-    def order_files(self, order: int) -> tuple[str, str]:
-        """(low-byte, high-byte) image names of coefficient order ``order`` (1-based)."""
-        return self.files[2 * order - 2], self.files[2 * order - 1]
-
-    @classmethod
-    def build(
-        cls,
-        attr: str,
-        mins: Sequence[Sequence[float]],
-        maxs: Sequence[Sequence[float]],
-        *,
-        files: Sequence[str] | None = None,
-    ) -> TemporalAttributeMeta:
-        """A validated ``temporal.<attr>`` from numbers; default names temporal_<attr>_<k>_<l|u>.
-
-        Checks the channel count of ``attr`` too; raises MetaError.
-        """
-        orders = len(mins)
-        if files is None:
-            files = [temporal_file(attr, k, h) for k in range(1, orders + 1) for h in "lu"]
-        entry = {
-            "mins": [[float(v) for v in row] for row in mins],
-            "maxs": [[float(v) for v in row] for row in maxs],
-            "files": list(files),
-        }
-        holder = validate_into(_TemporalHolder, {"temporal": {attr: entry}}, prefix="")
-        return holder.temporal[attr]
-
 
 def _known_attributes(value: Any) -> Any:
     """Name the first key of ``temporal`` that is not a dynamic attribute we know."""
-    if isinstance(value, Mapping):
-        for key in value:
-            if key not in TEMPORAL_CHANNELS:
-                known = ", ".join(TEMPORAL_CHANNELS)
-                raise field_error(
-                    str(key), f"expected a temporal attribute ({known}), found {describe(key)}"
-                )
+    for key in value if isinstance(value, Mapping) else ():
+        if key not in TEMPORAL_CHANNELS:
+            known = ", ".join(TEMPORAL_CHANNELS)
+            found = f"expected a temporal attribute ({known}), found {describe(key)}"
+            raise field_error(str(key), found)
     return value
 
 
@@ -201,23 +134,17 @@ def _channels_and_order(
 ) -> dict[str, TemporalAttributeMeta]:
     """Each attribute's rows have its channel count; keys come back in TEMPORAL_CHANNELS order."""
     if not value:
-        raise field_error(
-            "", "expected at least one attribute; omit 'temporal' when none is dynamic"
-        )
+        found = "expected at least one attribute; omit 'temporal' when none is dynamic"
+        raise field_error("", found)
     for attr, entry in value.items():
-        allowed = STORED_CHANNELS[attr]
-        if entry.channels not in allowed:
-            want = " or ".join(str(c) for c in allowed)
-            raise field_error(
-                f"{attr}.mins[0]",
-                f"expected {want} values ({attr}'s channels), found {entry.channels}",
-            )
+        if entry.channels not in STORED_CHANNELS[attr]:
+            want = " or ".join(str(c) for c in STORED_CHANNELS[attr])
+            found = f"expected {want} values ({attr}'s channels), found {entry.channels}"
+            raise field_error(f"{attr}.mins[0]", found)
     sh0 = value.get("sh0")
     if "opacity" in value and sh0 is not None and sh0.channels == 4:
-        raise field_error(
-            "opacity",
-            "expected opacity's coefficients once: they are in sh0's A channel already",
-        )
+        found = "expected opacity's coefficients once: they are in sh0's A channel already"
+        raise field_error("opacity", found)
     return {attr: value[attr] for attr in TEMPORAL_CHANNELS if attr in value}
 
 
@@ -232,12 +159,6 @@ Temporal = Annotated[
         },
     ),
 ]
-
-
-class _TemporalHolder(FrozenModel):
-    """Wrapper to validate one attribute against its channel count (used by ``build``)."""
-
-    temporal: Temporal
 
 
 class ChunkMeta(SogMeta):
@@ -265,44 +186,36 @@ class ChunkMeta(SogMeta):
             raise field_error(
                 "temporal", "expected a 'timeline' key alongside 'temporal', found none"
             )
-        seen: dict[str, str] = {}
-        for field, name in self.listed_files():
-            if name in seen:
-                raise field_error(
-                    field,
-                    f"expected a distinct file name, found {name!r} again (also {seen[name]})",
-                )
-            seen[name] = field
+        _refuse_repeated(self.listed_files())
         return self
 
     def listed_files(self) -> list[tuple[str, str]]:
-        """(field path, file name) of every image referenced, in the canonical order."""
-        return list(_iter_files(self))
+        """(field path, file name) of every image, in the canonical order: means l/u, quats,
+        scales, sh0, shN, timeline, temporal (by attribute, order, l before u)."""
+        keys = ("means", "quats", "scales", "sh0", "shN", "timeline")
+        parts: list[tuple[str, Any]] = [(key, getattr(self, key)) for key in keys]
+        parts += [(f"temporal.{attr}", entry) for attr, entry in (self.temporal or {}).items()]
+        return [
+            (f"{key}.files[{i}]", name)
+            for key, part in parts
+            if part is not None
+            for i, name in enumerate(part.files)
+        ]
 
 
-def _iter_files(meta: ChunkMeta) -> Iterator[tuple[str, str]]:
-    """Images in order: means l/u, quats, scales, sh0, shN, timeline, temporal (by attr, order)."""
-    yield "means.files[0]", meta.means.files[0]
-    yield "means.files[1]", meta.means.files[1]
-    yield "quats.files[0]", meta.quats.files[0]
-    yield "scales.files[0]", meta.scales.files[0]
-    yield "sh0.files[0]", meta.sh0.files[0]
-    if meta.shN is not None:
-        yield "shN.files[0]", meta.shN.files[0]
-        yield "shN.files[1]", meta.shN.files[1]
-    if meta.timeline is not None:
-        yield "timeline.files[0]", meta.timeline.files[0]
-        yield "timeline.files[1]", meta.timeline.files[1]
-    for attr, entry in (meta.temporal or {}).items():
-        for i, name in enumerate(entry.files):
-            yield f"temporal.{attr}.files[{i}]", name
+def _refuse_repeated(files: list[tuple[str, str]]) -> None:
+    """A field error at the second listing of any file name."""
+    seen: dict[str, str] = {}
+    for field, name in files:
+        if name in seen:
+            found = f"found {name!r} again (also {seen[name]})"
+            raise field_error(field, f"expected a distinct file name, {found}")
+        seen[name] = field
 
 
 class ShBandsMeta(FrozenModel):
-    """An SH-band chunk's ``meta.json``: the bands beyond DC of the Gaussians of the chunk it
-    belongs to (the index's ``sh_of``), texel for texel in that chunk's order. Not a
-    standalone SOG: it has no positions; readers add its ``shN`` to its host's Gaussians
-    (docs/spec.md, "SH-band chunks")."""
+    """An SH-band chunk's ``meta.json``: the bands beyond DC of its host chunk's Gaussians (the
+    index's ``sh_of``), texel for texel; no positions, so no standalone SOG (docs/spec.md)."""
 
     version: Literal[2] = Field(description=f"Format version; always {SOG_VERSION}.")
     asset: Annotated[dict[str, Any], AfterValidator(check_json_value)] | None = Field(
@@ -314,12 +227,9 @@ class ShBandsMeta(FrozenModel):
     @model_validator(mode="after")
     def _distinct_files(self) -> ShBandsMeta:
         """The centroid and label images are two files."""
-        if self.shN.files[0] == self.shN.files[1]:
-            raise field_error(
-                "shN.files[1]", f"expected a distinct file name, found {self.shN.files[1]!r} again"
-            )
+        _refuse_repeated(self.listed_files())
         return self
 
     def listed_files(self) -> list[tuple[str, str]]:
         """(field path, file name) of the centroid and label images."""
-        return [("shN.files[0]", self.shN.files[0]), ("shN.files[1]", self.shN.files[1])]
+        return [(f"shN.files[{i}]", name) for i, name in enumerate(self.shN.files)]

@@ -1,9 +1,7 @@
-"""Public entry points: parse and dump ``meta.json``, check image sizes, export the JSON Schema.
+"""Parse and dump ``meta.json``, check image sizes, export the JSON Schemas (sans-I/O).
 
-Sans-I/O: bytes and mappings in, models and bytes out. Every failure is a
-:class:`~tsog_stream.errors.MetaError` whose ``field`` is the path of the culprit
-(``timeline.type``, ``means.files[0]``, ``temporal.quats.mins[1][2]``), or ``<document>``
-when the text is not a JSON object at all.
+Every failure is a :class:`~tsog_stream.errors.MetaError` whose ``field`` is the culprit's
+path (``temporal.quats.mins[1][2]``), or ``<document>`` when the text is no JSON object.
 """
 
 from __future__ import annotations
@@ -20,7 +18,7 @@ from ..constants import (
     SH_PALETTE_MAX,
 )
 from ..errors import MetaError
-from .sog_meta import DOCUMENT, describe, validate_into
+from .sog_meta import DOCUMENT, SCHEMA_DIALECT, describe, schema_text, validate_into
 from .tsog_meta import ChunkMeta, ShBandsMeta
 
 AnyMeta = ChunkMeta | ShBandsMeta
@@ -46,43 +44,27 @@ MAX_CENTROID_ROWS = SH_PALETTE_MAX // SH_CENTROIDS_PER_ROW
 """Rows of the largest shN centroid image (a 65536-entry palette)."""
 
 SCHEMA_ID = "https://tsog-stream.invalid/schema/meta.schema.json"
-SCHEMA_DIALECT = "https://json-schema.org/draft/2020-12/schema"
+SH_BANDS_SCHEMA_ID = "https://tsog-stream.invalid/schema/sh-bands.schema.json"
 
 
-def _decode_text(data: bytes | bytearray | memoryview, where: str) -> str:
-    """UTF-8 text of ``data``; a bad byte is reported with its offset."""
-    raw = bytes(data)
+def _load_json(data: bytes | bytearray | memoryview | str, where: str) -> Any:
+    """The JSON value of UTF-8 ``data`` (a bad byte reported with its offset; a leading BOM
+    dropped, as browsers do; NaN/Infinity parse here for the schema to refuse by path)."""
     try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        found = f"byte 0x{raw[exc.start]:02x} at offset {exc.start}"
-        raise MetaError(
-            f"expected UTF-8 text, found {found}", field=DOCUMENT, where=where
-        ) from None
-    return text
-
-
-def _load_json(text: str, where: str) -> Any:
-    """The JSON value of ``text`` (a leading BOM is dropped, as browsers do).
-
-    NaN/Infinity literals parse here; the schema rejects them with their field path.
-    """
-    try:
+        text = data if isinstance(data, str) else bytes(data).decode("utf-8")
         return json.loads(text.removeprefix("\ufeff"))
+    except UnicodeDecodeError as exc:
+        found = f"UTF-8 text, found byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
     except json.JSONDecodeError as exc:
-        found = f"{exc.msg} at line {exc.lineno} column {exc.colno}"
-        raise MetaError(
-            f"expected valid JSON, found {found}", field=DOCUMENT, where=where
-        ) from None
+        found = f"valid JSON, found {exc.msg} at line {exc.lineno} column {exc.colno}"
     except (ValueError, RecursionError) as exc:  # int digit limit, absurd nesting
-        raise MetaError(f"expected valid JSON, found {exc}", field=DOCUMENT, where=where) from None
+        found = f"valid JSON, found {exc}"
+    raise MetaError(f"expected {found}", field=DOCUMENT, where=where)
 
 
 def _document(data: bytes | str | Mapping[str, Any], where: str) -> dict[str, Any]:
     """The JSON object of a ``meta.json`` (bytes, text or a mapping), with a version key."""
-    if isinstance(data, bytes | bytearray | memoryview):
-        data = _decode_text(data, where)
-    document = _load_json(data, where) if isinstance(data, str) else data
+    document = data if isinstance(data, Mapping) else _load_json(data, where)
     if not isinstance(document, Mapping):
         found = describe(document)
         raise MetaError(f"expected a JSON object, found {found}", field=DOCUMENT, where=where)
@@ -141,8 +123,7 @@ def parse_any_meta(data: bytes | str | Mapping[str, Any], *, where: str = "meta.
 
 def dump_sh_meta(meta: ShBandsMeta) -> bytes:
     """Compact UTF-8 JSON of an SH-band chunk's meta (absent ``asset`` omitted)."""
-    data = meta.model_dump(mode="json", exclude_none=True)
-    return json.dumps(data, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode()
+    return _compact(meta.model_dump(mode="json", exclude_none=True))
 
 
 def meta_document(meta: ChunkMeta) -> dict[str, Any]:
@@ -161,19 +142,17 @@ def meta_document(meta: ChunkMeta) -> dict[str, Any]:
 
 
 def dump_meta(meta: ChunkMeta) -> bytes:
-    """Compact UTF-8 JSON of ``meta`` (no whitespace, floats as Python repr: exact round trip)."""
-    text = json.dumps(
-        meta_document(meta), separators=(",", ":"), ensure_ascii=False, allow_nan=False
-    )
-    return text.encode("utf-8")
+    """Compact UTF-8 JSON of ``meta`` (floats as Python repr: an exact round trip)."""
+    return _compact(meta_document(meta))
+
+
+def _compact(document: Any) -> bytes:
+    """UTF-8 JSON without whitespace."""
+    return json.dumps(document, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode()
 
 
 def listed_files(meta: AnyMeta) -> list[tuple[str, str]]:
-    """(field path, file name) of every image ``meta`` references, in canonical order.
-
-    Order: means_l, means_u, quats, scales, sh0, shN centroids, shN labels, timeline l, u,
-    temporal attributes in TEMPORAL_CHANNELS order, orders ascending, l before u.
-    """
+    """(field path, file name) of every image ``meta`` references, in canonical order."""
     return meta.listed_files()
 
 
@@ -196,16 +175,12 @@ def _centroid_problem(meta: AnyMeta, size: tuple[int, int]) -> str | None:
 def check_image_sizes(
     meta: AnyMeta, sizes: Mapping[str, tuple[int, int]], *, where: str = "meta.json"
 ) -> None:
-    """Check decoded image sizes (file name -> (width, height)) against ``meta``.
+    """Check image sizes (name -> (width, height)) against ``meta``; MetaError names the
+    ``files`` entry (or ``count``) at fault.
 
-    Every per-Gaussian image has the size W x H of the first means image and
-    ``count <= W*H`` (a somewhat larger size is accepted: padding texels are ignored, and the
-    writer's own size formula is not required for reading); the shN centroid image is
-    ``64*coeffs`` wide with at least ``ceil(shN.count / 64)`` rows. Images far larger than
-    the count needs (over ``2 * count + 4096`` texels, or over 1024 centroid rows) are
-    refused, so decoded memory stays proportional to the count. Raises MetaError whose
-    ``field`` names the offending ``files`` entry (or ``count``). The per-Gaussian images are
-    measured against the first listed one (means, or an SH-band chunk's labels).
+    Per-Gaussian images share the first one's W x H (means, or an SH-band chunk's labels) with
+    ``count <= W*H <= 2 * count + 4096`` (any writer's layout reads; memory stays proportional
+    to the count); the shN centroids are ``64*coeffs`` wide, ``ceil(count / 64)`` to 1024 rows.
     """
     files = listed_files(meta)
     for field, name in files:
@@ -241,33 +216,18 @@ def check_image_sizes(
             raise MetaError(f"{name!r}: {problem}", field=field, where=where)
 
 
-def meta_json_schema() -> dict[str, Any]:
-    """JSON Schema (2020-12) of a TSOG chunk's meta.json, as shipped in docs/schema/."""
-    schema = ChunkMeta.model_json_schema()
-    schema["$schema"] = SCHEMA_DIALECT
-    schema["$id"] = SCHEMA_ID
-    schema["title"] = "TSOG chunk meta.json"
-    schema["description"] = (
+def meta_json_schema_text() -> str:
+    """JSON Schema (2020-12) of a TSOG chunk's meta.json as docs/schema/ ships it."""
+    description = (
         "SOG v2 meta.json plus the optional TSOG keys 'timeline' and 'temporal'. Rules a "
         "schema cannot state (mins <= maxs, channel counts, fps only for types 0 and 1, "
         "distinct file names) are enforced by tsog_stream.schemas.parse_meta."
     )
-    return schema
-
-
-def meta_json_schema_text() -> str:
-    """:func:`meta_json_schema` serialised deterministically (sorted keys, indent 2, newline)."""
-    return json.dumps(meta_json_schema(), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
-
-
-SH_BANDS_SCHEMA_ID = "https://tsog-stream.invalid/schema/sh-bands.schema.json"
+    keys = {"$schema": SCHEMA_DIALECT, "$id": SCHEMA_ID, "title": "TSOG chunk meta.json"}
+    return schema_text(ChunkMeta, **keys, description=description)
 
 
 def sh_bands_json_schema_text() -> str:
-    """JSON Schema (2020-12) of an SH-band chunk's meta.json (docs/spec.md §8.7), as shipped
-    in docs/schema/, serialised like :func:`meta_json_schema_text`."""
-    schema = ShBandsMeta.model_json_schema()
-    schema["$schema"] = SCHEMA_DIALECT
-    schema["$id"] = SH_BANDS_SCHEMA_ID
-    schema["title"] = "TSOG SH-band chunk meta.json"
-    return json.dumps(schema, indent=2, sort_keys=True, ensure_ascii=False) + "\n"
+    """JSON Schema (2020-12) of an SH-band chunk's meta.json (docs/spec.md §8.7)."""
+    keys = {"$schema": SCHEMA_DIALECT, "$id": SH_BANDS_SCHEMA_ID}
+    return schema_text(ShBandsMeta, **keys, title="TSOG SH-band chunk meta.json")

@@ -21,7 +21,7 @@ from ..framing import vec3
 from ..model import Scene, reference_times
 from ..schemas.manifest import Box
 from ..temporal import lifespans
-from .engines import Engine, HandOver, engine
+from .engines import REPLACE_AFTER_GAUSSIANS, Engine, HandOver, engine
 from .jobs import ChunkJob, Part, part_work
 from .meter import POLL_S, Meter, palette_progress, report_progress
 from .options import SegmentOptions
@@ -38,31 +38,24 @@ _Result = TypeVar("_Result")
 def encode_job_payload(
     scene: Scene, seed: int, quality: int = QUALITY_MAX, sh_bands: bool = False
 ) -> bytes:
-    """A chunk's standalone .sog bytes, or with ``sh_bands`` its SH-band chunk's bytes (run
-    in worker processes); the SH palette's progress reported as the job's (segment/meter.py).
-    ``scene`` is the job's own part, taken over by the encoder (``encode_chunk``'s
-    ``given_up``): describe it first."""
+    """A chunk's standalone .sog bytes, or with ``sh_bands`` its SH-band chunk's bytes; the SH
+    palette's progress reported as the job's."""
     coeffs = scene.gaussians.shN.shape[1]
 
     def fitted(fraction: float) -> None:
         report_progress(fraction if sh_bands else palette_progress(coeffs, fraction))
 
     if sh_bands:
-        bands = encode_sh_bands(scene, seed=seed, quality=quality, on_palette=fitted, given_up=True)
+        bands = encode_sh_bands(scene, seed=seed, quality=quality, on_palette=fitted)
         return bundle_bytes(bands)
-    files = encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted, given_up=True)
+    files = encode_chunk(scene, seed=seed, quality=quality, on_palette=fitted)
     return bundle_bytes(files)
 
 
 def _bounds(scene: Scene, start: float, end: float) -> Box:
-    """Bounding box of the chunk's centres at every time of [start, end].
-
-    Moving centres are sampled at ``BOX_SAMPLES`` times; between two samples h apart a path
-    leaves their chord by at most h^2/8 max|x''|, so each Gaussian's samples are widened by
-    that bound (|x''| bounded from its coefficients) and the box holds the whole path. A
-    straight path (linear motion) needs only its ends: its evaluation is monotone in t, in
-    floating point too, so the box is the one all samples give, in less time.
-    """
+    """Bounding box of the chunk's centres at every time of [start, end]: moving centres
+    sampled at BOX_SAMPLES times (a straight path at its ends), each widened by h^2/8 max|x''|,
+    the most a path leaves the chord between samples h apart."""
     means = scene.gaussians.means.astype(np.float64)
     coeffs = scene.temporal.get("means")
     if coeffs is None or scene.timeline is None or len(scene) == 0 or end <= start:
@@ -98,13 +91,13 @@ def _interval(scene: Scene, node: tuple[float, float]) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class JobParts:
-    """The parts of a scene in memory, known up front as jobs: they may be encoded in any
-    order (largest first, see :func:`_largest_first`) and are written in job order."""
+    """The parts of a scene in memory, known up front as jobs: encoded largest first, written
+    in job order."""
 
     jobs: Sequence[ChunkJob]
     make: Callable[[ChunkJob], Part]
     work: Callable[[ChunkJob], float]
-    """What encoding a job costs (segment/meter.py), known before its part is made."""
+    """What encoding a job costs, known before its part is made."""
 
     def __iter__(self) -> Iterator[Part]:
         return (self.make(job) for job in self.jobs)
@@ -134,16 +127,13 @@ def encoded(
     parts: Iterable[Part], plan: Plan, options: SegmentOptions, meter: Meter
 ) -> Generator[tuple[PartInfo, bytes], None, None]:
     """(info, payload) in input order, encoded here (one worker, no cluster) or by the engine
-    of ``options`` (segment/engines.py) with at most its slots in flight.
-
-    The parent keeps only each part's small :class:`PartInfo`, so peak memory is the part being
-    produced plus the ones being encoded, whatever the scene length. Parts known up front
-    (:class:`JobParts`) are encoded costliest first.
-    """
+    of ``options`` with at most its slots in flight; the parent keeps only each part's
+    :class:`PartInfo`, so memory does not grow with the scene's length."""
     if options.workers <= 1 and options.cluster is None:
         yield from encoded_here(parts, plan, options.seed, options.quality, meter)
         return
-    with engine(options.workers, options.cluster, meter.advance) as running:
+    largest = _largest_job(parts)
+    with engine(options.workers, options.cluster, meter.advance, largest_job=largest) as running:
         meter.slots = running.slots
         if isinstance(parts, JobParts):
             yield from _largest_first(parts, plan, options, running, meter)
@@ -152,13 +142,20 @@ def encoded(
             yield from in_order(started, running.slots, meter)
 
 
+def _largest_job(parts: Iterable[Part]) -> int:
+    """Gaussians of the largest job among ``parts`` (REPLACE_AFTER_GAUSSIANS when not known up
+    front: each in a process of its own)."""
+    if isinstance(parts, JobParts):
+        return max((len(job.indices) for job in parts.jobs), default=1)
+    return REPLACE_AFTER_GAUSSIANS
+
+
 def encoded_here(
     parts: Iterable[Part], plan: Plan, seed: int, quality: int, meter: Meter | None = None
 ) -> Iterator[tuple[PartInfo, bytes]]:
-    """(info, payload) of each part, encoded in this process: the one-process engine, and a
-    window job in its worker."""
+    """(info, payload) of each part, encoded in this process."""
     for part in parts:
-        info = describe_part(part, plan)  # before the encoder, which takes the part over
+        info = describe_part(part, plan)
         with meter.job(part_work(part)) if meter else contextlib.nullcontext():
             payload = encode_job_payload(part.scene, seed, quality, part.sh_of is not None)
         yield info, payload
@@ -167,8 +164,7 @@ def encoded_here(
 def submitted(
     parts: Iterable[Part], plan: Plan, options: SegmentOptions, running: Engine, meter: Meter
 ) -> Iterator[tuple[PartInfo, Future[bytes]]]:
-    """Each part's info and the future of its payload, submitted as it is asked for (this
-    process keeps no part once it is handed over)."""
+    """Each part's info and the future of its payload, submitted as it is asked for."""
     for part in parts:
         info = describe_part(part, plan)
         future = _submit(running, meter, part, part_work(part), options)
@@ -202,8 +198,7 @@ def _awaited(future: Future[_Result], meter: Meter) -> _Result:
 def _submit(
     running: Engine, meter: Meter, part: Part, work: float, options: SegmentOptions
 ) -> Future[bytes]:
-    """Encode ``part`` on the engine as a job of ``work`` on the meter (its Gaussians dropped
-    here once sent)."""
+    """Encode ``part`` on the engine as a job of ``work`` (its Gaussians dropped once sent)."""
     has_bands = part.sh_of is not None
     args = (HandOver(part.scene), options.seed, options.quality, has_bands)
     return metered(running, meter, work, encode_job_payload, *args)
@@ -212,8 +207,7 @@ def _submit(
 def metered(
     running: Engine, meter: Meter, work: float, job: Callable[..., _Result], *args: Any
 ) -> Future[_Result]:
-    """Run ``job(*args)`` on the engine as one job of ``work`` on the meter, from now until
-    its future completes (its progress reports heard by the meter)."""
+    """Run ``job(*args)`` on the engine as one job of ``work`` on the meter."""
     token = meter.start(work)
     future = running.submit(token, job, *args)
     meter.ends_with(token, future)
@@ -224,9 +218,7 @@ def _largest_first(
     parts: JobParts, plan: Plan, options: SegmentOptions, running: Engine, meter: Meter
 ) -> Generator[tuple[PartInfo, bytes], None, None]:
     """(info, payload) in job order, the jobs encoded costliest first with at most
-    ``running.slots`` in flight: a scene whose biggest chunk comes last no longer has one core
-    encode it while the other idles (measured: docs/design/segmenter.md, "Parallel
-    encoding"). Payloads done early wait, compressed, for their turn."""
+    ``running.slots`` in flight (so no core idles while another encodes the biggest last)."""
     jobs = parts.jobs
     order = iter(sorted(range(len(jobs)), key=lambda i: (-parts.work(jobs[i]), i)))
     in_flight: dict[Future[bytes], tuple[int, PartInfo]] = {}

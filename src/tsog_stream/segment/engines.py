@@ -1,10 +1,9 @@
 """Where chunks are encoded: one process, a local process pool, or a Dask cluster.
 
 Every engine is a :class:`concurrent.futures.Executor` with a number of jobs to keep in flight;
-the segmenter submits the same encode jobs to any of them and writes the results in its own
-order, so the container is byte-identical whichever engine made it. Dask (``--cluster``,
-the ``tsog-stream[cluster]`` extra) is imported only when asked for. See
-docs/design/segmenter.md ("Parallel encoding").
+the segmenter writes the results in its own order, so the container is byte-identical whichever
+engine made it. Dask (the ``tsog-stream[cluster]`` extra) is imported only when asked for
+(docs/design/segmenter.md, "Parallel encoding").
 """
 
 from __future__ import annotations
@@ -24,7 +23,7 @@ from typing import Any, Final, Generic, TypeVar
 
 from ..codec.webp import use_cores
 from ..errors import InputError
-from ..machine import available_memory, release_freed_memory, tune_malloc, usable_cores
+from ..machine import available_memory, usable_cores
 from .meter import reporting_to
 from .scheduler import parse_address, probe_scheduler
 
@@ -34,11 +33,9 @@ per ``--workers``."""
 LISTEN_POLL_S = 0.2
 """How often the thread hearing the pool's job reports looks whether the pool has ended."""
 CONNECT_TIMEOUT_S = 10.0
-"""How long reaching a scheduler may take (the probe of its handshake, then Dask's own
-connection, each) before a one-line error."""
+"""How long reaching a scheduler may take (its handshake probe, then Dask's connection)."""
 JOB_RETRIES = 2
 """Times Dask runs a job again when the worker running it is lost."""
-MALLOC_PLUGIN = "tsog-stream-malloc"
 PROGRESS_TOPIC = "tsog-stream-job-progress"
 """The Dask event topic a job's progress goes to the client on: [token, fraction]."""
 QUIET_DASK: dict[str, object] = {
@@ -47,17 +44,24 @@ QUIET_DASK: dict[str, object] = {
     "distributed.worker.memory.monitor-interval": "1s",
     "distributed.admin.system-monitor.interval": "5s",
     "distributed.nanny.pre-spawn-environ.MALLOC_ARENA_MAX": 1,
+    "distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_": 4 << 20,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": 64 << 20,
 }
-"""Dask settings of the clusters tsog starts (``--cluster local``): no statistical profiler
-(it samples every thread's stack every 10 ms), the event-loop tick and the memory and system
-monitors at 1 s, 1 s and 5 s (Dask's defaults: 20, 100 and 500 ms). Each takes the
-GIL from the encoding thread (measured, and how to set them on a cluster of yours:
-docs/design/cluster.md). Its workers start with one malloc arena (:func:`tune_malloc` says
-why; set from the worker plugin it comes too late for the threads Dask has started)."""
+"""Dask settings of the clusters tsog starts (``--cluster local``): no profiler, slower ticks
+and monitors (each takes the GIL from the encoding thread), and glibc's allocator set by
+environment in its workers (why, measured: docs/design/cluster.md)."""
 WORKER_MEMORY: Final = 5 << 28
-"""Memory (1.25 GiB) a local encoder process is allowed for when choosing how many to start: it
-holds one job at a time, of at most MAX_CHUNK_GAUSSIANS Gaussians (the 5M SH3 checkpoint's
-largest worker peaked at 0.85-0.89 GiB on jobs of 833k; bench_cluster, docs/benchmarks.md)."""
+"""Memory (1.25 GiB) a local encoder process is allowed for when choosing how many to start (it
+holds one job of at most MAX_CHUNK_GAUSSIANS Gaussians at a time)."""
+REPLACE_AFTER_GAUSSIANS: Final = 1 << 20
+"""A local worker process is replaced once the jobs it ran held about this many Gaussians, so
+the system takes back all they held (smaller jobs share a process: its start costs more)."""
+
+
+def jobs_per_process(largest_job: int) -> int:
+    """Jobs a local worker runs before it is replaced (REPLACE_AFTER_GAUSSIANS), for jobs of
+    at most ``largest_job`` Gaussians."""
+    return max(1, REPLACE_AFTER_GAUSSIANS // max(1, largest_job))
 
 
 def default_workers() -> int:
@@ -76,30 +80,13 @@ def workers_for(cores: int, memory: int | None) -> int:
 
 T = TypeVar("T")
 ONE_BLAS_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-"""The environment a pool worker starts with unless the user set these (what Dask's nanny
-gives its workers): two workers with two BLAS threads each on two cores spin-waited for each
-other, a 1M SH3 scene 30.4 s and 51 CPU-s against 26.8 s and 46 CPU-s."""
-
-
-def _register_malloc_tuning(client: Any) -> None:
-    """Run :func:`tune_malloc` on every worker of the cluster, present and future (a worker
-    started again after a loss too), as a Dask worker plugin."""
-    from distributed import WorkerPlugin  # noqa: PLC0415 - an optional extra
-
-    class TuneMalloc(WorkerPlugin):
-        name = MALLOC_PLUGIN
-
-        def setup(self, worker: Any) -> None:
-            tune_malloc()
-
-    client.register_plugin(TuneMalloc())
+"""The environment a pool worker starts with unless the user set these (as Dask's nanny does):
+workers' BLAS threads spin-wait for each other's cores."""
 
 
 class HandOver(Generic[T]):
-    """A job argument this process lets go of when it is sent: executors keep a job's
-    arguments until the job ends (the pool's pending work items), so every part in flight was
-    held here twice (a 5M scene's two 833k jobs: 0.4 GB). The worker receives the value itself;
-    sending it a second time is an error, never a silent None."""
+    """A job argument this process lets go of when it is sent (executors keep a job's arguments
+    until it ends); the worker receives the value itself, and a second send is an error."""
 
     def __init__(self, value: T) -> None:
         self._value: T | None = value
@@ -170,10 +157,8 @@ def run_reported(token: int, job: Callable[..., T], *args: Any) -> T:
 
 def run_on_dask(token: int, job: Callable[..., T], *args: Any) -> T:
     """A job on a Dask worker, its progress sent to the client as events of
-    :data:`PROGRESS_TOPIC` (the worker batches them to the scheduler, which passes them on).
-    The codec's thread pools there take as many cores as the worker has threads, as Dask
-    gives its workers one BLAS thread: workers of one thread each, one per core, would each
-    have started a thread per core of the machine."""
+    :data:`PROGRESS_TOPIC`; the codec's thread pools there take as many cores as the worker
+    has threads (not every core of the machine in each worker)."""
     from distributed import get_worker  # noqa: PLC0415 - an optional extra
 
     worker = get_worker()
@@ -184,20 +169,24 @@ def run_on_dask(token: int, job: Callable[..., T], *args: Any) -> T:
 
 
 def _reporting(job: Callable[..., T], args: tuple[Any, ...], send: Callable[[float], None]) -> T:
-    """``job(*args)`` with its start and its reports sent by ``send``, on a heap the jobs
-    before it handed back: a worker otherwise keeps what its last window freed (holes glibc
-    does not return by itself), and its next window peaks that much higher."""
-    release_freed_memory()
+    """``job(*args)`` with its start and its reports sent by ``send``."""
     send(0.0)
     with reporting_to(send):
         return job(*args)
 
 
 @contextlib.contextmanager
-def engine(workers: int, cluster: str | None, listener: Listener | None = None) -> Iterator[Engine]:
+def engine(
+    workers: int,
+    cluster: str | None,
+    listener: Listener | None = None,
+    *,
+    largest_job: int = REPLACE_AFTER_GAUSSIANS,
+) -> Iterator[Engine]:
     """The engine for ``workers`` local processes, or for the Dask cluster ``cluster``; an
     error or Ctrl-C in the body stops it at once (queued jobs dropped, running ones
-    abandoned). ``listener`` hears the jobs' progress reports (on another thread)."""
+    abandoned). ``listener`` hears the jobs' progress reports (on another thread). A local
+    process is replaced after :func:`jobs_per_process` jobs: memory is bounded by process."""
     if cluster is not None:
         with _dask_engine(workers, check_cluster(cluster), listener) as found:
             yield found
@@ -210,6 +199,7 @@ def engine(workers: int, cluster: str | None, listener: Listener | None = None) 
             mp_context=context,
             initializer=_start_worker,
             initargs=(writer,),
+            max_tasks_per_child=jobs_per_process(largest_job),
         )
         try:
             yield Engine(pool, workers, run_reported)
@@ -221,11 +211,8 @@ def engine(workers: int, cluster: str | None, listener: Listener | None = None) 
 
 def _start_worker(reports: Connection) -> None:
     """A pool worker's start: Ctrl-C ignored (the parent handles it), job reports written to
-    ``reports`` (one pipe for every worker: a report is one write of < PIPE_BUF bytes, which
-    the kernel never interleaves, so no lock a terminated worker could leave held), the
-    allocator tuned as a Dask worker's is (:func:`tune_malloc`), before any thread starts."""
+    ``reports`` (one pipe for all: a write under PIPE_BUF is never interleaved, so no lock)."""
     _ignore_interrupts()
-    tune_malloc()
     _WORKER.reports = reports
 
 
@@ -256,9 +243,8 @@ def _listening(reader: Connection, writer: Connection, listener: Listener | None
 
 @contextlib.contextmanager
 def _children_environ(defaults: dict[str, str]) -> Iterator[None]:
-    """Processes started in the body (the pool spawns its workers as jobs come) inherit
-    ``defaults`` for the variables not already set; this process's environment is restored
-    after (its own libraries read theirs at import, long before)."""
+    """Processes started in the body inherit ``defaults`` for the variables not already set;
+    this process's environment is restored after."""
     added = {name: value for name, value in defaults.items() if name not in os.environ}
     os.environ.update(added)
     try:
@@ -292,7 +278,6 @@ def _dask_engine(workers: int, cluster: str, listener: Listener | None) -> Itera
         except Exception as exc:  # whatever Dask raises on its way in, not a traceback
             why = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:300]
             raise InputError(f"cannot reach the Dask scheduler: {why}", where=cluster) from None
-        _register_malloc_tuning(client)
         if listener is not None:
             client.subscribe_topic(PROGRESS_TOPIC, lambda event: listener(*event[1]))
         threads = sum(client.nthreads().values()) or 1
@@ -310,8 +295,7 @@ def _dask_engine(workers: int, cluster: str, listener: Listener | None) -> Itera
 @contextlib.contextmanager
 def local_cluster(workers: int) -> Iterator[Any]:
     """A Dask LocalCluster of ``workers`` single-threaded worker processes on loopback (its
-    dashboard on any free port), started with :data:`QUIET_DASK` (its workers take their
-    settings from the process that starts them)."""
+    dashboard on any free port), started with :data:`QUIET_DASK`."""
     import dask  # noqa: PLC0415 - an optional extra
     from distributed import LocalCluster  # noqa: PLC0415
 
@@ -329,10 +313,8 @@ def local_cluster(workers: int) -> Iterator[Any]:
 
 @contextlib.contextmanager
 def _environ_kept() -> Iterator[None]:
-    """This process's environment as it was before the body, after it: Dask's nanny writes
-    its workers' pre-spawn variables (MALLOC_TRIM_THRESHOLD_, MALLOC_ARENA_MAX) into the
-    environment of the process that starts them and leaves them there, for every process
-    it starts later (a PLY writer's subprocess, a test's child) to inherit."""
+    """This process's environment as it was before the body, after it (Dask's nanny leaves its
+    workers' pre-spawn variables in it, for every later child to inherit)."""
     before = dict(os.environ)
     try:
         yield
@@ -343,12 +325,9 @@ def _environ_kept() -> Iterator[None]:
 
 
 def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
-    """Stop a pool after Ctrl-C or an error: queued jobs dropped, workers terminated and joined.
-
-    Not ``shutdown(wait=True)``: waiting for the running jobs after a KeyboardInterrupt can hang
-    (seen once in CI: the process printed "interrupted" and never exited), and their results
-    are discarded anyway. The worker list is the executor's private ``_processes``.
-    """
+    """Stop a pool after Ctrl-C or an error: queued jobs dropped, workers terminated and joined
+    (waiting for running jobs after a KeyboardInterrupt can hang). The worker list is the
+    executor's private ``_processes``."""
     workers = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for worker in workers:
@@ -362,16 +341,9 @@ def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 5.0) -> None:
 
 @contextlib.contextmanager
 def sigint_blocked() -> Iterator[None]:
-    """SIGINT held (not lost) while this thread may start worker processes, then delivered.
-
-    A worker inherits the blocked mask, so a Ctrl-C during its start-up (imports) cannot
-    interrupt it before :func:`_ignore_interrupts` runs. Blocking it here is not enough in
-    the parent: another thread (the pool's, the report listener, a timer) may take the
-    signal, and Python then runs the handler in this thread anyway, which could cut the
-    spawn's start-up data short (the half-started worker printed "EOFError: Ran out of
-    input" after "tsog: interrupted", seen twice in the suite). So the handler only notes it
-    meanwhile, and the signal is raised again once the section ends.
-    """
+    """SIGINT held (not lost) while this thread may start worker processes, then delivered: a
+    worker inherits the blocked mask until :func:`_ignore_interrupts`, and the handler only
+    notes a signal another thread took (it would cut a spawn's start-up data short)."""
     if threading.current_thread() is not threading.main_thread():
         yield  # only the main thread may set handlers (and handlers run only there)
         return
@@ -389,7 +361,6 @@ def sigint_blocked() -> Iterator[None]:
 
 def _ignore_interrupts() -> None:
     """Workers ignore SIGINT (a terminal's Ctrl-C reaches the whole group): the parent alone
-    handles it, then shuts the pool down, instead of every worker printing a traceback. A
-    SIGINT held since the worker started is discarded on unblocking."""
+    handles it. One held since the worker started is discarded on unblocking."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

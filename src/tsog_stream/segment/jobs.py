@@ -3,25 +3,20 @@ run, the SH-band chunks, and the part (the Gaussians themselves) each job encode
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
+from ..codec.chunk import texel_order_of
 from ..codec.precision import faint_at
 from ..codec.sh_bands import without_sh
 from ..model import Scene
 from ..morton import morton_parts
 from ..temporal import lifespans
-from .layers import (
-    LayerPlan,
-    importance,
-)
-from .layout import (
-    chunk_counts,
-    time_slices,
-)
+from .layers import LayerPlan, importance
+from .layout import chunk_counts, time_slices
 from .meter import encode_work
 from .plan import NodeKey, Plan
 
@@ -42,9 +37,8 @@ class ChunkJob:
 def node_groups(
     scene: Scene, plan: Plan, slice_s: float | None = None
 ) -> list[tuple[NodeKey, Ints]]:
-    """Every node's Gaussians, cut by start time into slices of ``slice_s`` when given
-    (layout.py), so each chunk's own visible interval is short; ordered by node start time,
-    coarser levels first, then by slice, so the chunks one seek needs sit close together."""
+    """Every node's Gaussians, cut by start time into slices of ``slice_s`` when given; ordered
+    by node start time, coarser levels first, then by slice (a seek's chunks sit together)."""
     start = lifespans(scene.timeline)[0] if scene.timeline is not None else None
     keys = sorted(plan.buckets, key=lambda k: (plan.node_interval(k)[0], -k.level, k.index))
     return [
@@ -61,12 +55,8 @@ def chunk_jobs(
     layer_of: Ints | None = None,
 ) -> list[ChunkJob]:
     """Split every group (:func:`node_groups`) into contiguous Morton runs of at most
-    ``max_count``, by quality layer (``layer_of``: each Gaussian's; None: one layer). A run's
-    members stay in index order: the encoder puts each chunk in its own Morton order.
-
-    Jobs are ordered by layer, then in the groups' order, so the chunks one seek needs at one
-    quality sit close together in the file.
-    """
+    ``max_count`` (members in index order), by quality layer (``layer_of``: each Gaussian's;
+    None: one layer); ordered by layer, then in the groups' order."""
     jobs: list[ChunkJob] = []
     layers = int(layer_of.max(initial=0)) + 1 if layer_of is not None else 1
     for layer in range(layers):
@@ -81,31 +71,31 @@ def chunk_jobs(
 
 
 def with_sh_jobs(jobs: Sequence[ChunkJob], first_id: int = 0) -> list[ChunkJob]:
-    """``jobs`` (layer by layer, as :func:`chunk_jobs` orders them, the first to be chunk
-    ``first_id``) with the SH bands of every base chunk as a chunk of its own at the start of
-    layer 1: the base is stored with DC colour only, so the first picture waits for no SH
-    (codec/sh_bands.py)."""
+    """``jobs`` (as :func:`chunk_jobs` orders them, the first to be chunk ``first_id``) with
+    the SH bands of every base chunk as a chunk of its own at the start of layer 1."""
     base = [job for job in jobs if job.layer == 0]
     bands = [ChunkJob(job.key, job.indices, 1, first_id + i) for i, job in enumerate(base)]
     return [*base, *bands, *(job for job in jobs if job.layer > 0)]
 
 
 def job_part(scene: Scene, job: ChunkJob, split: bool) -> Part:
-    """The part a job encodes: its Gaussians, without SH bands for a base chunk whose bands
-    are split off."""
+    """The part a job encodes: its Gaussians (without SH bands when :func:`_bare`), in the
+    order the encoder stores them, so that it need not copy them again to order them."""
     source = without_sh(scene) if _bare(job, split) else scene  # bands never copied
-    return Part(job.key, source.subset(job.indices), job.layer, job.sh_of)
+    rows = job.indices
+    timeline = scene.timeline.subset(rows) if scene.timeline is not None else None
+    ordered = rows[texel_order_of(scene.gaussians.means[rows], timeline)]
+    return Part(job.key, source.subset(ordered), job.layer, job.sh_of)
 
 
 def job_work(scene: Scene, job: ChunkJob, split: bool) -> float:
-    """What encoding :func:`job_part`'s part costs (segment/meter.py), before it is made."""
+    """What encoding :func:`job_part`'s part costs, before it is made."""
     coeffs = 0 if _bare(job, split) else scene.gaussians.shN.shape[1]
     return encode_work(job.indices.size, coeffs)
 
 
 def _bare(job: ChunkJob, split: bool) -> bool:
-    """Whether the job's part is stored without SH bands (a base chunk whose bands are split
-    off into an SH-band chunk)."""
+    """Whether the job's part is a base chunk whose SH bands are split off."""
     return split and job.layer == 0
 
 
@@ -133,8 +123,7 @@ class Part:
 
 
 def part_work(part: Part) -> float:
-    """What encoding a part costs (segment/meter.py): its SH bands, if it keeps them, weigh
-    most."""
+    """What encoding a part costs (segment/meter.py)."""
     return encode_work(len(part.scene), part.scene.gaussians.shN.shape[1])
 
 
@@ -142,8 +131,7 @@ def without_faint_members(
     groups: list[tuple[NodeKey, Ints]], scene: Scene, quality: int
 ) -> tuple[list[tuple[NodeKey, Ints]], int]:
     """The groups (:func:`node_groups`) without the Gaussians too faint to store at
-    ``quality`` (precision.faint_at; a group left empty goes), and how many those are:
-    indices, not a copy of the scene without them (a 5M scene is 1.2 GiB)."""
+    ``quality`` (a group left empty goes), and how many those are (indices, not a copy)."""
     faint = faint_at(scene, quality)
     count = int(np.count_nonzero(faint))
     if count == 0:
@@ -153,9 +141,8 @@ def without_faint_members(
 
 
 def window_jobs(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> list[ChunkJob]:
-    """The chunk jobs of window ``w`` of a frame sequence: its chunks layer by layer, each
-    frame's most important Gaussians in its base (and its SH bands, if any, in SH-band chunks
-    at the start of layer 1, their hosts numbered from 0 within the window)."""
+    """The chunk jobs of window ``w`` of a frame sequence, each frame's most important
+    Gaussians in its base (SH-band chunks' hosts numbered from 0 within the window)."""
     layer_of = None
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), _frame_groups(scene))
@@ -168,25 +155,6 @@ def window_parts(scene: Scene, w: int, max_count: int, layering: LayerPlan) -> l
     """The parts of :func:`window_jobs`, all at once (``scene`` is left as it is)."""
     jobs = window_jobs(scene, w, max_count, layering)
     return [job_part(scene, job, layering.sh_apart) for job in jobs]
-
-
-def parts_taking_over(held: list[Scene], jobs: Sequence[ChunkJob], split: bool) -> Iterator[Part]:
-    """The parts of ``jobs``, each cut as it is asked for, from the one scene in ``held``
-    (the only reference to it, handed over): the scene is let go as the last part is cut, and
-    that part is the scene itself, reordered in place, when it holds every Gaussian. A window
-    job's worker held its window twice, as the scene and as its parts (four 500k SH3 frames:
-    a worker 4.0x its window above a tiny input's)."""
-    for number, job in enumerate(jobs):
-        if number + 1 < len(jobs):
-            yield job_part(held[0], job, split)
-            continue
-        scene = held.pop()
-        if len(job.indices) == len(scene) and not _bare(job, split):
-            part = Part(job.key, scene.reordered(job.indices), job.layer, job.sh_of)
-        else:
-            part = job_part(scene, job, split)
-        del scene
-        yield part
 
 
 def _frame_groups(scene: Scene) -> list[Ints]:

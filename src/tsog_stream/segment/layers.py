@@ -1,15 +1,10 @@
 """Quality layers: the Gaussians that matter most for the picture first.
 
-A layered stream stores the Gaussians of each group a chunk is cut from (a node's time slice)
-in layers of decreasing importance (opacity x linear size), each layer its own standalone
-chunks; a viewer on a slow link draws the base layer at once and adds layers as bytes arrive.
-Shares are taken per group, so every moment of the scene has its own most important Gaussians
-in the base (a clip whose first seconds hold only faint sparks still opens on a picture).
-Where the layers are cut is measured: the CPU renderer draws the scene from its opening view at
-a few times with the most important share of each group and with everything, and each cut is
-the smallest share whose picture reaches that layer's PSNR target (the base's measured with DC
-colour only where the scene has SH bands: they are stored in the next layer). See
-docs/design/segmenter.md ("Quality layers").
+Each group a chunk is cut from (a node's time slice) is stored in layers of decreasing
+importance, each layer its own standalone chunks: a viewer on a slow link draws the base at
+once and adds layers as bytes arrive. Each cut is the smallest share of every group whose
+picture, rendered from the opening view at a few times, reaches that layer's PSNR target
+(docs/design/segmenter.md, "Quality layers").
 """
 
 from __future__ import annotations
@@ -27,9 +22,9 @@ from ..errors import InputError
 from ..model import Gaussians, Scene, count_at, shown_at
 from ..opacity import logit_to_alpha
 from ..render import render, to_uint8
-from ..render.camera import Camera, from_capture
+from ..render.camera import from_capture
 from ..render.metrics import mse, psnr_from_mse
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from ..temporal import time_range
 
 LAYER_TARGETS_DB = (25.0, 33.0, 38.0, 42.0, 45.0, 48.0, 50.0)
@@ -40,7 +35,7 @@ AUTO_LAYERS = 3
 """Layers of a scene big enough to layer when ``--layers`` is not given (base, middle, rest)."""
 LAYERED_MIN_GAUSSIANS = 16384
 """Layers are chosen (``--layers`` not given) when a frame shows at least this many Gaussians
-on average (about 0.5 MB: 4 s at 1 Mbit/s); below it a whole frame arrives quickly anyway."""
+on average (about 0.5 MB); below it a whole frame arrives quickly anyway."""
 AUTO_MAX_FRACTION = 0.75
 """Without ``--layers``, a cut needing more than this share of the Gaussians is not made (the
 layer above it would add too little to be worth a request)."""
@@ -57,8 +52,7 @@ U8 = npt.NDArray[np.uint8]
 
 def importance(gaussians: Gaussians) -> F64:
     """How much each Gaussian contributes to a picture: alpha x sqrt(area of its two largest
-    axes). Measured against alpha alone and alpha x area or x volume^(1/3) on the real
-    captures: the best picture for a given share of Gaussians (docs/design/segmenter.md)."""
+    axes), the best picture for a given share among the weights measured."""
     alpha = logit_to_alpha(gaussians.opacities)
     axes = np.sort(np.exp(gaussians.scales.astype(np.float64)), axis=1)
     weights: F64 = alpha * np.sqrt(axes[:, 1] * axes[:, 2])
@@ -80,8 +74,7 @@ class LayerPlan:
     psnr_db: tuple[float | None, ...]
     why: str = ""
     sh_apart: bool = False
-    """The base's SH bands beyond DC are stored in SH-band chunks of layer 1 (spec §8.7), so
-    the base is measured with DC colour only."""
+    """The base's SH bands beyond DC are stored in SH-band chunks of layer 1 (spec §8.7)."""
 
     @property
     def layers(self) -> int:
@@ -133,17 +126,15 @@ def _times(scene: Scene) -> list[float]:
 def plan_layers(
     scene: Scene,
     groups: Sequence[Ints],
-    view: CaptureCamera | None,
+    view: Camera | None,
     layers: int | None,
     times: Sequence[float] = (),
     *,
     sh_apart: bool = True,
 ) -> LayerPlan:
-    """Cut ``scene``, stored as ``groups`` (index arrays, one per node time slice or frame),
-    into ``layers`` quality layers (None: choose, see LAYERED_MIN_GAUSSIANS and
-    AUTO_MAX_FRACTION), measuring each cut's picture from ``view`` at ``times`` (none given:
-    MEASURE_TIMES spread over the scene). With ``sh_apart`` a scene with SH bands beyond DC
-    keeps its base's bands apart (LayerPlan.sh_apart)."""
+    """Cut ``scene``, stored as ``groups`` (index arrays), into ``layers`` quality layers
+    (None: choose), each cut's picture measured from ``view`` at ``times`` (none given:
+    MEASURE_TIMES spread over the scene); ``sh_apart``: see :attr:`LayerPlan.sh_apart`."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
@@ -183,10 +174,9 @@ def plan_layers(
 def _quality_of_share(
     scene: Scene, groups: Sequence[Ints], camera: Camera, full_at: dict[float, U8]
 ) -> Callable[[float, bool], float]:
-    """PSNR (mean squared error over the sampled times, ``full_at`` the whole scene's picture
-    at each) of the most important ``share`` of each group (``bare``: with DC colour only, as
-    a base whose SH bands are split off) against everything, drawn from ``camera``; cached.
-    Each time's share is evaluated and drawn on its own (:func:`_share_at`)."""
+    """PSNR, over the sampled times (``full_at``: the whole scene's picture at each), of the
+    most important ``share`` of each group (``bare``: DC colour only), drawn from ``camera``;
+    cached."""
     times, full = list(full_at), list(full_at.values())
     weights = importance(scene.gaussians)
     cache: dict[tuple[float, bool], float] = {}
@@ -205,9 +195,8 @@ def _quality_of_share(
 
 
 def _share_at(scene: Scene, chosen: Ints, t: float, bare: bool) -> Gaussians:
-    """The Gaussians of rows ``chosen`` shown at ``t``, evaluated (``bare``: DC colour only):
-    what ``scene.subset(chosen).at(t)`` gives, without copying the chosen rows of every other
-    time (a share of three 500k-Gaussian frames was 0.2 GB, for each share tried)."""
+    """``scene.subset(chosen).at(t)`` (``bare``: DC colour only), without copying the chosen
+    rows not shown at ``t``."""
     rows = chosen[shown_at(scene, t)[chosen]]
     part = scene.subset(rows)
     return (without_sh(part) if bare else part).at(t)
@@ -216,9 +205,8 @@ def _share_at(scene: Scene, chosen: Ints, t: float, bare: bool) -> Gaussians:
 def _smallest_share(
     quality: Callable[[float, bool], float], target: float, above: float, bare: bool
 ) -> tuple[float, float]:
-    """The smallest share of FRACTIONS above ``above`` whose picture (``bare``: with DC colour
-    only) reaches ``target`` dB (bisection: quality grows with the share), and its PSNR;
-    (1.0, inf) when none does (a layer needing every Gaussian is no layer)."""
+    """The smallest share of FRACTIONS above ``above`` whose picture reaches ``target`` dB
+    (bisection), and its PSNR; (1.0, inf) when none does."""
     grid = [f for f in FRACTIONS if f > above]
     lo, hi = 0, len(grid)
     while lo < hi:

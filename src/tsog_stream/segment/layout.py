@@ -1,13 +1,10 @@
 """The layout of a segmentation chosen per scene by a cost model (``--window auto``).
 
-For each candidate layout (window length x policy) the model estimates, from the Gaussians'
-lifespans alone: the file's bytes, and the bytes and requests needed to show a random t with
-the opening included, beside the bytes of the Gaussians visible at t. Bytes per Gaussian and
-per chunk come from encoding two small samples of the scene (:func:`measure_costs`), so the
-estimate follows its attributes, SH bands and motion. The layout chosen is the smallest file
-whose mean seek stays within :data:`SEEK_TARGET` x the visible bytes (plus the 16 KiB
-opening), among those no more than :data:`FILE_SLACK` larger than the smallest; when none
-does, the one of those that over-fetches least (docs/design/segmenter.md).
+Each candidate layout (window length x policy) is estimated from the Gaussians' lifespans and
+two small encoded samples (:func:`measure_costs`): the file's bytes, and the bytes and requests
+a seek to a random t reads. Chosen: the smallest file whose mean seek stays within SEEK_TARGET
+x the visible bytes (plus the opening), among files within FILE_SLACK of the smallest; else
+the one that over-fetches least (docs/design/segmenter.md).
 """
 
 from __future__ import annotations
@@ -42,9 +39,8 @@ Ints = npt.NDArray[np.int64]
 SEEK_TARGET: Final = 1.25
 """A seek may fetch at most this many times the bytes of what it shows (plus the opening)."""
 FILE_SLACK: Final = 1.15
-"""A layout is considered only if its file is at most this much larger than the smallest:
-playback reads the whole stream, so its bitrate is the file size (duplicating Gaussians to
-make seeks cheap made files 3.5x larger on short-lived content)."""
+"""A layout is considered only if its file is at most this much larger than the smallest
+(playback reads the whole stream: its bitrate is the file size)."""
 OVERFETCH_WARNING: Final = 2.0
 """An explicit layout whose seeks fetch more than this many times what they show is warned."""
 SAMPLE_TIMES: Final = 64
@@ -60,8 +56,7 @@ INDEX_BYTES_PER_CHUNK: Final = 120
 SAMPLE_GAUSSIANS: Final = 8192
 """Gaussians of the larger sample encoded to measure bytes per Gaussian."""
 SLICES: Final = (2, 4, 8)
-"""Time slices per window tried for the policies that keep long-lived Gaussians in tree
-nodes (hierarchy, hybrid): a node's chunks cut by start time into window / k slices."""
+"""Time slices per window tried for hierarchy and hybrid (a node's chunks cut by start time)."""
 FRAME_WINDOWS: Final = (1, 2, 3, 5, 10, 15, 30, 60, 120)
 """Candidate windows, in frames, of content with a frame rate."""
 SECOND_WINDOWS: Final = (1 / 30, 1 / 15, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
@@ -129,8 +124,8 @@ class Lifespans:
 
     @cached_property
     def _running_totals(self) -> tuple[F64, F64, F64, F64]:
-        """Starts and ends sorted, with the weight begun / ended up to each: sorted once, not
-        for each of the ~80 layouts the model estimates (0.9 s of a 5M scene's start)."""
+        """Starts and ends sorted, with the weight begun / ended up to each (sorted once for
+        every layout estimated)."""
         by_start, by_end = np.argsort(self.start), np.argsort(self.end)
         began = np.concatenate(([0.0], np.cumsum(self.weight[by_start])))
         ended = np.concatenate(([0.0], np.cumsum(self.weight[by_end])))
@@ -140,9 +135,8 @@ class Lifespans:
 @dataclass(frozen=True)
 class Layout:
     """How time is cut (window length), where crossing Gaussians go (policy), and whether a
-    node's Gaussians are cut further by when they start (``slice_s``: each chunk then holds
-    those starting within one slice, so its own visible interval is short and a seek skips
-    it when it shows nothing at t; None: Morton runs only)."""
+    node's chunks are cut by when their Gaussians start (``slice_s``; None: Morton runs only),
+    so a seek skips a chunk that shows nothing at t."""
 
     window_s: float
     policy: Policy
@@ -198,9 +192,8 @@ class Choice:
 
 
 def measure_costs(scene: Scene, max_count: int, seed: int = 0, quality: int = 100) -> Costs:
-    """Bytes per Gaussian and per chunk, from encoding two Morton-contiguous samples (the
-    shape of real chunks: neighbours are similar) of SAMPLE_GAUSSIANS and an eighth of it, at
-    the ``quality`` the chunks will be written with."""
+    """Bytes per Gaussian and per chunk, from encoding two Morton-contiguous samples (like real
+    chunks) of SAMPLE_GAUSSIANS and an eighth of it at ``quality``."""
     n = min(len(scene), SAMPLE_GAUSSIANS)
     if n < 16:
         return Costs(per_gaussian=32.0, per_chunk=2048.0, max_count=max_count)
@@ -280,16 +273,14 @@ def sample_times(life: Lifespans) -> F64:
 
 
 EVEN_FROM = 1 << 16
-"""Chunks of at most this many Gaussians or more (seconds of encoding each) are cut into an
-even number per group; below it an extra chunk's fixed cost outweighs the balance (the
-suite's tiny pixel budgets ran 30 % longer with every group evened)."""
+"""Chunks of at most this many Gaussians or more are cut into an even number per group (below
+it an extra chunk's fixed cost outweighs the balance)."""
 
 
 def chunk_counts(counts: npt.ArrayLike, max_count: int) -> npt.NDArray[np.int64]:
     """The chunks a node of each count is cut into: at most ``max_count`` Gaussians each, and
-    for big chunks (``max_count`` >= EVEN_FROM) an even number when more than two, so that two
-    workers finish a big node together (a 5M scene in five chunks kept one core idle for the
-    last ~40 s; six cost one SH palette more)."""
+    for big chunks (``max_count`` >= EVEN_FROM) an even number when more than two, so two
+    workers finish a big node together."""
     n = np.ceil(np.asarray(counts, np.float64) / max(max_count, 1)).astype(np.int64)
     if max_count < EVEN_FROM:
         return n
@@ -323,9 +314,8 @@ def estimate(life: Lifespans, layout: Layout, costs: Costs) -> Estimate | None:
 
 
 def _seeks(nodes: _Nodes, node_bytes: F64, times: F64) -> tuple[F64, F64]:
-    """Bytes and requests to show each time: every unit whose interval holds it (units are
-    clipped to their node, so that is the node covering t at each level); one request per
-    node hit (its chunks are adjacent in the file)."""
+    """Bytes and requests to show each time: every unit whose interval holds it; one request
+    per node hit (its chunks are adjacent in the file)."""
     fetched = np.zeros(times.size)
     requests = np.zeros(times.size)
     if nodes.key.size == 0:
@@ -433,11 +423,8 @@ def _reason(
 
 
 def why_not_merged(per_frame: Choice, merged: Choice) -> str | None:
-    """Why a frame sequence should be stored frame by frame rather than merged (None: merge).
-
-    A merged sequence is smaller when Gaussians carry over, but its long-lived Gaussians sit in
-    shared chunks that every seek reads: when a seek then costs more than SEEK_TARGET x a frame's
-    own chunk (which one chunk per frame meets), the frames are kept as they are."""
+    """Why a frame sequence should be stored frame by frame rather than merged (None: merge):
+    a merge is no smaller, or its seeks read more than SEEK_TARGET x a frame's own chunk."""
     frame, whole = per_frame.chosen, merged.chosen
     if whole.file_bytes >= frame.file_bytes:
         return "merging would make the file no smaller"

@@ -1,13 +1,9 @@
-"""How far encoding has got and how long it has left, measured in work, not chunks.
+"""How far encoding has got and how long it has left, measured in work, not chunks (chunks
+differ in cost and finish in bursts: docs/design/segmenter.md, "Parallel encoding").
 
-Chunks differ a lot in cost (an SH palette costs several times the rest) and parallel jobs
-finish in bursts, so counting written chunks gives ETAs off by 2-3x (docs/design/segmenter.md,
-"Parallel encoding"). The meter weighs each job by :func:`encode_work`, learns the rate of one
-worker slot from the work done (finished jobs, and the share running jobs report of
-themselves: a job's SH palette says how far it got), and credits the jobs still running with
-the time they have run.
-A job reports through :func:`report_progress`, wherever it runs (segment/engines.py carries a
-pool worker's reports back).
+The meter weighs each job by :func:`encode_work`, learns one worker slot's rate from the work
+done (and what running jobs report through :func:`report_progress`), and credits the running
+jobs with the time they have run.
 """
 
 from __future__ import annotations
@@ -22,17 +18,12 @@ from typing import Any
 
 SH_COST_PER_COEFF = 0.3
 """A Gaussian's encode cost per SH coefficient beyond DC (an RGB triple), in units of a
-Gaussian without SH: the palette's distance work grows with the vector's length (SH3, 15
-coefficients: 5.5x; fitted to measured encodes, docs/design/segmenter.md)."""
-
+Gaussian without SH (fitted to measured encodes)."""
 TICK_S = 5.0
-"""Seconds between two :meth:`Meter.tick` calls of its ``on_tick`` (an ETA redrawn while no
-chunk is written: a big scene's first chunk takes tens of seconds)."""
-
+"""Seconds between two :meth:`Meter.tick` calls of its ``on_tick`` (the ETA redrawn while no
+chunk is written)."""
 POLL_S = 1.0
-"""How often code waiting for jobs calls :meth:`Meter.tick`: a first ETA is drawn within a
-second of being known (it waited up to TICK_S more)."""
-
+"""How often code waiting for jobs calls :meth:`Meter.tick` (a first ETA drawn at once)."""
 Clock = Callable[[], float]
 JobProgress = Callable[[float], None]
 _reporter: contextvars.ContextVar[JobProgress | None] = contextvars.ContextVar(
@@ -71,10 +62,8 @@ def share_of(start: float, size: float) -> Iterator[None]:
 
 
 BEFORE_PALETTE = 0.7
-"""The share of a part's other work done before its SH palette (ordering, positions,
-codebooks, timeline and motion); the rest comes after it (the last images' WebP and the
-bundle). Fitted to measured jobs (docs/design/segmenter.md): all of it before the palette ran
-the first reports ahead of the job's time, half of it behind."""
+"""The share of a part's other work done before its SH palette; the rest comes after it
+(fitted to measured jobs)."""
 
 
 def palette_share(sh_coeffs: int) -> float:
@@ -166,9 +155,8 @@ class Meter:
             self.finish(token)
 
     def tick(self) -> None:
-        """Call ``on_tick`` if :data:`TICK_S` have passed since the last call (or since
-        :meth:`ticked`), or if an ETA is known and none has been drawn yet; from the thread
-        that draws the progress."""
+        """Call ``on_tick`` if :data:`TICK_S` have passed since the last call, or if an ETA is
+        known and none has been drawn yet (from the thread that draws the progress)."""
         if self.on_tick is None:
             return
         due = self._clock() - self._ticked >= TICK_S
@@ -177,8 +165,7 @@ class Meter:
             self.on_tick()
 
     def ticked(self) -> None:
-        """Progress was just drawn (with the ETA known then): the next tick is :data:`TICK_S`
-        from now."""
+        """Progress was just drawn: the next tick is :data:`TICK_S` from now."""
         self._ticked = self._clock()
         self._eta_drawn = self._eta_drawn or self.eta_s() is not None
 

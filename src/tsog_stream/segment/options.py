@@ -8,19 +8,12 @@ from dataclasses import dataclass, field
 
 from ..codec.layout import image_size
 from ..codec.precision import QUALITY_MAX
-from ..constants import (
-    DEFAULT_MAX_PIXELS,
-    SH_CENTROIDS_PER_ROW,
-    SH_COEFFS_BY_BANDS,
-    WEBP_MAX_SIDE,
-)
+from ..constants import DEFAULT_MAX_PIXELS, SH_CENTROIDS_PER_ROW, SH_COEFFS_BY_BANDS, WEBP_MAX_SIDE
 from ..errors import InputError
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from ..schemas.manifest import Layer, Policy
 from ..sh_palette import palette_size
-from .layout import (
-    Choice,
-)
+from .layout import Choice
 from .plan import DEFAULT_MAX_COPIES
 
 DEFAULT_POLICY: Policy = "hybrid"
@@ -29,9 +22,8 @@ DEFAULT_POLICY: Policy = "hybrid"
 MIN_PIXELS = 16
 
 ChunkProgress = Callable[[int, int, float | None], None]
-"""Told of each chunk written, every ``meter.TICK_S`` while none is and once the first ETA is
-known: chunks written, chunks in all, and the seconds encoding has left by the work done so
-far (None until a job has finished or reported progress; segment/meter.py)."""
+"""Told of each chunk written (and every ``meter.TICK_S`` while none is): chunks written,
+chunks in all, and the seconds encoding has left (None until known)."""
 
 StageProgress = Callable[[str], None]
 """Told what segmenting does next, before each phase that can take a while."""
@@ -39,8 +31,8 @@ StageProgress = Callable[[str], None]
 
 @dataclass(frozen=True)
 class SegmentOptions:
-    """How to segment; defaults are the measured choices of docs/design/segmenter.md. A window
-    or policy left None is chosen for the scene by the cost model (segment/layout.py)."""
+    """How to segment (defaults: docs/design/segmenter.md); a window or policy left None is
+    chosen by the cost model."""
 
     window_s: float | None = None
     policy: Policy | None = None
@@ -49,18 +41,16 @@ class SegmentOptions:
     workers: int = 1
     seed: int = 0
     slice_s: float | None = None
-    """Chunks of a node cut by start time into slices this long: chosen with the layout, or
-    used as given with an explicit window (none unless given)."""
+    """Chunks of a node cut by start time into slices this long (chosen with the layout)."""
     quality: int = QUALITY_MAX
     """Error budgets of the chunks' codes, 0..100 (codec/precision.py; 100: full precision)."""
     layers: int | None = None
     """Quality layers (segment/layers.py): None chooses by measurement, 1 is one layer."""
     sh_apart: bool = True
-    """A layered stream keeps its base's SH bands in SH-band chunks (spec §8.7); False keeps
-    them in the base (the layout before them, for comparisons)."""
+    """A layered stream keeps its base's SH bands in SH-band chunks (spec §8.7)."""
     cluster: str | None = None
-    """Encode on Dask (segment/engines.py): ``local`` for a LocalCluster of ``workers``
-    processes, or a scheduler address; None encodes here or in a local process pool."""
+    """Encode on Dask: ``local`` (a LocalCluster of ``workers``) or a scheduler address; None
+    encodes here or in a local process pool."""
 
 
 @dataclass
@@ -79,7 +69,7 @@ class SegmentReport:
     """Bytes of the window chunks (level 0) of each window, in time order."""
     layout: Choice | None = None
     """The layout used, its estimates, the others tried and why it was chosen."""
-    view: CaptureCamera | None = None
+    view: Camera | None = None
     """Where a player opens the scene (the index's ``view``)."""
     view_why: str = ""
     """Why that view (framing.opening_view)."""
@@ -100,8 +90,7 @@ class SegmentReport:
 
 def palette_pixels(count: int, sh_bands: int) -> int:
     """Most pixels the shN centroid image of a ``count``-Gaussian chunk can take (0 without
-    SH): one row of SH_CENTROIDS_PER_ROW entries x coefficients per 64 palette entries, the
-    palette holding at most palette_size(count) entries (codec/sog_encode.py)."""
+    SH): rows of SH_CENTROIDS_PER_ROW entries x coefficients, palette_size(count) entries."""
     coeffs = SH_COEFFS_BY_BANDS[sh_bands]
     if coeffs == 0 or count < 1:
         return 0
@@ -110,11 +99,9 @@ def palette_pixels(count: int, sh_bands: int) -> int:
 
 
 MAX_CHUNK_GAUSSIANS = 1 << 20
-"""No chunk holds more Gaussians than this, whatever the pixel budget allows (4096^2 pixels
-take 8M): one encode job must not hold most of a scene. A generated 5M-Gaussian SH3
-FreeTimeGS checkpoint with long lifespans was one 5M chunk: 283 s on one worker while the
-other idled, that worker at 10 GB (docs/design/cluster.md). The SH palette saturates at 65536
-entries from 65536 Gaussians on, so bigger chunks gain little from sharing one."""
+"""No chunk holds more Gaussians than this, whatever the pixel budget allows: one encode job
+must not hold most of a scene (docs/design/cluster.md), and the SH palette saturates at
+65536 entries long before."""
 
 
 def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
@@ -144,5 +131,4 @@ def max_gaussians_per_chunk(max_pixels: int, sh_bands: int = 0) -> int:
 
 
 STATIC_WINDOW_S = 1.0
-"""The ``window_s`` of a static scene's index: its one window holds the whole scene, a stream
-of one moment at 0 s (any positive length would do: every time falls in window 0)."""
+"""The ``window_s`` of a static scene's index (its one window: any positive length would do)."""

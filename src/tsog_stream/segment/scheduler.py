@@ -1,14 +1,11 @@
 """Reaching a Dask scheduler: its address parsed, then a short probe of its handshake before
 Dask's own client connects.
 
-Dask's client trusts its peer: it waits for the peer's handshake without a deadline (a server
-that accepts and says nothing holds it for ever) and allocates whatever length the peer's
-first eight bytes claim (an HTTP server's ``HTTP/1.1`` reads as 3.5 EiB: a MemoryError; a
-claim of a few GiB followed by bytes is memory taken). So the probe connects first, on its
-own socket, within one deadline; sends the handshake a client sends; reads the scheduler's
-(a scheduler writes its own as soon as it accepts) with its length bounded before anything
-is allocated; and checks that it is the msgpack map Dask sends. Only a peer that passes may
-Dask connect to. Every failure is one :class:`InputError` line naming the address.
+Dask's client trusts its peer: it waits for a handshake without a deadline and allocates
+whatever length the peer's first eight bytes claim (``HTTP/1.1`` reads as 3.5 EiB). So the
+probe first exchanges handshakes on its own socket within one deadline, the peer's length
+bounded before anything is allocated, and checks it is the msgpack map Dask sends. Every
+failure is one :class:`InputError` line naming the address.
 """
 
 from __future__ import annotations

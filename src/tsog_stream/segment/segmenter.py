@@ -1,17 +1,9 @@
 """Segment a scene into a ``.tsogs`` container: plan, split spatially, encode in parallel, pack.
 
-A 4D scene is cut into time windows; a static scene is a stream of one moment (0 s) in one
-window, split spatially and into quality layers like any window.
-
-Chunks are encoded in worker processes (``workers``) and written in a fixed order, so the same
-scene and options give a byte-identical container whatever the worker count.
-
-This module owns the two entry points (:func:`segment_scene`, :func:`segment_sequence`), the
-layout of a scene and the opening view. The rooms they call: ``options`` (what segmenting takes
-and gives), ``jobs`` (a scene cut into chunk jobs and parts), ``encoding`` (parts encoded here
-or on an engine, in container order), ``write`` (the container and its index), ``sequence``
-(frame sequences window by window); below them ``plan``, ``layout``, ``layers``, ``meter``,
-``engines``.
+A 4D scene is cut into time windows; a static scene is one moment (0 s) in one window. Chunks
+are encoded in worker processes and written in a fixed order: the same scene and options give a
+byte-identical container whatever the worker count. This module owns the two entry points
+(:func:`segment_scene`, :func:`segment_sequence`), a scene's layout and its opening view.
 """
 
 from __future__ import annotations
@@ -25,31 +17,17 @@ from typing import Any
 import numpy as np
 
 from ..codec.precision import QUALITY_MAX
-from ..constants import (
-    SH_BANDS_BY_COEFFS,
-)
+from ..constants import SH_BANDS_BY_COEFFS
 from ..errors import InputError
 from ..framing import dense_core, framing_sample, opening_view, vec3
 from ..io.sequence import FrameSequence
-from ..machine import release_freed_memory
 from ..model import Gaussians, Scene
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from ..temporal import lifespans, time_range
 from .encoding import Encoded, JobParts, encoded
 from .jobs import chunk_jobs, job_part, job_work, node_groups, with_sh_jobs, without_faint_members
-from .layers import (
-    LayerPlan,
-    check_layers,
-    importance,
-    plan_layers,
-)
-from .layout import (
-    Choice,
-    Lifespans,
-    choose_layout,
-    measure_costs,
-    why_not_merged,
-)
+from .layers import LayerPlan, check_layers, importance, plan_layers
+from .layout import Choice, Lifespans, choose_layout, measure_costs, why_not_merged
 from .meter import Meter
 from .options import (
     DEFAULT_POLICY,
@@ -62,7 +40,6 @@ from .options import (
 )
 from .plan import NodeKey, Plan, make_plan, window_count
 from .sequence import (
-    WindowJob,
     frames_work,
     layers_within_flipbook,
     sampled_frames,
@@ -74,15 +51,6 @@ from .sequence import (
 from .write import Views, write_container
 
 __all__ = [
-    "DEFAULT_POLICY",
-    "STATIC_WINDOW_S",
-    "ChunkProgress",
-    "SegmentOptions",
-    "SegmentReport",
-    "StageProgress",
-    "Views",
-    "WindowJob",
-    "max_gaussians_per_chunk",
     "merge_or_frames",
     "plan_scene",
     "scene_layout",
@@ -93,10 +61,9 @@ __all__ = [
 ]
 
 
-def views_of(gaussians: Gaussians, cameras: Sequence[CaptureCamera]) -> Views:
-    """``cameras``, the default view and the dense core of a scene whose base (or first
-    frame) is ``gaussians`` (measured on a sample of a big scene); no view or core for a
-    scene with nothing visible to frame."""
+def views_of(gaussians: Gaussians, cameras: Sequence[Camera]) -> Views:
+    """``cameras``, the default view and the dense core of a scene whose base (or first frame)
+    is ``gaussians``; no view or core when nothing is visible."""
     sample = framing_sample(gaussians)
     try:
         centre, radius = dense_core(sample)
@@ -148,8 +115,7 @@ def scene_layout(scene: Scene, options: SegmentOptions, max_count: int) -> Choic
 
 
 def _with_layout(options: SegmentOptions, choice: Choice | None) -> SegmentOptions:
-    """The options with the chosen window and policy filled in (a static scene's: its one
-    window, and the policy given or the default; nothing crosses a window)."""
+    """The options with the chosen window and policy filled in (a static scene's one window)."""
     if choice is None:
         policy = options.policy or DEFAULT_POLICY
         return replace(options, window_s=STATIC_WINDOW_S, policy=policy, slice_s=None)
@@ -158,16 +124,14 @@ def _with_layout(options: SegmentOptions, choice: Choice | None) -> SegmentOptio
 
 
 def _layers_stage(layers: int | None, measuring: str, otherwise: str) -> str:
-    """The stage line before the quality layers are planned: what renders to measure them, or
-    what runs instead when one layer is asked (nothing is measured then)."""
+    """The stage line before the quality layers are planned (``otherwise`` for one layer)."""
     return otherwise if layers == 1 else f"measuring quality layers ({measuring})"
 
 
 @dataclass(frozen=True)
 class _Ready:
-    """A source planned, measured and cut: its chunks, to encode and write in order, and what
-    the index and the report say of them. Scenes and frame sequences get here by their own
-    roads and leave by one (:func:`_written`)."""
+    """A scene or frame sequence planned, measured and cut: its chunks, to encode and write in
+    order, and what the index and the report say of them."""
 
     chunks: Encoded
     total: int
@@ -209,17 +173,14 @@ def segment_scene(
     *,
     on_chunk: ChunkProgress | None = None,
     layout: Choice | None = None,
-    cameras: Sequence[CaptureCamera] = (),
+    cameras: Sequence[Camera] = (),
     on_stage: StageProgress | None = None,
     duration_assumed: bool = False,
 ) -> SegmentReport:
-    """Segment an in-memory scene into the container at ``path`` (published atomically; its
-    folder made if missing), in ``layout`` when already chosen for these options (see
-    :func:`merge_or_frames`; a static scene is a stream of one moment, one window), with its
-    capture ``cameras`` and the view a player opens it from (framing.default_view);
-    ``on_stage`` hears of each phase before it starts, ``on_chunk`` of each chunk written
-    (and of the ETA while none is). ``duration_assumed``: the scene's reader assumed its
-    length (``LoadedScene.duration_assumed``); the index says so (``scene.duration_assumed``)."""
+    """Segment an in-memory scene into the container at ``path`` (published atomically), in
+    ``layout`` when already chosen (:func:`merge_or_frames`), with its capture ``cameras``;
+    ``on_stage`` hears of each phase, ``on_chunk`` of each chunk written (and of the ETA).
+    ``duration_assumed``: the reader assumed the scene's length (the index says so)."""
     stage = on_stage or _unheard
     ready = _scene_ready(
         scene,
@@ -241,12 +202,12 @@ def _scene_planned(
     options: SegmentOptions,
     *,
     layout: Choice | None,
-    cameras: Sequence[CaptureCamera],
+    cameras: Sequence[Camera],
     stage: StageProgress,
     max_count: int,
 ) -> tuple[Choice | None, SegmentOptions, Plan, Views]:
     """A scene's layout (given or chosen), the options it sets, its time plan and its views
-    (framed on the other core meanwhile: 1 s of a 5M scene)."""
+    (framed on another thread meanwhile)."""
     if scene.timeline is None:
         stage(f"a static scene of {len(scene)} Gaussians: one moment, one window")
     elif layout is None:
@@ -265,7 +226,7 @@ def _scene_ready(
     options: SegmentOptions,
     *,
     layout: Choice | None,
-    cameras: Sequence[CaptureCamera],
+    cameras: Sequence[Camera],
     stage: StageProgress,
     duration_assumed: bool,
 ) -> _Ready:
@@ -283,9 +244,7 @@ def _scene_ready(
     stored = sum(len(g) for _, g in groups)
     members = [g for _, g in groups]
     stage(_layers_stage(options.layers, "rendering", "cutting the scene into chunks"))
-    release_freed_memory()  # the layout's sample encodes
     layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
-    release_freed_memory()
     layer_of = None
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), members)
@@ -315,8 +274,7 @@ def _scene_ready(
 
 
 def _encoding(chunks: int, gaussians: int, workers: int, *, faint_left: bool = False) -> str:
-    """The encoding phase, as a stage line (``faint_left``: a sequence's windows have yet to
-    leave their faint Gaussians out, so the count is a bound)."""
+    """The encoding phase, as a stage line (``faint_left``: the count is a bound)."""
     on = f"{workers} workers" if workers > 1 else "one process"
     stored = f"at most {gaussians}" if faint_left else f"{gaussians}"
     return f"encoding {chunks} chunks ({stored} Gaussians stored) on {on}"
@@ -329,17 +287,12 @@ def segment_sequence(
     *,
     on_chunk: ChunkProgress | None = None,
     layout: Choice | None = None,
-    cameras: Sequence[CaptureCamera] = (),
+    cameras: Sequence[Camera] = (),
     on_stage: StageProgress | None = None,
 ) -> SegmentReport:
-    """Segment a frame sequence window by window: memory depends on the window, not the length.
-    ``layout``: the frames per chunk when already chosen (see :func:`merge_or_frames`);
-    ``on_stage`` and ``on_chunk`` as for :func:`segment_scene`.
-
-    Windows are whole frames (``window_s`` rounded to frames; by default the cost model's
-    choice, one frame for most flipbooks); a frame's Gaussians live in that frame only, so
-    every policy stores each Gaussian once and the policy does not matter.
-    """
+    """Segment a frame sequence window by window (memory depends on the window, not the
+    length), in windows of whole frames (``layout`` when already chosen); the other arguments
+    as for :func:`segment_scene`."""
     stage = on_stage or _unheard
     options = options or SegmentOptions()
     ready = _sequence_ready(seq, options, layout=layout, cameras=cameras, stage=stage)
@@ -351,12 +304,11 @@ def _sequence_ready(
     options: SegmentOptions,
     *,
     layout: Choice | None,
-    cameras: Sequence[CaptureCamera],
+    cameras: Sequence[Camera],
     stage: StageProgress,
 ) -> _Ready:
-    """A frame sequence planned in whole-frame windows, its view framed and its layers
-    measured on sampled frames; its windows are read (and their faint Gaussians left out)
-    only as they are encoded."""
+    """A frame sequence planned in whole-frame windows, its view and layers measured on sampled
+    frames; its windows are read only as they are encoded."""
     max_count = max_gaussians_per_chunk(options.max_pixels, SH_BANDS_BY_COEFFS[seq.sh_coeffs])
     if layout is None:
         stage(f"choosing the layout of {seq.count} frames (encoding the first)")
@@ -392,33 +344,28 @@ def _sequence_measured(
     seq: FrameSequence,
     options: SegmentOptions,
     *,
-    cameras: Sequence[CaptureCamera],
+    cameras: Sequence[Camera],
     stage: StageProgress,
     max_count: int,
 ) -> tuple[Views, LayerPlan]:
-    """A sequence's views, framed on frames spread over it, and its layers, measured on a few
-    (each frame read once and let go: only the layers' frames are kept meanwhile)."""
+    """A sequence's views and layers, measured on frames spread over it."""
     measuring = "rendering sampled frames"
     stage(_layers_stage(options.layers, measuring, "reading sampled frames for the view"))
-    release_freed_memory()  # the layout's sample encodes (and the merge probe's frames)
     framing, measured = sampled_frames(seq)
     views = views_of(framing, cameras)
     del framing
-    release_freed_memory()
     layering = sequence_layers(seq, measured, views.view, options.layers, options.sh_apart)
     if options.layers is None:
         layering = layers_within_flipbook(seq, measured, layering, max_count, options, stage=stage)
     del measured
-    release_freed_memory()
     return views, layering
 
 
 def merge_or_frames(
     seq: FrameSequence, merged: Scene, options: SegmentOptions
 ) -> tuple[str | None, Choice]:
-    """Whether to segment the sequence as ``merged`` (its merge) or frame by frame: why frame
-    by frame (None: the merged scene is smaller and seeks as cheaply, layout.py), and the
-    layout of the form chosen, to pass to segment_scene or segment_sequence."""
+    """Why to segment the sequence frame by frame rather than as ``merged`` (None: as merged),
+    and the layout of the form chosen, for segment_scene or segment_sequence."""
     max_count = max_gaussians_per_chunk(options.max_pixels, merged.gaussians.sh_bands)
     per_frame = sequence_layout(seq, options, max_count)
     whole = scene_layout(merged, options, max_count)

@@ -1,6 +1,5 @@
-"""Frame sequences, window by window: memory depends on the window, not the length. The
-layout's costs over a few frames, the frames sampled for the view and the layers, and the
-window jobs that a worker reads and encodes itself."""
+"""Frame sequences, window by window (memory depends on the window, not the length): the
+layout's costs, the frames sampled for the view and the layers, and the window jobs."""
 
 from __future__ import annotations
 
@@ -18,7 +17,7 @@ from ..framing import FRAMING_SAMPLE, framing_sample
 from ..io.objects import size_of
 from ..io.sequence import FrameSequence, FrameStack, FrameWindow
 from ..model import Gaussians, Scene
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from .encoding import (
     Encoded,
     PartInfo,
@@ -30,22 +29,9 @@ from .encoding import (
     submitted,
 )
 from .engines import Engine, engine
-from .jobs import Ints, Part, job_work, parts_taking_over, window_jobs, window_parts
-from .layers import (
-    MEASURE_TIMES,
-    ONE_LAYER_ASKED,
-    LayerPlan,
-    check_layers,
-    plan_layers,
-)
-from .layout import (
-    Choice,
-    Costs,
-    Lifespans,
-    choose_layout,
-    chunk_counts,
-    measure_costs,
-)
+from .jobs import Ints, Part, job_part, job_work, window_jobs, window_parts
+from .layers import MEASURE_TIMES, ONE_LAYER_ASKED, LayerPlan, check_layers, plan_layers
+from .layout import Choice, Costs, Lifespans, choose_layout, chunk_counts, measure_costs
 from .meter import Meter, encode_work, share_of
 from .options import DEFAULT_POLICY, SegmentOptions, StageProgress
 from .plan import Plan, window_count
@@ -59,15 +45,16 @@ def _after(sh_of: int | None, written: int) -> int | None:
 def _sequence_parts(
     seq: FrameSequence, per_window: int, max_count: int, layering: LayerPlan, quality: int
 ) -> Iterator[Part]:
-    """Parts of a frame sequence read here, one window of frames in memory at a time (less
-    the Gaussians too faint to store at ``quality``)."""
+    """Parts of a frame sequence read here, one window in memory at a time (its faint
+    Gaussians left out)."""
     written = 0
     for w, first in enumerate(range(0, seq.count, per_window)):
         window = seq.read(first, min(seq.count, first + per_window)).scene
-        held = [without_faint(window, quality, given_up=True)]  # read here: nobody else's
+        scene = without_faint(window, quality)
         del window
-        jobs = window_jobs(held[0], w, max_count, layering)
-        for part in parts_taking_over(held, jobs, layering.sh_apart):
+        jobs = window_jobs(scene, w, max_count, layering)
+        for job in jobs:
+            part = job_part(scene, job, layering.sh_apart)
             yield replace(part, sh_of=_after(part.sh_of, written))
         written += len(jobs)
 
@@ -87,15 +74,15 @@ class WindowJob:
 
 
 def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
-    """Read a window's frames, cut and encode its chunks one at a time (run in worker
-    processes; the window's scene is let go as its last part is cut)."""
-    held = [without_faint(job.frames.read().scene, job.quality, given_up=True)]
+    """Read a window's frames, cut and encode its chunks one at a time (in a worker)."""
+    scene = without_faint(job.frames.read().scene, job.quality)
     split = job.layering.sh_apart
-    jobs = window_jobs(held[0], job.index, job.max_count, job.layering)
-    works = [job_work(held[0], chunk, split) for chunk in jobs]
+    jobs = window_jobs(scene, job.index, job.max_count, job.layering)
+    works = [job_work(scene, chunk, split) for chunk in jobs]
     total, done = sum(works), 0.0
     encoded: list[tuple[PartInfo, bytes]] = []
-    for part, work in zip(parts_taking_over(held, jobs, split), works, strict=True):
+    for chunk, work in zip(jobs, works, strict=True):
+        part = job_part(scene, chunk, split)
         with share_of(done / total, work / total):
             encoded.extend(encoded_here([part], job.plan, job.seed, job.quality))
         del part  # encoded: not held while the next is cut
@@ -104,10 +91,8 @@ def encode_window(job: WindowJob) -> list[tuple[PartInfo, bytes]]:
 
 
 WINDOWS_PER_SLOT = 2
-"""Windows per worker slot from which a sequence's jobs are whole windows (fewer: chunks, so
-that a short sequence still keeps every worker busy). As many window jobs are kept in flight:
-a job is tiny and its result a window's payloads, and with one per slot a worker that
-finished waited for the oldest job's result before it got the next."""
+"""Windows per worker slot from which a sequence's jobs are whole windows (fewer: chunks, so a
+short sequence keeps every worker busy); as many window jobs are kept in flight per slot."""
 
 
 def sequence_encoded(
@@ -120,16 +105,19 @@ def sequence_encoded(
     options: SegmentOptions,
     meter: Meter,
 ) -> Encoded:
-    """A frame sequence's chunks in container order. On an engine with enough windows to
-    keep every worker busy, each job is a window that its worker reads itself, so no frame
-    passes through this process (the store or disk is read by the workers); otherwise
-    windows are read here and their chunks are the jobs."""
+    """A frame sequence's chunks in container order: with enough windows to keep every worker
+    busy, each job is a window its worker reads itself; otherwise windows are read here and
+    their chunks are the jobs."""
     starts = range(0, seq.count, per_window)
     parts = _sequence_parts(seq, per_window, max_count, layering, options.quality)
     if options.workers <= 1 and options.cluster is None:
         yield from encoded(parts, plan, options, meter)
         return
-    with engine(options.workers, options.cluster, meter.advance) as running:
+    frames = [count for count, _ in seq.shapes]
+    largest = max(sum(frames[first : first + per_window]) for first in starts)
+    if len(starts) < WINDOWS_PER_SLOT * options.workers:
+        largest = min(largest, max_count)  # the jobs are chunks
+    with engine(options.workers, options.cluster, meter.advance, largest_job=largest) as running:
         meter.slots = running.slots
         if len(starts) < WINDOWS_PER_SLOT * running.slots:
             chunks = submitted(parts, plan, options, running, meter)
@@ -162,8 +150,7 @@ def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple
 
 
 def frames_work(shapes: Sequence[tuple[int, int]], sh_coeffs: int, sh_apart: bool) -> list[float]:
-    """What encoding each frame costs (segment/meter.py), weighed as :func:`job_work` weighs
-    its jobs: one chunk, or with its SH bands apart a bare base and an SH-band chunk."""
+    """What encoding each frame costs, weighed as :func:`job_work` weighs its jobs."""
     jobs = (0, sh_coeffs) if sh_apart and sh_coeffs else (sh_coeffs,)
     return [sum(encode_work(count, coeffs) for coeffs in jobs) for count, _ in shapes]
 
@@ -184,12 +171,12 @@ def sequence_chunks(
 def sequence_layers(
     seq: FrameSequence,
     measured: Measured,
-    view: CaptureCamera | None,
+    view: Camera | None,
     layers: int | None,
     sh_apart: bool = True,
 ) -> LayerPlan:
-    """The layers of a frame sequence, measured on the MEASURE_TIMES spread frames
-    :func:`sampled_frames` joined, each frame its own group, as when the chunks are cut."""
+    """The layers of a frame sequence, measured on the frames :func:`sampled_frames` joined,
+    each frame its own group."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
@@ -198,8 +185,7 @@ def sequence_layers(
 
 
 LAYER_CHECK_MAX_GAUSSIANS = 262144
-"""Largest sampled frame whose layered chunks are encoded to weigh them against its own SOG
-file (:func:`layers_within_flipbook`): the check costs one frame's encode, before the others."""
+"""Largest sampled frame whose layered chunks are weighed against its own SOG file."""
 
 
 def layers_within_flipbook(
@@ -212,9 +198,7 @@ def layers_within_flipbook(
     stage: StageProgress,
 ) -> LayerPlan:
     """``layering``, or one layer where layers would make a flipbook (SOG frames) larger than
-    the flipbook itself: the middle sampled frame's chunks, encoded in those layers, against
-    that frame's own file. Layers cost each frame two more chunks' zip and meta.json and
-    sparser positions (12 generated 30k frames: 1.9 %, 0.99x -> 1.01x the flipbook)."""
+    itself: the middle sampled frame's layered chunks against that frame's own file."""
     if layering.layers == 1 or seq.frames.kind != "sog" or not measured.numbers:
         return layering
     middle = len(measured.numbers) // 2
@@ -243,7 +227,7 @@ VIEW_FRAMES = 5
 """Frames of a sequence (evenly spread) whose Gaussians the opening view frames."""
 
 
-def _spread(count: int, n: int) -> list[int]:
+def spread(count: int, n: int) -> list[int]:
     """At most ``n`` frame numbers of ``count`` spread evenly, first and last included."""
     return sorted({round(k) for k in np.linspace(0, count - 1, min(n, count))})
 
@@ -259,15 +243,11 @@ class Measured:
 
 
 def sampled_frames(seq: FrameSequence) -> tuple[Gaussians, Measured]:
-    """The Gaussians of VIEW_FRAMES frames spread over the sequence joined as views_of samples
-    them (FRAMING_SAMPLE in all, each frame its share, without SH bands: the view does not
-    look at colour) for the opening view (a first frame alone can be a launching rocket whose
-    explosion fills the later frames), and the MEASURE_TIMES spread frames the layers are
-    measured on. Each frame is read once and let go as it is sampled and, for the measured
-    ones, copied into the joined scene, so no frame is held twice and no sample keeps its
-    bands."""
-    picks = _spread(seq.count, VIEW_FRAMES)
-    numbers = _spread(seq.count, MEASURE_TIMES)
+    """A framing sample of VIEW_FRAMES frames spread over the sequence (FRAMING_SAMPLE in all,
+    without SH bands) for the opening view, and the MEASURE_TIMES spread frames the layers are
+    measured on, joined; each frame is read once."""
+    picks = spread(seq.count, VIEW_FRAMES)
+    numbers = spread(seq.count, MEASURE_TIMES)
     share = max(1, FRAMING_SAMPLE // max(len(picks), 1))
     sizes = [seq.shapes[k][0] for k in numbers]
     joined = FrameStack(sizes, [seq.shapes[k][1] for k in numbers], seq.sh_coeffs)
@@ -287,17 +267,14 @@ def sampled_frames(seq: FrameSequence) -> tuple[Gaussians, Measured]:
 
 COST_FRAMES = 3
 """Frames of a sequence whose costs the layout model averages: the first, the middle and the
-last. Frames of one sequence differ, and a model measured on the first alone chose a worse
-layout (docs/design/segmenter.md)."""
+last (docs/design/segmenter.md)."""
 
 
 def sequence_costs(seq: FrameSequence, options: SegmentOptions, max_count: int) -> Costs:
-    """The cost model's bytes per Gaussian and per chunk, the mean over COST_FRAMES frames
-    spread over the sequence."""
-    picks = np.unique(np.linspace(0, seq.count - 1, min(seq.count, COST_FRAMES)).round())
+    """The cost model's bytes per Gaussian and per chunk, the mean over COST_FRAMES frames."""
     measured = [
         measure_costs(seq.read(k, k + 1).scene, max_count, options.seed, options.quality)
-        for k in picks.astype(int).tolist()
+        for k in spread(seq.count, COST_FRAMES)
     ]
     return Costs(
         per_gaussian=float(np.mean([c.per_gaussian for c in measured])),

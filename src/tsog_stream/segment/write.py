@@ -11,16 +11,12 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
-from ..constants import (
-    GENERATOR,
-)
+from ..constants import GENERATOR
 from ..container.objects import container_output
-from ..schemas.cameras import CaptureCamera
+from ..schemas.cameras import Camera
 from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node
-from .encoding import Encoded
-from .layers import (
-    LayerPlan,
-)
+from .encoding import Encoded, PartInfo
+from .layers import LayerPlan
 from .meter import Meter
 from .options import ChunkProgress, SegmentOptions, SegmentReport
 from .plan import NodeKey, Plan
@@ -30,8 +26,8 @@ from .plan import NodeKey, Plan
 class Views:
     """The capture cameras an index stores and the view a player opens the scene from."""
 
-    cameras: list[CaptureCamera]
-    view: CaptureCamera | None
+    cameras: list[Camera]
+    view: Camera | None
     core: dict[str, Any] | None
     why: str = ""
     """Why the view is the one it is (framing.opening_view)."""
@@ -63,73 +59,103 @@ def write_container(
     index; the encoding stops (engine shut down) whatever ends the writing."""
     entries: list[ChunkEntry] = []
     keys: list[NodeKey] = []
-    per_level: dict[int, int] = {}
     if on_chunk is not None:  # the ETA redrawn while no chunk comes (the first takes longest)
         meter.on_tick = lambda: on_chunk(len(entries), max(total, len(entries)), meter.eta_s())
     with container_output(path) as out, contextlib.closing(chunks) as encoded:
         for i, (info, payload) in enumerate(encoded):
-            offset, length, digest = out.add(payload)
-            entries.append(
-                ChunkEntry(
-                    id=i,
-                    file=f"chunks/{i:06d}.sog",
-                    offset=offset,
-                    length=length,
-                    sha256=digest,
-                    count=info.count,
-                    level=info.key.level,
-                    node=info.key.index,
-                    start_s=info.start_s,
-                    end_s=info.end_s,
-                    bbox=info.bbox,
-                    layer=info.layer,
-                    sh_of=info.sh_of,
-                )
-            )
+            entries.append(_entry(i, info, *out.add(payload)))
             keys.append(info.key)
-            per_level[info.key.level] = per_level.get(info.key.level, 0) + length
             if on_chunk:
                 on_chunk(i + 1, max(total, i + 1), meter.eta_s())
                 meter.ticked()
         if scene_fields["gaussians"] is None:  # a frame sequence: each stored once
             counted = sum(e.count for e in entries if e.holds_gaussians)
             scene_fields = {**scene_fields, "gaussians": counted, "stored": counted}
-        scene = {
-            **scene_fields,
-            "start_s": plan.start_s,
-            "end_s": plan.end_s,
-            "bbox": _union([e.bbox for e in entries]),
-            "core": views.core,
-        }
-        manifest = Manifest.model_validate(
-            {
-                "generator": f"{GENERATOR} {__version__}",
-                "policy": options.policy,
-                "window_s": plan.window_s,
-                "max_pixels": options.max_pixels,
-                "scene": scene,
-                "nodes": _nodes(plan, keys),
-                "chunks": entries,
-                "payload_bytes": sum(e.length for e in entries),
-                "cameras": views.cameras,
-                "view": views.view,
-                "layers": _layers(layering, entries),
-            }
+        manifest = _manifest(
+            entries,
+            keys,
+            plan=plan,
+            scene_fields=scene_fields,
+            options=options,
+            views=views,
+            layering=layering,
         )
         size = out.finish(manifest)
-    stored = sum(e.count for e in entries if e.holds_gaussians)
-    gaussians = int(scene_fields["gaussians"])
+    return _report(str(path), size, manifest, plan=plan, views=views, layering=layering)
+
+
+def _entry(i: int, info: PartInfo, offset: int, length: int, digest: str) -> ChunkEntry:
+    """The index's entry of chunk ``i``, stored at ``offset`` with ``length`` bytes."""
+    return ChunkEntry(
+        id=i,
+        file=f"chunks/{i:06d}.sog",
+        offset=offset,
+        length=length,
+        sha256=digest,
+        count=info.count,
+        level=info.key.level,
+        node=info.key.index,
+        start_s=info.start_s,
+        end_s=info.end_s,
+        bbox=info.bbox,
+        layer=info.layer,
+        sh_of=info.sh_of,
+    )
+
+
+def _manifest(
+    entries: list[ChunkEntry],
+    keys: Sequence[NodeKey],
+    *,
+    plan: Plan,
+    scene_fields: dict[str, Any],
+    options: SegmentOptions,
+    views: Views,
+    layering: LayerPlan,
+) -> Manifest:
+    """The container's index of ``entries`` (``keys``: each one's node)."""
+    scene = {
+        **scene_fields,
+        "start_s": plan.start_s,
+        "end_s": plan.end_s,
+        "bbox": _union([e.bbox for e in entries]),
+        "core": views.core,
+    }
+    return Manifest.model_validate(
+        {
+            "generator": f"{GENERATOR} {__version__}",
+            "policy": options.policy,
+            "window_s": plan.window_s,
+            "max_pixels": options.max_pixels,
+            "scene": scene,
+            "nodes": _nodes(plan, keys),
+            "chunks": entries,
+            "payload_bytes": sum(e.length for e in entries),
+            "cameras": views.cameras,
+            "view": views.view,
+            "layers": _layers(layering, entries),
+        }
+    )
+
+
+def _report(
+    path: str, size: int, manifest: Manifest, *, plan: Plan, views: Views, layering: LayerPlan
+) -> SegmentReport:
+    """What the CLI says of a container of ``size`` bytes written with ``manifest``."""
+    entries = manifest.chunks
+    per_level: dict[int, int] = {}
     per_window = [0] * plan.windows
     for e in entries:
+        per_level[e.level] = per_level.get(e.level, 0) + e.length
         if e.level == 0:
             per_window[e.node] += e.length
     return SegmentReport(
-        str(path),
+        path,
         size,
         len(entries),
         plan.windows,
-        gaussians,
-        stored,
+        manifest.scene.gaussians,
+        sum(e.count for e in entries if e.holds_gaussians),
         plan.dropped,
         per_level,
         per_window,

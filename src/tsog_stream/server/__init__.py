@@ -1,8 +1,8 @@
 """The HTTP origin: raw files with RFC 9110 byte ranges and a small streaming API (docs/http.md).
 
-``ranges`` and ``conditional`` are sans-I/O; ``catalog`` maps URLs to files safely; ``app``
-holds the aiohttp application; ``private`` guards private scenes with signed URLs; ``workers``
-runs it in several processes sharing one port.
+Its rooms and what each owns: docs/design/server.md. The exports load their module (and
+aiohttp.web) when first asked for, so a command that only needs a light module of the package
+(``server.link``'s parsers) does not pay for it.
 """
 
 from __future__ import annotations
@@ -15,29 +15,11 @@ if TYPE_CHECKING:
     from .private import Privacy
     from .workers import Site, default_workers, run_workers
 
-_HOME = {
-    "Limits": "app",
-    "make_app": "app",
-    "run_server": "app",
-    "start_server": "app",
-    "Privacy": "private",
-    "Site": "workers",
-    "default_workers": "workers",
-    "run_workers": "workers",
-}
-"""Where each export lives: loaded (with aiohttp.web) when first asked for, so a command that
-only needs a light module of the package (``server.link``'s parsers) does not pay for it."""
-
-__all__ = [
-    "Limits",
-    "Privacy",
-    "Site",
-    "default_workers",
-    "make_app",
-    "run_server",
-    "run_workers",
-    "start_server",
-]
+__all__ = ["Limits", "Privacy", "Site", "default_workers", "make_app", "run_server"]
+__all__ += ["run_workers", "start_server"]
+_HOME = dict.fromkeys(("Limits", "make_app", "run_server", "start_server"), "app")
+_HOME |= dict.fromkeys(("Site", "default_workers", "run_workers"), "workers")
+_HOME["Privacy"] = "private"
 
 
 def __getattr__(name: str) -> Any:

@@ -2,8 +2,9 @@
 
 Routes (see docs/http.md): ``GET|HEAD /files/{path}``, ``GET /v1/scenes``,
 ``GET /v1/scenes/{id}/manifest``, ``GET /v1/scenes/{id}/chunks?t=&horizon=``,
-``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /healthz``, ``OPTIONS`` preflight anywhere, and
-the player's pages (:mod:`.player`). Bodies go out through :mod:`.respond`.
+``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /v1/scenes/{id}/thumbnail``, ``GET /healthz``,
+``GET /v1/authorize``, ``OPTIONS`` preflight anywhere, and the player's pages (:mod:`.player`).
+Bodies go out through :mod:`.respond`; each request's privacy is decided once (:mod:`.private`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from aiohttp import HttpVersion10, HttpVersion11, web
 
 from ..errors import AccessError, InputError
 from ..io.objects import ObjectPath, is_object_url
-from .catalog import BusyError, Catalog, NotFoundError, SceneEntry
+from .catalog import BusyError, Catalog, NotFoundError
 from .conditional import Outcome, evaluate, http_date
 from .logs import log_out_of_fds, quiet_client_errors
 from .object_catalog import ObjectCatalog
@@ -30,6 +31,7 @@ from .private import (
     PRIVACY,
     AccessLog,
     Privacy,
+    admitted,
     authorize,
     mark_private_responses,
     signed_suffix,
@@ -44,10 +46,8 @@ PREFLIGHT = {
     "Access-Control-Max-Age": "86400",
 }
 HTTP_VERSIONS = (HttpVersion10, HttpVersion11)
-Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-
-
 HEALTHZ = "/healthz"
+Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
 
 def _error(status: int, message: str, **extra: Any) -> web.Response:
@@ -56,11 +56,18 @@ def _error(status: int, message: str, **extra: Any) -> web.Response:
     return web.json_response(body, status=status, headers={"Cache-Control": "no-store"})
 
 
+def _busy(message: str) -> web.Response:
+    """503 with ``Retry-After: 1``: try again in a second."""
+    resp = _error(503, message)
+    resp.headers["Retry-After"] = "1"
+    return resp
+
+
 @web.middleware
 async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
-    """OPTIONS preflight, the concurrency caps (in all, and per client address), then errors
-    (ours and aiohttp's) as JSON. ``/healthz`` passes every cap: it is answered whatever the
-    load, so a monitor sees a busy server as alive."""
+    """HTTP version and method, OPTIONS preflight, the concurrency caps (in all, and per client
+    address), then errors as JSON. ``/healthz`` passes every cap, so a monitor sees a busy
+    server as alive."""
     if request.version not in HTTP_VERSIONS:
         resp = _error(505, "only HTTP/1.0 and HTTP/1.1 are served")
         resp.force_close()
@@ -73,20 +80,11 @@ async def _guard(request: web.Request, handler: Handler) -> web.StreamResponse:
         return resp
     if request.path == HEALTHZ:
         return await handler(request)
-    load = request.app[LOAD]
-    client = request.remote or ""
+    load, client = request.app[LOAD], request.remote or ""
     refusal = load.refuses(client, request.app[LIMITS])
     if refusal is not None:
         return _busy(refusal)
     load.enter(client)
-    try:
-        return await _answer(request, handler)
-    finally:
-        load.leave(client)
-
-
-async def _answer(request: web.Request, handler: Handler) -> web.StreamResponse:
-    """The handler's response, or our errors (and aiohttp's) as JSON."""
     try:
         return await handler(request)
     except AccessError as exc:
@@ -102,13 +100,8 @@ async def _answer(request: web.Request, handler: Handler) -> web.StreamResponse:
         if exc.status < 400:
             raise
         return _error(exc.status, exc.reason)
-
-
-def _busy(message: str) -> web.Response:
-    """503 with ``Retry-After: 1``: try again in a second."""
-    resp = _error(503, message)
-    resp.headers["Retry-After"] = "1"
-    return resp
+    finally:
+        load.leave(client)
 
 
 async def _add_cors(request: web.Request, response: web.StreamResponse) -> None:
@@ -119,24 +112,16 @@ async def _add_cors(request: web.Request, response: web.StreamResponse) -> None:
 async def files(request: web.Request) -> web.StreamResponse:
     """GET/HEAD /files/{path}: a raw file under the root (private ones need a signed URL)."""
     catalog, rel = request.app[CATALOG], request.match_info["path"]
-    request.app[PRIVACY].admit(request, [rel])
-    rep = await catalog.file(rel)
-    request.app[PRIVACY].admit(request, [catalog.relative(rep.path)])
-    return await send_representation(request, rep)
-
-
-async def _scene(request: web.Request) -> SceneEntry:
-    """The scene named in the URL (see :func:`.scenes.find_scene`)."""
-    return await find_scene(request, request.match_info["id"])
+    found = await admitted(request, [rel], catalog.find(rel), lambda f: catalog.relative(f[0]))
+    return await send_representation(request, await catalog.file_at(*found))
 
 
 async def thumbnail(request: web.Request) -> web.StreamResponse:
     """GET/HEAD /v1/scenes/{id}/thumbnail: the PNG tsog segment drew beside the scene (404
     when there is none); admitted as the scene is."""
-    scene = await _scene(request)
+    scene = await find_scene(request, request.match_info["id"])
     catalog = request.app[CATALOG]
-    rep = await catalog.file(thumbnail_rel(catalog, scene))
-    return await send_representation(request, rep)
+    return await send_representation(request, await catalog.file(thumbnail_rel(catalog, scene)))
 
 
 async def scenes(request: web.Request) -> web.StreamResponse:
@@ -147,7 +132,7 @@ async def scenes(request: web.Request) -> web.StreamResponse:
 
 async def manifest(request: web.Request) -> web.StreamResponse:
     """GET /v1/scenes/{id}/manifest: the index JSON, ETag = the container identity."""
-    scene = await _scene(request)
+    scene = await find_scene(request, request.match_info["id"])
     etag = f'"{scene.index.identity}"'
     headers = {"ETag": etag, "Cache-Control": REVALIDATE, "Last-Modified": http_date(scene.mtime)}
     outcome = evaluate(request.method, request.headers, etag, scene.mtime)
@@ -175,18 +160,11 @@ def _seconds(request: web.Request, name: str, default: float | None) -> float:
 async def chunks(request: web.Request) -> web.StreamResponse:
     """GET /v1/scenes/{id}/chunks?t=T&horizon=H: the chunks [T, T+H] needs."""
     t, horizon = _seconds(request, "t", None), _seconds(request, "horizon", 0.0)
-    scene = await _scene(request)
+    scene = await find_scene(request, request.match_info["id"])
     base, suffix = f"/v1/scenes/{quote(scene.id)}/chunks", signed_suffix(request)
+    fields = ("id", "offset", "length", "sha256", "start_s", "end_s")
     items = [
-        {
-            "id": c.id,
-            "offset": c.offset,
-            "length": c.length,
-            "sha256": c.sha256,
-            "start_s": c.start_s,
-            "end_s": c.end_s,
-            "url": f"{base}/{c.id}.sog?v={c.sha256}{suffix}",
-        }
+        {**{k: getattr(c, k) for k in fields}, "url": f"{base}/{c.id}.sog?v={c.sha256}{suffix}"}
         for c in scene.index.chunks_for_interval(t, t + horizon)
     ]
     body = {"scene": scene.id, "identity": scene.index.identity, "t": t, "horizon": horizon}
@@ -199,7 +177,7 @@ async def chunk(request: web.Request) -> web.StreamResponse:
     With ``?v=<sha256>`` (the form the chunk list gives) the URL names immutable content:
     it is cached for a year, and a stale ``v`` is 404.
     """
-    scene = await _scene(request)
+    scene = await find_scene(request, request.match_info["id"])
     rep = request.app[CATALOG].chunk(scene, int(request.match_info["n"]))
     version = request.query.get("v")
     if version is not None and f'"{version}"' != rep.etag:
@@ -238,8 +216,7 @@ def make_app(
     app[LIMITS] = limits or Limits()
     app[LOAD] = Load()
     app[PRIVACY] = privacy or Privacy()
-    app.on_response_prepare.append(_add_cors)
-    app.on_response_prepare.append(mark_private_responses)
+    app.on_response_prepare.extend([_add_cors, mark_private_responses])
     r = app.router
     r.add_get(HEALTHZ, healthz)
     r.add_get("/files/{path:.+}", files)
@@ -251,6 +228,13 @@ def make_app(
     r.add_get("/v1/scenes/{id:.+}/chunks/{n:[0-9]{1,9}}.sog", chunk)
     add_player_routes(app)
     return app
+
+
+def cannot_listen(exc: OSError, host: str, port: int) -> InputError:
+    """The one-line error for a port that cannot be bound."""
+    if exc.errno == errno.EADDRINUSE:
+        return InputError(f"port {port} is in use; try --port 0", where=host)
+    return InputError(f"cannot listen: {exc.strerror}", where=f"{host}:{port}")
 
 
 async def start_server(
@@ -267,32 +251,12 @@ async def start_server(
         shutdown_timeout=limits.shutdown_timeout_s,
     )
     await runner.setup()
-    site = web.TCPSite(runner, host, port, reuse_port=reuse_port or None)
     try:
-        await site.start()
+        await web.TCPSite(runner, host, port, reuse_port=reuse_port or None).start()
     except OSError as exc:
         await runner.cleanup()
-        if exc.errno == errno.EADDRINUSE:
-            raise InputError(f"port {port} is in use; try --port 0", where=host) from exc
-        raise InputError(f"cannot listen: {exc.strerror}", where=f"{host}:{port}") from exc
+        raise cannot_listen(exc, host, port) from exc
     return runner, int(runner.addresses[0][1])
-
-
-async def serve_forever(
-    root: Path | str,
-    host: str,
-    port: int,
-    limits: Limits | None = None,
-    privacy: Privacy | None = None,
-) -> None:
-    """Serve until cancelled (Ctrl-C), then shut down gracefully."""
-    app = make_app(root, limits=limits, privacy=privacy)
-    runner, bound = await start_server(app, host, port)
-    print(f"serving {root} on http://{host}:{bound}/ (web player: /play/)", flush=True)
-    try:
-        await asyncio.Event().wait()
-    finally:
-        await runner.cleanup()
 
 
 def run_server(
@@ -304,8 +268,18 @@ def run_server(
     privacy: Privacy | None = None,
 ) -> None:
     """Blocking: serve ``root`` until interrupted (one process; server/workers.py for more)."""
+
+    async def serve() -> None:
+        app = make_app(root, limits=limits, privacy=privacy)
+        runner, bound = await start_server(app, host, port)
+        print(f"serving {root} on http://{host}:{bound}/ (web player: /play/)", flush=True)
+        try:
+            await asyncio.Event().wait()
+        finally:
+            await runner.cleanup()
+
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(serve_forever(root, host, port, limits, privacy))
+        asyncio.run(serve())
 
 
 __all__ = ["Limits", "Privacy", "make_app", "run_server", "send_representation", "start_server"]

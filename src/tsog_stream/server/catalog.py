@@ -1,25 +1,26 @@
-"""What the server may send: safe paths under the root, file ETags, scenes and their chunks.
+"""What the server may send: safe paths under the root, ETags, scenes and their chunks.
 
-Every path a client names is checked here: NUL bytes, backslashes, absolute paths and ``.``
-or ``..`` segments are refused (:class:`~tsog_stream.errors.InputError`, 400); the path is
-then resolved with symlinks followed and must stay inside the resolved root, else
-:class:`NotFoundError` (404), the same answer as for a missing file, so nothing leaks.
-Scenes are ``.tsogs`` containers and unpacked layouts (folders with ``manifest.json``); each is
-reopened when it changes (size, mtime, inode or ctime). A root that is one file serves only
-that file.
+A path a client names is refused when it is not plainly relative (InputError, 400), and must
+resolve (symlinks followed) inside the root, else :class:`NotFoundError` (404, as for a missing
+file, so nothing leaks). Scenes are ``.tsogs`` containers and unpacked layouts (folders with
+``manifest.json``), reopened when their file changes.
 """
 
 from __future__ import annotations
 
 import asyncio
 import errno
+import functools
 import hashlib
+import io
 import os
 import stat
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, BinaryIO, NamedTuple, TypeVar, cast
+from typing import Any, NamedTuple, TypeVar, cast
+
+from cachetools import FIFOCache
 
 from ..constants import is_container, thumbnail_path
 from ..container.header import HEADER_SIZE, Header
@@ -34,13 +35,11 @@ from .shown import gaussians_per_frame
 CONTAINER_SUFFIX = ".tsogs"
 CONTAINER_TYPE = "application/vnd.tsog-stream"
 SOG_TYPE = "application/x-sog"
-PNG_TYPE = "image/png"
-_HASH_BLOCK = 1 << 20
+MEDIA_TYPES = {".json": "application/json", ".sog": SOG_TYPE, ".png": "image/png"}
+"""Media types by lower-case extension; any other file is application/octet-stream."""
 MAX_CACHED = 4096
-"""Files remembered per cache (ETags, opened scenes): only the current version of each."""
+"""Files per cache (ETags, opened scenes): the current version of each, oldest dropped first."""
 OUT_OF_FDS = (errno.EMFILE, errno.ENFILE)
-_V = TypeVar("_V")
-_K = TypeVar("_K")
 _T = TypeVar("_T")
 
 
@@ -49,8 +48,7 @@ class NotFoundError(SourceError):
 
 
 class BusyError(SourceError):
-    """The server is out of file descriptors for a moment: 503 with Retry-After, never a 404
-    (which a client would take as permanent)."""
+    """Out of file descriptors for a moment: 503, never a 404 (a client takes it as permanent)."""
 
 
 def unreadable(exc: BaseException, message: str, where: str) -> SourceError:
@@ -73,13 +71,11 @@ class Representation:
     mtime: float
     content_type: str
     beneath: Path | None = None
-    """The served root this file was checked to lie under (resolved, no symlink left in
-    ``path``): it is opened with :func:`open_beneath`. None for the server's own files."""
+    """The root ``path`` was checked to lie under (opened with :func:`open_beneath`), if any."""
     source: ByteSource | None = None
-    """Where the bytes are read when they are not a local file: a stored object (ranged GETs,
-    server/object_catalog.py); ``path`` is then its name relative to the served prefix."""
+    """Where a stored object's bytes are read (``path`` is then its name under the prefix)."""
 
-    def open(self) -> BinaryIO:
+    def open(self) -> io.BufferedReader:
         """The file, opened for reading (see :func:`open_beneath`)."""
         if self.beneath is None:
             return open(self.path, "rb")
@@ -98,33 +94,40 @@ class SceneEntry:
     mtime: float
     size: int
     gaussians_per_frame: int
-    """The most Gaussians shown at one time (:func:`.shown.gaussians_per_frame`), computed
-    once when the scene is opened."""
+    """The most Gaussians shown at one time (:func:`.shown.gaussians_per_frame`)."""
 
 
-def open_beneath(root: Path, path: Path) -> BinaryIO:
+class FileVersion(NamedTuple):
+    """What tells one version of a file from the next: a file replaced by rename gets a new
+    inode, one rewritten in place a new ctime (which, unlike mtime, no tool can set back)."""
+
+    size: int
+    mtime_ns: int
+    inode: int
+    ctime_ns: int
+
+
+class SceneFile(NamedTuple):
+    """A scene's container (packed) or manifest file, found and not yet opened."""
+
+    path: Path
+    version: FileVersion
+    packed: bool
+
+
+def open_beneath(root: Path, path: Path) -> io.BufferedReader:
     """Open ``path``, a resolved path under the resolved ``root``, refusing a symlink at any
-    component below the root (OSError ELOOP or ENOTDIR).
-
-    :func:`safe_path` resolved the path with symlinks followed and checked it lies under the
-    root; a component swapped for a symlink between that check and this open (pointing out of
-    the root) is refused here, walking down from the root one ``openat(O_NOFOLLOW)`` at a time:
-    the effect of ``openat2(RESOLVE_BENEATH | RESOLVE_NO_SYMLINKS)``, portable to every POSIX.
-    """
-    return os.fdopen(open_fd_beneath(str(root), path.relative_to(root).as_posix()), "rb")
-
-
-def open_fd_beneath(root: str, rel: str) -> int:
-    """:func:`open_beneath` on strings, returning the descriptor (``rel`` already passed
-    :func:`check_relative`)."""
-    parts = rel.split("/")
+    component below the root (OSError), so a component swapped for a symlink after the check
+    cannot lead out: one ``openat(O_NOFOLLOW)`` at a time, ``openat2(RESOLVE_BENEATH)`` on
+    every POSIX."""
+    parts = path.relative_to(root).parts
     fd = os.open(root, os.O_RDONLY | os.O_DIRECTORY)
     try:
         for part in parts[:-1]:
             below = os.open(part, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW, dir_fd=fd)
             os.close(fd)
             fd = below
-        return os.open(parts[-1], os.O_RDONLY | os.O_NOFOLLOW, dir_fd=fd)
+        return open(os.open(parts[-1], os.O_RDONLY | os.O_NOFOLLOW, dir_fd=fd), "rb")
     finally:
         os.close(fd)
 
@@ -159,25 +162,6 @@ def safe_path(root: Path, rel: str) -> Path:
     return resolved
 
 
-class FileVersion(NamedTuple):
-    """What tells one version of a file from the next: a file replaced by rename gets a new
-    inode, one rewritten in place a new ctime (which, unlike mtime, no tool can set back)."""
-
-    size: int
-    mtime_ns: int
-    inode: int
-    ctime_ns: int
-
-
-def _signature(path: Path) -> FileVersion:
-    """The version of a regular file, NotFoundError otherwise."""
-    try:
-        st = path.stat()
-    except OSError as exc:
-        raise NotFoundError("no such file", where=path.name) from exc
-    return version_of(st, path.name)
-
-
 def version_of(st: os.stat_result, name: str) -> FileVersion:
     """The version of a regular file from its stat, NotFoundError for anything else."""
     if not stat.S_ISREG(st.st_mode):
@@ -187,20 +171,20 @@ def version_of(st: os.stat_result, name: str) -> FileVersion:
 
 def locate(root: Path, rel: str) -> tuple[Path, FileVersion]:
     """The resolved path of the regular file ``rel`` under the resolved ``root``, and its
-    version: :func:`safe_path` and :func:`_signature` in one, with one ``lstat`` per
-    component of ``rel`` when none is a symlink (the common case on every request; resolving
-    from ``/`` cost a quarter of a small range's time), else the full resolution."""
+    version: one ``lstat`` per component when none is a symlink (the common case, and cheaper
+    than resolving from ``/``), else :func:`safe_path`."""
     check_relative(rel)
     path = root
-    for part in rel.split("/"):
-        path = path / part
-        try:
+    try:
+        for part in rel.split("/"):
+            path = path / part
             st = os.lstat(path)
-        except OSError as exc:
-            raise NotFoundError("no such file", where=rel[:80]) from exc
-        if stat.S_ISLNK(st.st_mode):
-            resolved = safe_path(root, rel)
-            return resolved, _signature(resolved)
+            if stat.S_ISLNK(st.st_mode):
+                path = safe_path(root, rel)
+                st = path.stat()
+                break
+    except OSError as exc:
+        raise NotFoundError("no such file", where=rel[:80]) from exc
     return path, version_of(st, path.name)
 
 
@@ -220,73 +204,90 @@ def _content_etag(root: Path, path: Path) -> str:
     """Strong ETag of a local file: :func:`container_etag`, else the SHA-256 of the content."""
     with open_beneath(root, path) as f:
         identity = container_etag(f.read(HEADER_SIZE), path.name)
-        if identity is not None:
-            return identity
-        f.seek(0)
-        digest = hashlib.sha256()
-        while block := f.read(_HASH_BLOCK):
-            digest.update(block)
-    return f'"{digest.hexdigest()}"'
+        if identity is None:
+            f.seek(0)
+            identity = f'"{hashlib.file_digest(f, "sha256").hexdigest()}"'
+    return identity
+
+
+def media_type(path: Path) -> str:
+    """The media type of a file, from its extension."""
+    if path.suffix == CONTAINER_SUFFIX:
+        return CONTAINER_TYPE
+    return MEDIA_TYPES.get(path.suffix.lower(), "application/octet-stream")
 
 
 class Catalog:
-    """Files and scenes under one root, with caches holding one entry per resolved file (its
-    current version only, at most MAX_CACHED files).
-
-    The root is a folder, or one file (single-file mode): then only that file is served, as
-    ``/files/<name>`` and, for a ``.tsogs`` container, as the scene ``<name without .tsogs>``.
+    """Files and scenes under one root folder, or one file (only that file is served, and a
+    container as the scene ``<name without .tsogs>``). :class:`~.object_catalog.ObjectCatalog`
+    changes how names are found, tagged, read and listed; caching and the ETag rule stay here.
     """
 
     def __init__(self, root: Path) -> None:
         resolved = root.resolve()
-        self.only: str | None = resolved.name if resolved.is_file() else None
-        self.root = resolved.parent if self.only is not None else resolved
-        self._etags: dict[Path, tuple[FileVersion, str]] = {}
-        self._scenes: dict[Path, tuple[FileVersion, SceneEntry]] = {}
+        only = resolved.name if resolved.is_file() else None
+        self._setup(resolved.parent if only is not None else resolved, only)
+
+    def _setup(self, root: Path, only: str | None) -> None:
+        """The root, the one file served (None: all) and empty caches."""
+        self.root, self.only = root, only
+        self._etags: FIFOCache[Path, tuple[FileVersion, str]] = FIFOCache(MAX_CACHED)
+        self._scenes: FIFOCache[Path, tuple[FileVersion, SceneEntry]] = FIFOCache(MAX_CACHED)
         self._pending: dict[tuple[str, Path, FileVersion], asyncio.Future[Any]] = {}
 
     def check_only(self, rel: str) -> None:
         """In single-file mode, anything but that file (and, for a container, the thumbnail
         beside it, which the scene list shows) is not found."""
-        if self.only is not None and rel != self.only and rel != _thumbnail_of(self.only):
+        if self.only is None or rel == self.only:
+            return
+        if not (self.only.endswith(CONTAINER_SUFFIX) and rel == thumbnail_path(self.only)):
             raise NotFoundError("no such file", where=rel[:80])
 
-    async def file(self, rel: str) -> Representation:
-        """The whole file at ``rel`` (relative to the root), its ETag computed once per
-        version (:func:`container_etag`, else one of the content)."""
-        path, version = await self._find(rel)
-        cached = self._etags.get(path)
-        if cached is None or cached[0] != version:
-            try:
-                tag = await self._once("etag", path, version, lambda: self._tag(path))
-            except OSError as exc:  # vanished or unreadable since the stat
-                raise unreadable(exc, "no such file", path.name) from exc
-            remember(self._etags, path, cached := (version, tag))
-        return self._whole(path, version, cached[1])
-
-    async def _find(self, rel: str) -> tuple[Path, FileVersion]:
-        """The file ``rel`` names and its version (NotFoundError when there is none)."""
+    async def find(self, rel: str) -> tuple[Path, FileVersion]:
+        """The file ``rel`` names (relative to the root) and its version; NotFoundError when
+        there is none."""
         self.check_only(rel)
         return locate(self.root, rel)
+
+    async def file(self, rel: str) -> Representation:
+        """The whole file at ``rel`` (relative to the root)."""
+        return await self.file_at(*await self.find(rel))
+
+    async def file_at(self, path: Path, version: FileVersion) -> Representation:
+        """The whole file :meth:`find` found, its ETag computed once per version
+        (:func:`container_etag`, else one of the content)."""
+        try:
+            tag = await self._once(self._etags, "etag", path, version, lambda: self._tag(path))
+        except OSError as exc:  # vanished or unreadable since the stat
+            raise unreadable(exc, "no such file", path.name) from exc
+        return self._whole(path, version, tag)
 
     async def _tag(self, path: Path) -> str:
         """The ETag of the file at ``path``, read in a worker thread."""
         return await asyncio.to_thread(_content_etag, self.root, path)
 
     def source_of(self, path: Path) -> ByteSource:
-        """The bytes of the file at ``path`` (a path as :meth:`_find` gives), read async."""
+        """The bytes of the file at ``path`` (a path as :meth:`find` gives), read async."""
         return FileSource(path)
 
     def _whole(self, path: Path, version: FileVersion, etag: str) -> Representation:
         """The representation of a whole file under the root."""
-        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else guess_type(path)
-        return Representation(path, 0, version.size, etag, version.mtime_ns / 1e9, kind, self.root)
+        mtime = version.mtime_ns / 1e9
+        return Representation(path, 0, version.size, etag, mtime, media_type(path), self.root)
 
     async def _once(
-        self, kind: str, path: Path, version: FileVersion, work: Callable[[], Awaitable[_T]]
+        self,
+        cache: FIFOCache[Path, tuple[FileVersion, _T]],
+        kind: str,
+        path: Path,
+        version: FileVersion,
+        work: Callable[[], Awaitable[_T]],
     ) -> _T:
-        """``work()`` run once per (kind, file version) however many requests ask at the same
-        time: a cold cache must not cost one full read or parse per request."""
+        """The ``cache``d value of this file version, else ``work()``, run once however many
+        requests ask at the same time: a cold cache must not cost one read or parse each."""
+        cached = cache.get(path)
+        if cached is not None and cached[0] == version:
+            return cached[1]
         key = (kind, path, version)
         task = self._pending.get(key)
         if task is None:
@@ -294,48 +295,55 @@ class Catalog:
             self._pending[key] = task = started
             started.add_done_callback(lambda t: _retrieved(self._pending.pop(key, t)))
         # shielded: a client leaving does not cancel the others' wait; the kind keys the type
-        return cast(_T, await asyncio.shield(task))
+        value = cast(_T, await asyncio.shield(task))
+        cache[path] = (version, value)
+        return value
 
-    async def scene(self, scene_id: str) -> SceneEntry:
-        """The scene ``scene_id``: ``<id>.tsogs`` if it exists, else the folder ``<id>/``."""
-        path, version, packed = await self._scene_file(scene_id)
-        cached = self._scenes.get(path)
-        if cached is None or cached[0] != version:
-            scene = await self._once(
-                "scene", path, version, lambda: self._open(scene_id, path, packed, version)
-            )
-            remember(self._scenes, path, cached := (version, scene))
-        return _named(cached[1], scene_id)
-
-    async def _scene_file(self, scene_id: str) -> tuple[Path, FileVersion, bool]:
-        """The container or manifest file of a scene, its version, and whether it is packed."""
+    async def scene_file(self, scene_id: str) -> SceneFile:
+        """The file of the scene ``scene_id``: ``<id>.tsogs`` if it exists, else the manifest
+        of the folder ``<id>/``."""
         try:
-            path, version = await self._find(scene_id + CONTAINER_SUFFIX)
-            return path, version, True
+            return SceneFile(*await self.find(scene_id + CONTAINER_SUFFIX), True)
         except NotFoundError:
-            path, version = await self._find(f"{scene_id}/{MANIFEST}")
-            return path, version, False
+            return SceneFile(*await self.find(f"{scene_id}/{MANIFEST}"), False)
 
-    async def _open(
-        self, scene_id: str, path: Path, packed: bool, version: FileVersion
-    ) -> SceneEntry:
-        """Open a container or read an unpacked manifest through the async reader
-        (NotFoundError when unreadable, BusyError when out of file descriptors)."""
+    async def scene(self, scene_id: str, found: SceneFile | None = None) -> SceneEntry:
+        """The scene ``scene_id``, opened once per version of its file (``found``: what
+        :meth:`scene_file` gave, when it was asked already)."""
+        if found is None:
+            found = await self.scene_file(scene_id)
+        work = functools.partial(self._open, scene_id, found)
+        scene = await self._once(self._scenes, "scene", found.path, found.version, work)
+        # ids that alias one file through symlinks share one cache entry, named as asked
+        return scene if scene.id == scene_id else replace(scene, id=scene_id)
+
+    async def _open(self, scene_id: str, found: SceneFile) -> SceneEntry:
+        """Open a container or an unpacked manifest (refused over MAX_INDEX_BYTES before it is
+        read) through the async reader; NotFoundError when unreadable, BusyError when out of
+        file descriptors."""
+        path, version, packed = found
+        source = self.source_of(path)
+        raw: bytes | None = None
         try:
-            index, manifest_json, per_frame = await _read_scene(
-                self.source_of(path), packed, version.size
-            )
+            if packed:
+                index = await read_index(source)
+            elif version.size > MAX_INDEX_BYTES:
+                raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=source.name)
+            else:
+                raw = await source.read(ByteRange(0, version.size))
+                index = unpacked_index(raw, where=source.name)
+            text, per_frame = await asyncio.to_thread(_describe, index, raw)
         except TsogError as exc:
             raise unreadable(exc, f"not a readable scene: {exc.message}", scene_id) from exc
-        size = len(manifest_json) + index.manifest.payload_bytes if not packed else version.size
+        size = version.size if packed else len(text) + index.manifest.payload_bytes
         mtime = version.mtime_ns / 1e9
-        return SceneEntry(scene_id, path, packed, index, manifest_json, mtime, size, per_frame)
+        return SceneEntry(scene_id, path, packed, index, text, mtime, size, per_frame)
 
     def relative(self, path: Path) -> str:
         """The root-relative form of a resolved path under the root."""
         return path.relative_to(self.root).as_posix()
 
-    def scene_relative(self, scene: SceneEntry) -> str:
+    def scene_relative(self, scene: SceneEntry | SceneFile) -> str:
         """The root-relative path of a scene: its container file or its folder."""
         return self.relative(scene.path if scene.packed else scene.path.parent)
 
@@ -348,11 +356,15 @@ class Catalog:
         return True
 
     def scene_ids(self) -> list[str]:
-        """Ids of every container and unpacked layout under the root (symlinks not followed;
-        names that are not :func:`servable` skipped, with the folders below them)."""
+        """Ids of every container and unpacked layout served (blocking: a walk), sorted."""
         if self.only is not None:
             suffixed = self.only.endswith(CONTAINER_SUFFIX)
             return [self.only.removesuffix(CONTAINER_SUFFIX)] if suffixed else []
+        return sorted(self._all_ids())
+
+    def _all_ids(self) -> set[str]:
+        """Scene ids under the root folder (symlinks not followed; names that are not
+        :func:`servable` skipped, with the folders below them)."""
         ids: set[str] = set()
         for folder, dirs, files in os.walk(self.root):
             dirs[:] = sorted(d for d in dirs if not d.startswith(".") and servable(d))
@@ -362,11 +374,10 @@ class Catalog:
             for name in files:
                 if name.endswith(CONTAINER_SUFFIX) and not name.startswith(".") and servable(name):
                     ids.add((rel / name).as_posix().removesuffix(CONTAINER_SUFFIX))
-        return sorted(ids)
+        return ids
 
     def chunk(self, scene: SceneEntry, chunk_id: int) -> Representation:
-        """The bytes of one chunk: a slice of the container or a file of the unpacked layout;
-        its ETag the chunk's SHA-256."""
+        """The bytes of one chunk, its ETag the chunk's SHA-256."""
         chunks = scene.index.manifest.chunks
         if not 0 <= chunk_id < len(chunks):
             raise NotFoundError(f"no chunk {chunk_id} (it has {len(chunks)})", where=scene.id)
@@ -374,7 +385,7 @@ class Catalog:
         return self._chunk(scene, entry, f'"{entry.sha256}"')
 
     def _chunk(self, scene: SceneEntry, entry: ChunkEntry, etag: str) -> Representation:
-        """The representation of one chunk of ``scene`` (see :meth:`chunk`)."""
+        """One chunk: a slice of the container, or a file of the unpacked layout."""
         if scene.packed:
             return Representation(
                 scene.path, entry.offset, entry.length, etag, scene.mtime, SOG_TYPE
@@ -384,62 +395,14 @@ class Catalog:
         return Representation(path, 0, version.size, etag, mtime, SOG_TYPE, self.root)
 
 
-async def _read_scene(
-    source: ByteSource, packed: bool, size: int
-) -> tuple[StreamIndex, bytes, int]:
-    """The index, manifest JSON and Gaussians per frame of a container or an unpacked manifest
-    of ``size`` bytes, read through ``source`` (the one async reader for files and stores); an
-    unpacked manifest over MAX_INDEX_BYTES is refused before it is read."""
-    if packed:
-        index, manifest_json = await read_index(source), None
-    else:
-        if size > MAX_INDEX_BYTES:
-            raise SourceError(f"manifest over {MAX_INDEX_BYTES} bytes", where=source.name)
-        manifest_json = await source.read(ByteRange(0, size))
-        index = unpacked_index(manifest_json, where=source.name)
-    text, per_frame = await asyncio.to_thread(_describe, index, manifest_json)
-    return index, text, per_frame
-
-
 def _describe(index: StreamIndex, manifest_json: bytes | None) -> tuple[bytes, int]:
     """The manifest JSON (``manifest_json`` when read from an unpacked layout) and the
-    Gaussians per frame of a scene: run in a worker thread, so a large index never stalls the
-    event loop."""
+    Gaussians per frame of a scene (run in a worker thread)."""
     text = manifest_json if manifest_json is not None else dump_manifest(index.manifest)
     return text, gaussians_per_frame(index.manifest)
-
-
-def _named(scene: SceneEntry, scene_id: str) -> SceneEntry:
-    """``scene`` under the id it was asked by: ids that alias one file through symlinks share
-    one cache entry, not one entry each."""
-    return scene if scene.id == scene_id else replace(scene, id=scene_id)
 
 
 def _retrieved(task: asyncio.Future[Any]) -> None:
     """Mark a task's exception as seen (its waiters may all have gone)."""
     if not task.cancelled():
         task.exception()
-
-
-def remember(cache: dict[_K, _V], path: _K, value: _V) -> None:
-    """Store ``value`` as the only version of ``path``, the oldest entry dropped past the cap."""
-    cache.pop(path, None)
-    cache[path] = value
-    if len(cache) > MAX_CACHED:
-        del cache[next(iter(cache))]
-
-
-def _thumbnail_of(name: str) -> str | None:
-    """The thumbnail file of a container name (None for any other file)."""
-    return thumbnail_path(name) if name.endswith(CONTAINER_SUFFIX) else None
-
-
-def guess_type(path: Path) -> str:
-    """A media type from the extension (octet-stream when unknown)."""
-    known = {
-        ".json": "application/json",
-        ".sog": SOG_TYPE,
-        ".png": PNG_TYPE,
-        ".ply": "application/octet-stream",
-    }
-    return known.get(path.suffix.lower(), "application/octet-stream")

@@ -14,7 +14,7 @@ from email.utils import format_datetime, parsedate_to_datetime
 
 
 class Outcome(enum.Enum):
-    """What the preconditions decide."""
+    """What the preconditions decide (the value is the status to answer)."""
 
     PROCEED = 200
     NOT_MODIFIED = 304
@@ -36,53 +36,40 @@ def parse_http_date(value: str) -> datetime | None:
 
 
 def parse_etags(value: str) -> list[str] | None:
-    """The entity-tags of an If-Match / If-None-Match list; None means ``*``.
-
-    Weak tags keep their ``W/`` prefix; unquoted junk is dropped (it can never match).
-    """
+    """The entity-tags of an If-Match / If-None-Match list; None means ``*``. Weak tags keep
+    their ``W/`` prefix; unquoted junk is dropped (it can never match)."""
     if value.strip() == "*":
         return None
-    tags: list[str] = []
-    for item in value.split(","):
-        tag = item.strip(" \t")
-        opaque = tag[2:] if tag.startswith("W/") else tag
-        if len(opaque) >= 2 and opaque[0] == opaque[-1] == '"' and '"' not in opaque[1:-1]:
-            tags.append(tag)
-    return tags
+    tags = [item.strip(" \t") for item in value.split(",")]
+    return [t for t in tags if _quoted(t.removeprefix("W/"))]
 
 
-def strong_match(value: str, etag: str) -> bool:
-    """If-Match: strong comparison (§8.8.3.2), ``*`` matches any current representation."""
-    tags = parse_etags(value)
-    return tags is None or etag in tags
-
-
-def weak_match(value: str, etag: str) -> bool:
-    """If-None-Match: weak comparison (``W/`` ignored on both sides)."""
-    tags = parse_etags(value)
-    return tags is None or etag.removeprefix("W/") in {t.removeprefix("W/") for t in tags}
+def _quoted(opaque: str) -> bool:
+    """Whether ``opaque`` is one quoted string (an entity-tag without its ``W/``)."""
+    return len(opaque) >= 2 and opaque[0] == opaque[-1] == '"' and '"' not in opaque[1:-1]
 
 
 def _not_after(value: str, mtime: float) -> bool | None:
     """True when the resource was not modified after the date; None for an invalid date."""
     date = parse_http_date(value)
-    if date is None:
-        return None
-    return int(mtime) <= date.timestamp()
+    return None if date is None else int(mtime) <= date.timestamp()
 
 
 def evaluate(method: str, headers: Mapping[str, str], etag: str, mtime: float) -> Outcome:
-    """Apply If-Match, If-Unmodified-Since, If-None-Match, If-Modified-Since in §13.2.2 order."""
+    """Apply If-Match, If-Unmodified-Since, If-None-Match, If-Modified-Since in §13.2.2 order:
+    If-Match compares strongly (§8.8.3.2), If-None-Match weakly, ``*`` matches anything."""
     safe = method in ("GET", "HEAD")
     if "If-Match" in headers:
-        if not strong_match(headers["If-Match"], etag):
+        tags = parse_etags(headers["If-Match"])
+        if tags is not None and etag not in tags:
             return Outcome.FAILED
     elif "If-Unmodified-Since" in headers and (
         _not_after(headers["If-Unmodified-Since"], mtime) is False
     ):
         return Outcome.FAILED
     if "If-None-Match" in headers:
-        if weak_match(headers["If-None-Match"], etag):
+        tags = parse_etags(headers["If-None-Match"])
+        if tags is None or etag.removeprefix("W/") in {t.removeprefix("W/") for t in tags}:
             return Outcome.NOT_MODIFIED if safe else Outcome.FAILED
     elif (
         safe and "If-Modified-Since" in headers and _not_after(headers["If-Modified-Since"], mtime)
@@ -92,11 +79,9 @@ def evaluate(method: str, headers: Mapping[str, str], etag: str, mtime: float) -
 
 
 def if_range_allows(value: str | None, etag: str, mtime: float) -> bool:
-    """True when the Range header may be honoured (§13.1.5).
-
-    An entity-tag must match strongly; a date must equal Last-Modified exactly. Anything
-    else (weak tag, unparsable value, other date) means: send the whole representation.
-    """
+    """True when the Range header may be honoured (§13.1.5): an entity-tag must match strongly,
+    a date must equal Last-Modified exactly; anything else (a weak tag, an unparsable value,
+    another date) means: send the whole representation."""
     if value is None:
         return True
     value = value.strip(" \t")

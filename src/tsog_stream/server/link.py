@@ -1,10 +1,9 @@
 """A slow link on loopback: a TCP relay with a bandwidth (token bucket) and an added latency.
 
-Put in front of any origin (``tsog serve``, nginx) it makes the link a viewer would have: every
-byte the origin sends goes through one shared bucket at ``bandwidth`` bits per second (one link,
-however many connections), and every byte the viewer sends reaches the origin ``latency``
-seconds late (so each request's round trip grows by ``latency``). ``tsog play --bandwidth``,
-the tests and ``benchmarks/bench_progressive.py`` measure through it. Loopback only.
+In front of any origin (``tsog serve``, nginx) it makes the link a viewer would have: every byte
+the origin sends goes through one shared bucket at ``bandwidth`` bits per second (one link,
+however many connections), every byte the viewer sends reaches the origin ``latency`` seconds
+late. ``tsog play --bandwidth``, the tests and the benchmarks measure through it.
 """
 
 from __future__ import annotations
@@ -79,20 +78,6 @@ class LinkShape:
         return f"{self.bandwidth_bps / 1e6:g} Mbit/s, {self.latency_s * 1000:g} ms"
 
 
-class _Bucket:
-    """The shared link: a virtual clock of when it is next free (a token bucket of depth BURST)."""
-
-    def __init__(self, bytes_per_s: float) -> None:
-        self.rate = bytes_per_s
-        self.free_at = 0.0
-
-    async def carry(self, size: int) -> None:
-        """Return once ``size`` more bytes have crossed the link (pieces cross in call order)."""
-        now = asyncio.get_running_loop().time()
-        self.free_at = max(self.free_at, now - BURST / self.rate) + size / self.rate
-        await asyncio.sleep(max(0.0, self.free_at - now))
-
-
 async def _close(writer: asyncio.StreamWriter, cut: bool) -> None:
     """Close one side: cut at once, or flush what is written for at most CLOSE_S (a peer
     that stopped reading does not hold the connection open)."""
@@ -112,7 +97,7 @@ class ThrottledRelay:
         self.port = 0
         self.bytes_down = 0
         self.connections = 0
-        self._bucket = _Bucket(shape.bandwidth_bps / 8.0)
+        self._free_at = 0.0  # the shared link: when it is next free (a bucket of depth BURST)
         self._server: asyncio.Server | None = None
         self._tasks: set[asyncio.Task[None]] = set()
 
@@ -127,12 +112,12 @@ class ThrottledRelay:
         return f"http://{LOOPBACK}:{self.port}{path}"
 
     async def _relay(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """One viewer connection: requests delayed to the origin, answers through the bucket."""
-        if len(self._tasks) >= MAX_CONNECTIONS:
+        """One viewer connection: requests delayed to the origin, answers through the bucket,
+        until either side ends; then both are closed (cut at once when the relay closes)."""
+        task = asyncio.current_task()
+        if len(self._tasks) >= MAX_CONNECTIONS or task is None:
             writer.close()
             return
-        task = asyncio.current_task()
-        assert task is not None
         self._tasks.add(task)
         self.connections += 1
         try:
@@ -141,18 +126,6 @@ class ThrottledRelay:
             self._tasks.discard(task)
             writer.close()
             return
-        with contextlib.suppress(asyncio.CancelledError):  # closing the relay ends it quietly
-            await self._pump(reader, writer, up_reader, up_writer)
-        self._tasks.discard(task)
-
-    async def _pump(
-        self,
-        reader: asyncio.StreamReader,
-        writer: asyncio.StreamWriter,
-        up_reader: asyncio.StreamReader,
-        up_writer: asyncio.StreamWriter,
-    ) -> None:
-        """Both directions of one connection until either ends; then both are closed."""
         pumps = [
             asyncio.ensure_future(self._delayed(reader, up_writer)),
             asyncio.ensure_future(self._throttled(up_reader, writer)),
@@ -161,9 +134,9 @@ class ThrottledRelay:
         try:
             await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
         except asyncio.CancelledError:
-            closing = True  # the relay is closing: cut, do not wait for peers to read
-            raise
+            closing = True  # the relay is closing: it ends quietly, without waiting for peers
         finally:  # the pumps end (and are reaped) with the connection
+            self._tasks.discard(task)
             for pump in pumps:
                 pump.cancel()
             await asyncio.gather(*pumps, return_exceptions=True)
@@ -200,10 +173,16 @@ class ThrottledRelay:
     async def _throttled(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Origin -> viewer, each piece once the shared link has carried it."""
         while piece := await reader.read(PIECE):
-            await self._bucket.carry(len(piece))
+            await self._carry(len(piece))
             writer.write(piece)
             self.bytes_down += len(piece)
             await writer.drain()
+
+    async def _carry(self, size: int) -> None:
+        """Return once ``size`` more bytes have crossed the link (pieces cross in call order)."""
+        now, rate = asyncio.get_running_loop().time(), self.shape.bandwidth_bps / 8.0
+        self._free_at = max(self._free_at, now - BURST / rate) + size / rate
+        await asyncio.sleep(max(0.0, self._free_at - now))
 
     async def aclose(self) -> None:
         """Stop listening and cut every relayed connection."""

@@ -15,11 +15,21 @@ import time
 
 from aiohttp.http_exceptions import HttpProcessingError
 
+_LAST = {"accept": -math.inf, "busy": -math.inf}
+"""When each once-a-second line was last written."""
+
+
+def _due(kind: str) -> bool:
+    """Whether a once-a-second line of ``kind`` may be written now (then it is counted)."""
+    now = time.monotonic()
+    if now - _LAST[kind] < 1.0:
+        return False
+    _LAST[kind] = now
+    return True
+
 
 def _quiet_bad_requests(record: logging.LogRecord) -> bool:
-    """Malformed requests (answered 400 by aiohttp) and clients that went away or stalled log
-    one INFO line, not an ERROR traceback, so hostile clients cannot flood the log; real
-    server errors keep their traceback."""
+    """A malformed request, or a client that went away or stalled: one INFO line."""
     exc = record.exc_info[1] if record.exc_info else None
     if isinstance(exc, HttpProcessingError | ConnectionError):
         text = exc.message if isinstance(exc, HttpProcessingError) else f"{exc!r}"
@@ -30,38 +40,21 @@ def _quiet_bad_requests(record: logging.LogRecord) -> bool:
     return True
 
 
-class _AcceptFlood(logging.Filter):
-    """Out of file descriptors, asyncio logs every failed ``accept`` with a traceback (thousands
-    of lines a second under a connection flood): keep one line a second."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.last = -math.inf
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if not str(record.msg).startswith("socket.accept() out of system resource"):
-            return True
-        now = time.monotonic()
-        if now - self.last < 1.0:
-            return False
-        self.last = now
-        record.msg, record.args = (
-            "out of file descriptors: new connections wait (%s)",
-            (record.exc_info[1] if record.exc_info else "",),
-        )
-        record.exc_info, record.exc_text = None, None
+def _quiet_accept_flood(record: logging.LogRecord) -> bool:
+    """A failed ``accept`` for want of file descriptors: one line a second, no traceback."""
+    if not str(record.msg).startswith("socket.accept() out of system resource"):
         return True
-
-
-_ACCEPT_FLOOD = _AcceptFlood()
-_BUSY = {"last": -math.inf}
+    if not _due("accept"):
+        return False
+    cause = record.exc_info[1] if record.exc_info else ""
+    record.msg, record.args = "out of file descriptors: new connections wait (%s)", (cause,)
+    record.exc_info, record.exc_text = None, None
+    return True
 
 
 def log_out_of_fds(message: str) -> None:
     """A request answered 503 for want of file descriptors: one WARNING line a second at most."""
-    now = time.monotonic()
-    if now - _BUSY["last"] >= 1.0:
-        _BUSY["last"] = now
+    if _due("busy"):
         logging.getLogger("tsog_stream.server").warning("answering 503: %s", message)
 
 
@@ -70,5 +63,5 @@ def quiet_client_errors() -> None:
     server_log, asyncio_log = logging.getLogger("aiohttp.server"), logging.getLogger("asyncio")
     if _quiet_bad_requests not in server_log.filters:
         server_log.addFilter(_quiet_bad_requests)
-    if _ACCEPT_FLOOD not in asyncio_log.filters:
-        asyncio_log.addFilter(_ACCEPT_FLOOD)
+    if _quiet_accept_flood not in asyncio_log.filters:
+        asyncio_log.addFilter(_quiet_accept_flood)

@@ -1,20 +1,21 @@
 """Serving from object storage: the catalog of a bucket prefix (``tsog serve s3://bucket/media/``).
 
-The same routes, answers and checks as for a folder (relative paths checked by
-:func:`~.catalog.check_relative`), with bodies read by ranged GETs from the store
-(:class:`~tsog_stream.container.objects.ObjectSource`) instead of ``sendfile``. An object's
-version is its store ETag and size, asked again at most every :data:`REVALIDATE_S` seconds, so
-a replaced container is picked up without one HEAD per request; a scene's index is read once
-per version. ETags sent to clients are a container's identity (as for files) or the store's.
+The same routes, answers and checks as for a folder, with bodies read by ranged GETs from the
+store (:class:`~tsog_stream.container.objects.ObjectSource`) instead of ``sendfile``. An
+object's version is its store ETag and size, asked again at most every :data:`REVALIDATE_S`
+seconds, so a replaced container is picked up without one HEAD per request.
 """
 
 from __future__ import annotations
 
 import asyncio
+import threading
 import time
 from datetime import datetime
 from pathlib import Path
 from typing import Any
+
+from cachetools import TTLCache
 
 from ..container.header import HEADER_SIZE
 from ..container.objects import ObjectSource
@@ -24,7 +25,7 @@ from ..io.objects import ObjectPath, store_errors
 from ..schemas.manifest import ChunkEntry
 from .catalog import (
     CONTAINER_SUFFIX,
-    CONTAINER_TYPE,
+    MAX_CACHED,
     SOG_TYPE,
     Catalog,
     FileVersion,
@@ -33,13 +34,13 @@ from .catalog import (
     SceneEntry,
     check_relative,
     container_etag,
-    guess_type,
-    remember,
+    media_type,
     servable,
 )
 
 REVALIDATE_S = 2.0
 """Seconds an object's version is trusted before the store is asked again."""
+Info = dict[str, Any] | None
 
 
 def _version(info: dict[str, Any]) -> FileVersion:
@@ -55,32 +56,31 @@ class ObjectCatalog(Catalog):
 
     def __init__(self, root: ObjectPath) -> None:
         self.store = root
-        self.only = root.name if root.is_file() else None
-        self.base = root.parent if self.only is not None else root
-        self.root = Path(".")  # names are relative: a scene's path is its key under the base
-        self._etags: dict[Path, tuple[FileVersion, str]] = {}
-        self._scenes: dict[Path, tuple[FileVersion, SceneEntry]] = {}
-        self._pending = {}
-        self._seen: dict[str, tuple[float, dict[str, Any] | None]] = {}
+        only = root.name if root.is_file() else None
+        self.base = root.parent if only is not None else root
+        self._setup(Path("."), only)  # names are relative: a scene's path is its key
+        self._seen: TTLCache[str, tuple[Info]] = TTLCache(MAX_CACHED, REVALIDATE_S, time.monotonic)
+        self._seen_lock = threading.Lock()  # asked from worker threads
 
-    def _info(self, rel: str) -> dict[str, Any] | None:
-        """The store's info on ``rel`` (None when absent), cached for REVALIDATE_S."""
-        now = time.monotonic()
-        cached = self._seen.get(rel)
-        if cached is not None and now - cached[0] < REVALIDATE_S:
-            return cached[1]
+    def _info(self, rel: str) -> Info:
+        """The store's info on the object ``rel`` (None when absent), cached for REVALIDATE_S."""
+        with self._seen_lock:
+            hit = self._seen.get(rel)
+        if hit is not None:
+            return hit[0]
         target = self.base / rel
         with store_errors(str(target)):
             try:
-                info: dict[str, Any] | None = target.fs.info(target.path)
+                info: Info = target.fs.info(target.path)
             except FileNotFoundError:
                 info = None
         if info is not None and info.get("type") != "file":
             info = None
-        remember(self._seen, rel, (now, info))
+        with self._seen_lock:
+            self._seen[rel] = (info,)
         return info
 
-    async def _find(self, rel: str) -> tuple[Path, FileVersion]:
+    async def find(self, rel: str) -> tuple[Path, FileVersion]:
         """The object ``rel`` (its name relative to the base) and its version, NotFoundError
         when there is none."""
         check_relative(rel)
@@ -90,13 +90,9 @@ class ObjectCatalog(Catalog):
             raise NotFoundError("no such file", where=rel[:80])
         return Path(rel), _version(info)
 
-    def source(self, rel: str) -> ObjectSource:
-        """Ranged reads of the object ``rel``."""
-        return ObjectSource(self.base / rel)
-
     def source_of(self, path: Path) -> ObjectSource:
         """Ranged reads of the object named ``path`` (relative to the base)."""
-        return self.source(path.as_posix())
+        return ObjectSource(self.base / path.as_posix())
 
     async def _tag(self, path: Path) -> str:
         """:func:`~.catalog.container_etag`, else the store's ETag of the object."""
@@ -112,10 +108,8 @@ class ObjectCatalog(Catalog):
 
     def _whole(self, path: Path, version: FileVersion, etag: str) -> Representation:
         """The representation of a whole object, read from the store."""
-        kind = CONTAINER_TYPE if path.suffix == CONTAINER_SUFFIX else guess_type(path)
-        mtime = version.mtime_ns / 1e9
-        source = self.source_of(path)
-        return Representation(path, 0, version.size, etag, mtime, kind, source=source)
+        mtime, source = version.mtime_ns / 1e9, self.source_of(path)
+        return Representation(path, 0, version.size, etag, mtime, media_type(path), source=source)
 
     def relative(self, path: Path) -> str:
         """Names are already relative to the base."""
@@ -125,11 +119,8 @@ class ObjectCatalog(Catalog):
         """Whether the object ``rel`` exists (blocking: one HEAD, cached)."""
         return self._info(rel) is not None
 
-    def scene_ids(self) -> list[str]:
-        """Ids of every container and unpacked layout under the prefix (one listing)."""
-        if self.only is not None:
-            suffixed = self.only.endswith(CONTAINER_SUFFIX)
-            return [self.only.removesuffix(CONTAINER_SUFFIX)] if suffixed else []
+    def _all_ids(self) -> set[str]:
+        """Scene ids under the prefix (one listing)."""
         with store_errors(str(self.base), "list"):
             keys: list[str] = self.base.fs.find(self.base.path)
         prefix = self.base.path.strip("/") + "/"
@@ -143,19 +134,20 @@ class ObjectCatalog(Catalog):
                 ids.add("/".join(parts[:-1]))
             elif rel.endswith(CONTAINER_SUFFIX):
                 ids.add(rel.removesuffix(CONTAINER_SUFFIX))
-        return sorted(ids)
+        return ids
 
     def _chunk(self, scene: SceneEntry, entry: ChunkEntry, etag: str) -> Representation:
         """One chunk: a range of the container object, or an object of the unpacked layout."""
         if scene.packed:
-            rel = scene.path.as_posix()
-            offset, length = entry.offset, entry.length
+            path, offset = scene.path, entry.offset
         else:
             rel = f"{scene.path.parent.as_posix()}/{entry.file}"
             check_relative(rel)
-            offset, length = 0, entry.length
-        source = self.source(rel)
-        return Representation(Path(rel), offset, length, etag, scene.mtime, SOG_TYPE, source=source)
+            path, offset = Path(rel), 0
+        source = self.source_of(path)
+        return Representation(
+            path, offset, entry.length, etag, scene.mtime, SOG_TYPE, source=source
+        )
 
 
 __all__ = ["REVALIDATE_S", "ObjectCatalog"]

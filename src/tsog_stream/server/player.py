@@ -31,11 +31,7 @@ ENGINE_ENV = "TSOG_PLAYCANVAS_DIR"
 ENGINE_FILE = "playcanvas.mjs"
 PACKAGED_ENGINE = PLAYER_DIR / "engine" / ENGINE_FILE
 """The pinned engine build the package carries (player/engine/README.md)."""
-ASSET_TYPES = {
-    ".js": "text/javascript",
-    ".mjs": "text/javascript",
-    ".css": "text/css",
-}
+ASSET_TYPES = {".js": "text/javascript", ".mjs": "text/javascript", ".css": "text/css"}
 HTML_TYPE = "text/html"
 PAGE_HEADERS = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
 TEMPLATE = "index.html"
@@ -50,50 +46,36 @@ def engine_path() -> Path | None:
     """The engine's ``playcanvas.mjs``: from $TSOG_PLAYCANVAS_DIR (another build), else the
     one the package carries."""
     custom = os.environ.get(ENGINE_ENV)
-    if custom:
-        candidates = [Path(custom) / ENGINE_FILE, Path(custom) / "build" / ENGINE_FILE]
-    else:
-        candidates = [PACKAGED_ENGINE]
-    return next((p for p in candidates if p.is_file()), None)
+    found = [Path(custom), Path(custom) / "build"] if custom else [PACKAGED_ENGINE.parent]
+    return next((p / ENGINE_FILE for p in found if (p / ENGINE_FILE).is_file()), None)
 
 
 def asset_path(name: str) -> Path:
     """A static file directly in the player folder, by exact name; NotFoundError otherwise."""
-    suffix = os.path.splitext(name)[1]
-    if suffix not in ASSET_TYPES or name not in os.listdir(PLAYER_DIR):
-        raise NotFoundError("no such player file", where=name[:80])
     path = PLAYER_DIR / name
-    if path.is_symlink() or not path.is_file():
+    listed = Path(name).suffix in ASSET_TYPES and name in os.listdir(PLAYER_DIR)
+    if not listed or path.is_symlink() or not path.is_file():
         raise NotFoundError("no such player file", where=name[:80])
     return path
 
 
-def _etag(path: Path) -> str:
-    """SHA-256 of the file's content as a strong ETag."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(1 << 20):
-            digest.update(block)
-    return f'"{digest.hexdigest()}"'
-
-
-async def _representation(request: web.Request, path: Path) -> Representation:
-    """The whole file with its ETag (cached per size, mtime and inode)."""
+async def _send(request: web.Request, path: Path) -> web.StreamResponse:
+    """Send a static file with validators, 304 and ranges, its ETag the SHA-256 of its content
+    (computed once per size, mtime and inode)."""
     st = await asyncio.to_thread(path.stat)
     version = (st.st_size, st.st_mtime_ns, st.st_ino)
     cache: dict[Path, tuple[tuple[int, int, int], str]] = request.app[ETAGS]
-    cached = cache.get(path)
-    if cached is None or cached[0] != version:
-        cached = (version, await asyncio.to_thread(_etag, path))
-        cache[path] = cached
+    if path not in cache or cache[path][0] != version:
+        cache[path] = (version, await asyncio.to_thread(_etag, path))
     kind = ASSET_TYPES[path.suffix]
-    return Representation(path, 0, st.st_size, cached[1], st.st_mtime_ns / 1e9, kind)
-
-
-async def _send(request: web.Request, path: Path) -> web.StreamResponse:
-    """Send a static file with validators, 304 and ranges (the server's own file sender)."""
-    rep = await _representation(request, path)
+    rep = Representation(path, 0, st.st_size, cache[path][1], st.st_mtime_ns / 1e9, kind)
     return await send_representation(request, rep)
+
+
+def _etag(path: Path) -> str:
+    """The SHA-256 of a file's content as a strong ETag."""
+    with open(path, "rb") as f:
+        return f'"{hashlib.file_digest(f, "sha256").hexdigest()}"'
 
 
 async def player_file(request: web.Request) -> web.StreamResponse:
@@ -142,33 +124,22 @@ async def index(request: web.Request) -> web.StreamResponse:
 
 def _scene_item(item: dict[str, Any]) -> str:
     """One scene of the index: its thumbnail (when tsog segment drew one), name, duration
-    (marked when assumed), the Gaussians one frame shows and size."""
+    ("still" for one moment, marked when assumed), the Gaussians one frame shows, and size."""
     picture = (
         f'<img src="{html.escape(item["thumbnail"])}" alt="" loading="lazy">'
         if item["thumbnail"]
         else '<span class="no-thumbnail"></span>'
     )
-    facts = f"{_duration(item)} &middot; {_gaussians(item)} &middot; {item['bytes'] / 1e6:.1f} MB"
+    assumed = " (assumed)" if item["duration_assumed"] else ""
+    duration = "still" if item["static"] else f"{item['duration_s']:.2f} s{assumed}"
+    most = item["gaussians_per_frame"]
+    shown = f"{most:,} Gaussians" + (" per frame" if most < item["gaussians"] else "")
+    facts = f"{duration} &middot; {shown} &middot; {item['bytes'] / 1e6:.1f} MB"
     return (
         f'<li><a href="/play/{quote(item["id"])}">{picture}'
         f'<span class="name">{html.escape(item["id"])}</span>'
         f'<span class="facts">{facts}</span></a></li>\n'
     )
-
-
-def _duration(item: dict[str, Any]) -> str:
-    """The scene's length, "(assumed)" when the input did not say it; "still" for a static
-    scene (one moment)."""
-    if item["static"]:
-        return "still"
-    assumed = " (assumed)" if item["duration_assumed"] else ""
-    return f"{item['duration_s']:.2f} s{assumed}"
-
-
-def _gaussians(item: dict[str, Any]) -> str:
-    """The Gaussians shown at one time, "per frame" when the scene holds more over time."""
-    per_frame = item["gaussians_per_frame"]
-    return f"{per_frame:,} Gaussians" + (" per frame" if per_frame < item["gaussians"] else "")
 
 
 def _manifest_url(url: str) -> str:
@@ -180,19 +151,14 @@ def _manifest_url(url: str) -> str:
     return url
 
 
-def _config_json(config: dict[str, Any]) -> str:
-    """JSON safe inside a <script> element (no '<', '>' or '&' left raw)."""
-    text = json.dumps(config)
-    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026")
-
-
 async def _player_page(title: str, config: dict[str, Any]) -> web.Response:
-    """The player page with its configuration written in."""
+    """The player page with its configuration written in (as JSON with no '<', '>' or '&'
+    left raw, so it cannot end its <script> element)."""
     template = await asyncio.to_thread((PLAYER_DIR / TEMPLATE).read_text, "utf-8")
-    text = template.replace("{{TITLE}}", html.escape(title)).replace(
-        "{{CONFIG}}", _config_json(config)
-    )
-    return web.Response(text=text, content_type=HTML_TYPE, headers=PAGE_HEADERS)
+    safe: dict[str, str | int | None] = {"<": "\\u003c", ">": "\\u003e", "&": "\\u0026"}
+    text = json.dumps(config).translate(str.maketrans(safe))
+    page = template.replace("{{TITLE}}", html.escape(title)).replace("{{CONFIG}}", text)
+    return web.Response(text=page, content_type=HTML_TYPE, headers=PAGE_HEADERS)
 
 
 def _scene_query(request: web.Request, api: str) -> str:
@@ -210,8 +176,7 @@ async def play(request: web.Request) -> web.StreamResponse:
     scene = await find_scene(request, request.match_info["id"])
     api = f"/v1/scenes/{quote(scene.id)}"
     config = {"scene": scene.id, "manifest": f"{api}/manifest", "chunks": f"{api}/chunks/"}
-    query = _scene_query(request, api)
-    if query:
+    if query := _scene_query(request, api):
         config["query"] = query
     return await _player_page(scene.id, config)
 

@@ -1,33 +1,36 @@
-"""Private scenes: which paths need a signed URL, the check itself, and a redacting access log.
+"""Private scenes: which paths need a signed URL, the one decision per request, a redacting log.
 
 A path (relative to the served root) is private when a ``--private`` glob matches it or one of
-its parent folders (``*`` also crosses ``/``). Requests for it need a valid signed URL
-(:mod:`tsog_stream.signing`); both the path as asked and the path it resolves to (after
-symlinks) are checked, the former before the file system is touched so that a missing private
-file and an existing one answer alike (403). ``GET /v1/authorize`` lets a proxy in front
-(nginx ``auth_request``) apply the same check to its own URLs.
+its parent folders (``*`` also crosses ``/``). :func:`admitted` decides each request once, on
+the paths as asked and the one they resolve to (after symlinks); a lookup that fails answers
+only after the paths as asked were admitted, so a missing private file and an existing one
+answer alike (403). ``GET /v1/authorize`` lets a proxy in front (nginx ``auth_request``) apply
+the same check to its own URLs.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from fnmatch import fnmatchcase
 from pathlib import PurePosixPath
+from typing import TypeVar
 from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from aiohttp import web
 from aiohttp.abc import AbstractAccessLogger
 
 from ..constants import THUMBNAIL_SUFFIX
-from ..errors import InputError
+from ..errors import InputError, TsogError
 from ..signing import MIN_SECRET_BYTES, check_signed, decoded_path, redact_url, signed_params
 
 ORIGINAL_URI = "X-Original-URI"
 MAX_LOGGED_HEADER = 200
 SIGNED = web.RequestKey("signed", bool)
+"""Set on a request that its signature admitted to a private path (the one decision's outcome)."""
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,19 +63,31 @@ class Privacy:
         return any(fnmatchcase(c, p) for c in candidates for p in self.patterns)
 
     def admit(self, request: web.Request, rels: Iterable[str]) -> None:
-        """Let the request through, or raise AccessError when a path is private and unsigned.
-
-        The signature is verified once per request: it covers the request's own URL, so a
-        request already admitted by it (the path as asked) is admitted for the path it resolves
-        to without verifying again."""
-        if is_signed(request) or not any(self.is_private(r) for r in rels):
-            return
-        secret = self.secret or b""  # never empty here: __post_init__ demands one with patterns
-        check_signed(decoded_path(request.raw_path), request.query, secret, self.clock())
-        request[SIGNED] = True
+        """Let the request through, or raise AccessError when one of ``rels`` is private and
+        the request's signed URL does not hold; marks a request its signature admitted."""
+        if any(self.is_private(r) for r in rels):
+            secret = self.secret or b""  # never empty here: __post_init__ demands one
+            check_signed(decoded_path(request.raw_path), request.query, secret, self.clock())
+            request[SIGNED] = True
 
 
 PRIVACY = web.AppKey("privacy", Privacy)
+
+
+async def admitted(
+    request: web.Request, asked: list[str], find: Awaitable[_T], rel_of: Callable[[_T], str]
+) -> _T:
+    """What ``find`` looks up, once the request is admitted (one :meth:`Privacy.admit` per
+    request) for the paths ``asked`` and the one ``rel_of`` says the lookup found; a failed
+    lookup is raised only after ``asked`` was admitted."""
+    privacy = request.app[PRIVACY]
+    try:
+        found = await find
+    except TsogError:
+        privacy.admit(request, asked)
+        raise
+    privacy.admit(request, [*asked, rel_of(found)])
+    return found
 
 
 def is_signed(request: web.Request) -> bool:
@@ -115,70 +130,26 @@ def _clip(value: str | None) -> str:
     return value[:MAX_LOGGED_HEADER].replace('"', "'")
 
 
-@dataclass(frozen=True, slots=True)
-class Served:
-    """What the access log says of one finished request."""
-
-    remote: str | None
-    method: str
-    target: str
-    version: tuple[int, int]
-    status: int
-    body_bytes: int
-    seconds: float
-    range: str | None
-    user_agent: str | None
-
-
-def log_served(logger: logging.Logger, served: Served) -> None:
-    """Write one access-log line (signatures in the target redacted):
-    ``addr "METHOD target HTTP/x.y" status bytes bytes seconds s "Range" "User-Agent"``."""
-    logger.info(
-        '%s "%s %s HTTP/%d.%d" %d %d bytes %.6f s "%s" "%s"',
-        served.remote,
-        served.method,
-        _clip(redact_url(served.target)),
-        *served.version,
-        served.status,
-        served.body_bytes,
-        served.seconds,
-        _clip(served.range),
-        _clip(served.user_agent),
-    )
-
-
 class AccessLog(AbstractAccessLogger):
-    """aiohttp's access logger, writing :func:`log_served` lines."""
+    """aiohttp's access logger: one line a request, signatures in the target redacted:
+    ``addr "METHOD target HTTP/x.y" status bytes bytes seconds s "Range" "User-Agent"``."""
 
     def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
         """Write the line for one finished request."""
-        v = request.version
-        served = Served(
+        self.logger.info(
+            '%s "%s %s HTTP/%d.%d" %d %d bytes %.6f s "%s" "%s"',
             request.remote,
             request.method,
-            request.path_qs,
-            (v.major, v.minor),
+            _clip(redact_url(request.path_qs)),
+            *request.version,
             response.status,
             response.body_length,
             time,
-            request.headers.get("Range"),
-            request.headers.get("User-Agent"),
+            _clip(request.headers.get("Range")),
+            _clip(request.headers.get("User-Agent")),
         )
-        log_served(self.logger, served)
 
     @property
     def enabled(self) -> bool:
         """Skip formatting when INFO is off."""
         return self.logger.isEnabledFor(logging.INFO)
-
-
-__all__ = [
-    "PRIVACY",
-    "AccessLog",
-    "Privacy",
-    "Served",
-    "authorize",
-    "is_signed",
-    "log_served",
-    "signed_suffix",
-]

@@ -1,15 +1,11 @@
 """Parsing a ``Range`` request header against a representation length (RFC 9110 §14).
 
-Sans-I/O: a header value and a length in, a verdict out, never an exception.
-
-- :class:`Serve`: send these ranges (206), already clipped to the length, sorted and with
-  overlapping or adjacent ranges coalesced (RFC 9110 §14.2 allows a server to do so).
-- :class:`Ignore`: answer as if there were no ``Range`` header (200, whole representation):
-  no header, another unit, invalid syntax (RFC 9110 §14.2: "a server MUST ignore a Range
-  header field ... that contains a range unit it does not understand" and an invalid
-  ranges-specifier), or more than ``max_ranges`` ranges (our cap against amplification).
-- :class:`Unsatisfiable`: valid syntax but no range overlaps the representation (416,
-  ``Content-Range: bytes */LEN``), e.g. ``bytes=LEN-`` or ``bytes=-0``.
+Sans-I/O: a header value and a length in, a verdict out, never an exception:
+:class:`Serve` (206: the ranges clipped, sorted, overlapping or adjacent ones coalesced, as
+§14.2 allows), :class:`Ignore` (200, the whole representation: no header, another unit, invalid
+syntax, which §14.2 says a server MUST ignore, or more than ``max_ranges`` ranges, our cap
+against amplification), :class:`Unsatisfiable` (416: valid, but no range overlaps, e.g.
+``bytes=LEN-`` or ``bytes=-0``).
 """
 
 from __future__ import annotations

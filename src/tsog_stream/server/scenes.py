@@ -1,5 +1,5 @@
-"""Scene lookup shared by the API and the player pages: one scene by id, admitted only as
-its privacy allows, and the list of public scenes.
+"""Scene lookup shared by the API and the player pages: one scene by id, admitted as its
+privacy allows, and the list of public scenes.
 
 A signed prefix scope under ``/v1/scenes/`` names exactly what it covers: the scene whose id it
 spells (the player's ``/v1/scenes/paid/show/`` opens ``paid/show`` and not a scene
@@ -19,22 +19,22 @@ from ..container.stream_index import MANIFEST
 from ..errors import AccessError, InputError, TsogError
 from ..signing import SCOPE, decoded_path
 from .catalog import CONTAINER_SUFFIX, Catalog, NotFoundError, SceneEntry
-from .private import PRIVACY, is_signed
+from .private import PRIVACY, admitted, is_signed
 
 SCENES_API = "/v1/scenes/"
-
 CATALOG = web.AppKey("catalog", Catalog)
 
 
 async def find_scene(request: web.Request, scene_id: str) -> SceneEntry:
-    """The scene ``scene_id`` (private ones need a signed URL); a malformed id is not found."""
-    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
-    privacy.admit(request, [scene_id + CONTAINER_SUFFIX, scene_id])
+    """The scene ``scene_id``, admitted as its privacy allows (:func:`.private.admitted`: the id
+    as asked and the file it resolves to); a malformed id is not found."""
+    catalog = request.app[CATALOG]
+    asked = [scene_id + CONTAINER_SUFFIX, scene_id]
     try:
-        scene = await catalog.scene(scene_id)
+        found = await admitted(request, asked, catalog.scene_file(scene_id), catalog.scene_relative)
     except InputError as exc:
         raise NotFoundError("no such scene", where=scene_id[:80]) from exc
-    privacy.admit(request, [catalog.scene_relative(scene)])
+    scene = await catalog.scene(scene_id, found)
     if is_signed(request):
         await _check_scene_scope(request, catalog, scene_id)
     return scene
@@ -53,21 +53,6 @@ async def _check_scene_scope(request: web.Request, catalog: Catalog, scene_id: s
     except TsogError:
         return  # a folder of scenes, not a scene: it covers every scene below it
     raise AccessError(f"the signed URL covers the scene {named[:80]} only", where=scene_id[:80])
-
-
-async def public_scenes(request: web.Request) -> list[SceneEntry]:
-    """Every readable scene under the root that is not private (unreadable ones are left out)."""
-    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
-    found = []
-    for scene_id in await asyncio.to_thread(catalog.scene_ids):  # a walk: off the loop
-        try:
-            scene = await catalog.scene(scene_id)
-        except TsogError:
-            continue
-        rels = [scene_id + CONTAINER_SUFFIX, scene_id, catalog.scene_relative(scene)]
-        if not any(privacy.is_private(r) for r in rels):
-            found.append(scene)
-    return found
 
 
 def thumbnail_rel(catalog: Catalog, scene: SceneEntry) -> str:
@@ -102,9 +87,18 @@ def _scene_json(scene: SceneEntry, has_thumbnail: bool = False) -> dict[str, Any
 
 
 async def scene_list(request: web.Request) -> list[dict[str, Any]]:
-    """The public scenes as the API and the player's index list them."""
-    catalog = request.app[CATALOG]
-    found = await public_scenes(request)
-    rels = [thumbnail_rel(catalog, s) for s in found]
-    present = await asyncio.to_thread(lambda: [catalog.has_file(rel) for rel in rels])
+    """Every readable scene under the root that is not private (unreadable ones left out), as
+    the API and the player's index list them."""
+    catalog, privacy = request.app[CATALOG], request.app[PRIVACY]
+    found = []
+    for scene_id in await asyncio.to_thread(catalog.scene_ids):  # a walk: off the loop
+        try:
+            scene = await catalog.scene(scene_id)
+        except TsogError:
+            continue
+        rels = [scene_id + CONTAINER_SUFFIX, scene_id, catalog.scene_relative(scene)]
+        if not any(privacy.is_private(r) for r in rels):
+            found.append(scene)
+    thumbs = [thumbnail_rel(catalog, s) for s in found]
+    present = await asyncio.to_thread(lambda: [catalog.has_file(rel) for rel in thumbs])
     return [_scene_json(s, has) for s, has in zip(found, present, strict=True)]

@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ctypes
-import errno
 import logging
 import os
 import select
@@ -24,7 +23,7 @@ from typing import Final
 
 from ..errors import InputError
 from ..machine import usable_cores
-from .app import make_app, start_server
+from .app import cannot_listen, make_app, start_server
 from .private import Privacy
 from .respond import Limits
 
@@ -78,9 +77,7 @@ def _bound(family: socket.AddressFamily, host: str, port: int, *, reuse: bool) -
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
-        if exc.errno == errno.EADDRINUSE:
-            raise InputError(f"port {port} is in use; try --port 0", where=host) from exc
-        raise InputError(f"cannot listen: {exc.strerror}", where=f"{host}:{port}") from exc
+        raise cannot_listen(exc, host, port) from exc
     return sock
 
 
@@ -102,10 +99,10 @@ async def _serve_worker(site: Site, ready: int) -> None:
 
 
 def _ignore_stop_signals(loop: asyncio.AbstractEventLoop) -> None:
-    """Once stopping, SIGINT and SIGTERM are ignored (a group's Ctrl-C and then the parent's
-    SIGTERM both reach a worker) and their loop handlers removed before the loop closes:
-    asyncio closes its wakeup pipe before removing them, and a signal in between printed
-    "Exception ignored when trying to write to the signal wakeup fd"."""
+    """Once stopping, ignore SIGINT and SIGTERM (a group's Ctrl-C and then the parent's SIGTERM
+    both reach a worker), their loop handlers removed before the loop closes its wakeup pipe
+    (a signal in between printed "Exception ignored when trying to write to the signal wakeup
+    fd")."""
     stops = {signal.SIGINT, signal.SIGTERM}
     signal.pthread_sigmask(signal.SIG_BLOCK, stops)  # none lands between the two calls
     try:
