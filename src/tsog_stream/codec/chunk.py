@@ -89,10 +89,15 @@ def encode_chunk(
     return _encode_ordered(ordered, quality, seed=seed, note=note, on_palette=on_palette)
 
 
+def is_identity(order: npt.NDArray[np.intp]) -> bool:
+    """Whether ``order`` leaves every row where it is (rows a caller handed already in order)."""
+    return bool(np.array_equal(order, np.arange(len(order))))
+
+
 def in_order(scene: Scene, order: npt.NDArray[np.intp]) -> Scene:
     """``scene``'s rows in ``order``: a copy, or when they are in that order already a new
     scene sharing their arrays, which the encoder replaces but never writes."""
-    if np.array_equal(order, np.arange(len(scene))):
+    if is_identity(order):
         g = scene.gaussians
         same = Gaussians(g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN)
         return Scene(same, scene.timeline, dict(scene.temporal))

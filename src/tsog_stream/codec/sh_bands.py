@@ -20,7 +20,7 @@ from ..model import Scene
 from ..schemas import ShBandsMeta, dump_sh_meta, parse_sh_meta
 from .budgets import QUALITY_MAX, Slacks, budget_fraction
 from .bundle import read_bundle
-from .chunk import checked_images, texel_order
+from .chunk import checked_images, is_identity, texel_order
 from .layout import image_size
 from .sog_decode import decode_sh
 from .sog_encode import FractionDone, encode_sh_palette
@@ -72,8 +72,7 @@ def encode_sh_bands(
     if len(host) == 0 or host.gaussians.sh_bands == 0:
         raise InputError("an SH-band chunk needs Gaussians with SH bands beyond DC")
     order = texel_order(host)
-    in_place = np.array_equal(order, np.arange(len(host)))  # read only: never written here
-    ordered = host.gaussians if in_place else host.gaussians.subset(order)
+    ordered = host.gaussians if is_identity(order) else host.gaussians.subset(order)  # read only
     width, height = image_size(len(ordered))
     slack = Slacks.at(budget_fraction(quality)).bands
     images, shn = encode_sh_palette(
