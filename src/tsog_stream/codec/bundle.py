@@ -20,7 +20,7 @@ from ..constants import (
     SH_COEFFS_BY_BANDS,
     pixel_budget,
 )
-from ..errors import SogError
+from ..errors import FormatError, SogError
 from ..schemas import ChunkMeta, ShBandsMeta, listed_files, parse_any_meta
 from ..schemas.validate import CENTROIDS_FIELD, MAX_CENTROID_ROWS
 from .webp_header import max_webp_bytes
@@ -135,22 +135,36 @@ def _webp_cap(info: zipfile.ZipInfo, budget: int) -> tuple[int, str]:
     return budget, "a WebP of the image size meta.json implies may hold"
 
 
+def check_member(
+    info: zipfile.ZipInfo,
+    total: int,
+    where: str,
+    *,
+    error: type[FormatError] = SogError,
+    unsupported: type[FormatError] = SogError,
+) -> None:
+    """Refuse, before anything is inflated, a zip member stored other than plainly or by
+    deflate, or encrypted (``unsupported``), or claiming more than its compressed bytes, within
+    an archive of ``total`` bytes, can inflate to (``error``: MAX_DEFLATE_RATIO)."""
+    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+        raise unsupported(f"compression method {info.compress_type} is not supported", where=where)
+    if info.compress_size > total or info.file_size > MAX_DEFLATE_RATIO * info.compress_size + 1024:
+        raise error(
+            f"claims {info.file_size} bytes ({info.compress_size} compressed) in a "
+            f"{total}-byte archive",
+            where=where,
+        )
+    if info.flag_bits & 0x1:
+        raise unsupported("encrypted entries are not supported", where=where)
+
+
 def _read_entry(
     archive: zipfile.ZipFile, info: zipfile.ZipInfo, cap: tuple[int, str], total: int, where: str
 ) -> bytes:
     """One stored or deflated entry's bytes, refused if it claims or inflates to more than
     ``cap`` (at most cap + 1 bytes are inflated; zipfile checks the CRC-32 at the end)."""
     name = f"{where}/{info.filename}"
-    if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
-        raise SogError(f"compression method {info.compress_type} is not supported", where=name)
-    if info.compress_size > total or info.file_size > MAX_DEFLATE_RATIO * info.compress_size + 1024:
-        raise SogError(
-            f"entry claims {info.file_size} bytes ({info.compress_size} compressed) in a "
-            f"{total}-byte archive",
-            where=name,
-        )
-    if info.flag_bits & 0x1:
-        raise SogError("encrypted entries are not supported", where=name)
+    check_member(info, total, name)
     most, what = cap
     if info.file_size > most:
         found = f"entry claims {info.file_size} bytes, more than the {most}"

@@ -19,7 +19,7 @@ from typing import BinaryIO, Final, Literal, cast
 import numpy as np
 import numpy.typing as npt
 
-from ..codec.bundle import MAX_DEFLATE_RATIO, MAX_ENTRIES, ZIP_ERRORS, ZIP_MAGIC
+from ..codec.bundle import MAX_ENTRIES, ZIP_ERRORS, ZIP_MAGIC, check_member
 from ..errors import FormatError, InputError, UnsupportedError
 from ..model import Gaussians, Scene, Timeline, TimelineType
 from .loaded import Loaded4D, length_s
@@ -270,11 +270,7 @@ def _check_npy(
     """Refuse, before its array is made, a member that claims more than its compressed bytes
     can inflate to, or whose ``.npy`` header is not a float (else numeric) array its claimed
     size holds."""
-    if info.flag_bits & 0x1 or info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
-        raise UnsupportedError("encrypted or compressed other than by deflate", where=where)
-    if info.compress_size > total or info.file_size > MAX_DEFLATE_RATIO * info.compress_size + 1024:
-        claim = f"claims {info.file_size} bytes ({info.compress_size} compressed)"
-        raise FormatError(f"{claim} in a {total}-byte file (a zip bomb?)", where=where)
+    check_member(info, total, where, error=FormatError, unsupported=UnsupportedError)
     try:
         with zf.open(info) as f:
             version = np.lib.format.read_magic(f)
