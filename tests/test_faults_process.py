@@ -33,6 +33,7 @@ from tsog_stream.codec.chunk import encode_chunk
 from tsog_stream.container import writer
 from tsog_stream.container.header import PREFIX_SIZE
 from tsog_stream.errors import SourceError
+from tsog_stream.io import files
 from tsog_stream.io.chunks import write_chunk_files
 from tsog_stream.model import Gaussians
 from tsog_stream.segment import SegmentOptions, segment_scene
@@ -209,7 +210,13 @@ def digest(path: Path) -> str:
 
 
 def temp_files(folder: Path) -> list[Path]:
+    """Every temp file in ``folder`` (outputs' and write probes')."""
     return sorted(folder.glob(".*.tmp"))
+
+
+def temp_files_of(out: Path) -> list[Path]:
+    """The temp files of the output ``out`` only (not the folder's write probe)."""
+    return sorted(out.parent.glob(f".{out.name}.*.tmp"))
 
 
 STREAMING_TSOG = [
@@ -275,7 +282,7 @@ def _interrupt(
     try:
 
         def reached() -> bool:
-            tmp = temp_files(out.parent)
+            tmp = temp_files_of(out)
             try:
                 return bool(tmp) and POINTS[point](tmp[0].stat().st_size, full)
             except FileNotFoundError:
@@ -329,6 +336,27 @@ def test_sigkill_leaves_a_temp_file_the_next_run_removes(
     assert again.returncode == 0, again.stderr
     assert f"tsog: note: removed {stale}, left by an interrupted run" in again.stderr.decode()
     assert out.stat().st_size == full_size and not temp_files(tmp_path)
+
+
+def test_leftovers_of_dead_writers_are_removed_and_live_ones_kept(tmp_path: Path) -> None:
+    """A writer killed mid-write leaves its temp file, or the folder's write probe when the
+    kill lands between the probe's creation and removal: the next run removes both kinds, and
+    only those of dead processes and of this output."""
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    out = tmp_path / "out.tsogs"
+    names = {
+        "dead_temp": f".out.tsogs.{dead.pid}-{'a' * 12}.tmp",
+        "dead_probe": f"..tsog-write-probe.{dead.pid}-{'b' * 12}.tmp",
+        "live_temp": f".out.tsogs.{os.getppid()}-{'c' * 12}.tmp",
+        "other_output": f".other.tsogs.{dead.pid}-{'d' * 12}.tmp",
+    }
+    for name in names.values():
+        (tmp_path / name).write_bytes(b"x")
+    removed = files.remove_stale_temp_files(out)
+    assert sorted(p.name for p in removed) == sorted([names["dead_temp"], names["dead_probe"]])
+    left = {p.name for p in tmp_path.iterdir()}
+    assert left == {names["live_temp"], names["other_output"]}
 
 
 def test_a_full_disk_fails_cleanly_naming_the_path(

@@ -62,7 +62,9 @@ WATCH_PLAYHEAD = """(() => {
     })();
 })()"""
 """Page expression: media seconds played (loops counted) against the page's own wall clock."""
-STARTED = "tsogPlayer.stream.adapt.startedAt !== null && !tsogPlayer.playback.buffering"
+STARTED = "window.tsogPlayer?.stream?.adapt.startedAt != null && !tsogPlayer.playback.buffering"
+"""True once the player object exists, began to play and is not buffering (false, not an
+exception, while the page is still building the player)."""
 BAR = """() => { const s = getComputedStyle(document.getElementById('controls'));
     return [s.opacity, s.visibility]; }"""
 
@@ -168,9 +170,9 @@ def test_a_flipbook_keeps_its_last_picture_and_plays_at_1x(base: str, page: Any)
 def test_the_bar_fades_while_playing_untouched_and_comes_back(base: str, page: Any) -> None:
     page.goto(f"{base}/play/flipbook?t=0")
     page.wait_for_function(STARTED, timeout=START_TIMEOUT_MS, polling=50)
-    page.mouse.move(320, 200)
-    assert page.evaluate(BAR) == ["1", "visible"]
     moved = time.monotonic()
+    page.mouse.move(320, 200)  # it may have faded already on a slow start: the move shows it
+    page.wait_for_function(f"({BAR})().join() === '1,visible'", timeout=5000)
     page.wait_for_function(f"({BAR})().join() === '0,hidden'", timeout=15_000)
     assert time.monotonic() - moved >= IDLE_S - 0.2, "faded before the idle time"
     assert page.evaluate("tsogPlayer.playback.playing")

@@ -35,6 +35,8 @@ Readable = str | os.PathLike[str] | ObjectPath
 """What the readers accept: a local path, a storage URL or an ObjectPath."""
 
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{12}\.tmp$")
+_PROBE = ".tsog-write-probe"
+"""The name whose temp files test that a folder takes new files (:func:`_check_can_create`)."""
 
 
 def local_path(path: str | os.PathLike[str]) -> Path:
@@ -61,8 +63,9 @@ def _alive(pid: int) -> bool:
 
 
 def stale_temp_files(target: str | os.PathLike[str]) -> list[Path]:
-    """Temp files of ``target`` left by writers that no longer run (sorted by name; none for
-    a storage URL, where an upload is never visible before it completes)."""
+    """Temp files of ``target`` (and write probes in its folder) left by writers that no
+    longer run (sorted by name; none for a storage URL, where an upload is never visible
+    before it completes)."""
     if is_object_url(target):
         return []
     path = local_path(target)
@@ -71,7 +74,7 @@ def stale_temp_files(target: str | os.PathLike[str]) -> list[Path]:
     with contextlib.suppress(OSError):
         for entry in parent.iterdir():
             m = _TEMP.match(entry.name)
-            if not m or m["name"] != path.name or int(m["pid"]) == os.getpid():
+            if not m or m["name"] not in (path.name, _PROBE) or int(m["pid"]) == os.getpid():
                 continue
             if not _alive(int(m["pid"])) and entry.is_file():
                 stale.append(entry)
@@ -152,7 +155,7 @@ def _nearest_folder(target: Path, where: str) -> Path:
 
 def _check_can_create(folder: Path, where: str) -> None:
     """Create and remove a temp file in ``folder``: a SourceError if that fails."""
-    probe = temp_path(folder / ".tsog-write-probe")
+    probe = temp_path(folder / _PROBE)
     try:
         os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
     except OSError as exc:
