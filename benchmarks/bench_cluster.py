@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_cluster.py [--gaussians 1000000] [--frames 24]
         [--checkpoint 5000000] [--checkpoint-only]
+    .venv/bin/python benchmarks/bench_cluster.py --layers-phase 2000000
 
 Two inputs, each segmented in one run by every engine with 1 and 2 workers, each run in a
 fresh process: wall time,
@@ -16,7 +17,9 @@ of the parent and of each worker, and whether every container of an input is byt
 - A generated 5M-Gaussian SH3 FreeTimeGS checkpoint (`.npz`) through `tsog segment` as a user
   runs it (`--checkpoint N`, 0 skips it; `--checkpoint-only`): wall, CPU, first progress line,
   peak RSS of the CLI and its workers against the issue's targets.
-Writes the "checkpoint" and "cluster" sections of docs/benchmarks.md.
+- ``--layers-phase N`` alone: an N-Gaussian checkpoint with the default quality layers against
+  ``--layers 1`` (the default path's layer measure, issue 56).
+Writes the "checkpoint", "cluster" and "layers-phase" sections of docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -339,11 +342,13 @@ class Checkpoint:
     log: str
 
 
-def run_checkpoint(npz: Path, out: Path) -> Checkpoint:
-    """Run the CLI on ``npz`` with 2 workers, sampling the RSS of it and its workers."""
+def run_checkpoint(npz: Path, out: Path, layers: int | None = 1) -> Checkpoint:
+    """Run the CLI on ``npz`` with 2 workers (``--layers``; None: the default), sampling the
+    RSS of it and its workers."""
     tsog = Path(sys.executable).with_name("tsog")
     argv = [str(tsog), "segment", str(npz), "-o", str(out), "--scene-length-s", "10"]
-    argv += ["--workers", "2", "--layers", "1"]
+    argv += ["--workers", "2", "--force"]
+    argv += ["--layers", str(layers)] if layers is not None else []
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     began = time.monotonic()
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -429,6 +434,45 @@ def checkpoint_section(n: int, raw: int, run: Checkpoint) -> list[str]:
     ]
 
 
+LAYER_ROUNDS = 2
+"""Turns of (default, ``--layers 1``) runs in the layer-measure benchmark."""
+
+
+def layers_phase(n: int) -> list[str]:
+    """Issue 56's target for the default path: ``tsog segment`` of an ``n``-Gaussian checkpoint
+    with the default quality layers against ``--layers 1``, in turns; the section's lines."""
+    gib = float(1 << 30)
+    runs: dict[str, list[Checkpoint]] = {"default": [], "--layers 1": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        npz = Path(tmp) / "checkpoint.npz"
+        raw = checkpoint_npz(npz, n)
+        for _ in range(LAYER_ROUNDS):
+            runs["default"].append(run_checkpoint(npz, Path(tmp) / "default.tsogs", None))
+            runs["--layers 1"].append(run_checkpoint(npz, Path(tmp) / "one.tsogs", 1))
+    one = min(r.wall_s for r in runs["--layers 1"])
+    when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [
+        "## The default path's layer measure (issue 56)",
+        "",
+        f"Run {when} (`benchmarks/bench_cluster.py --layers-phase {n}`), 2 cores: a generated "
+        f"{n / 1e6:g}M-Gaussian SH3 FreeTimeGS `.npz` (raw arrays {raw / gib:.2f} GiB) through "
+        "`tsog segment --workers 2`, with the default quality layers and with `--layers 1`, "
+        f"{LAYER_ROUNDS} turns. Targets: default within 1.15x the time of `--layers 1`, CPU >= "
+        "170 %, peak RSS <= 2.5x the raw arrays.",
+        "",
+        "| run | wall | x `--layers 1` (best) | CPU | parent peak | parent + workers | container |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, done in runs.items():
+        for r in done:
+            lines.append(
+                f"| {name} | {r.wall_s:.1f} s | {r.wall_s / one:.2f}x | {r.cpu_percent:.0f} % | "
+                f"{r.parent_peak / gib:.2f} GiB ({r.parent_peak / raw:.2f}x) | "
+                f"{r.tree_peak / gib:.2f} GiB ({r.tree_peak / raw:.2f}x) | {r.size / 1e6:.1f} MB |"
+            )
+    return [*lines, "", "The default run's progress:", "", "```", runs["default"][-1].log, "```"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--gaussians", type=int, default=1_000_000)
@@ -444,12 +488,24 @@ def main() -> None:
         "--checkpoint-only", action="store_true", help="only the checkpoint (its own section)"
     )
     parser.add_argument(
+        "--layers-phase",
+        type=int,
+        default=0,
+        metavar="N",
+        help="only the default layers against --layers 1 on an N-Gaussian checkpoint",
+    )
+    parser.add_argument(
         "--one", nargs=4, metavar=("SOURCE", "ENGINE", "WORKERS", "OUT"), help=argparse.SUPPRESS
     )
     args = parser.parse_args()
     if args.one:
         source, engine, workers, out = args.one
         measure_here(source, engine, int(workers), Path(out))
+        return
+    if args.layers_phase > 0:
+        write_section(
+            "layers-phase", "\n".join(layers_phase(args.layers_phase)), "bench_cluster.py"
+        )
         return
     if args.checkpoint > 0:
         with tempfile.TemporaryDirectory() as tmp:

@@ -31,6 +31,7 @@ from tsog_stream.codec.precision import DEFAULT_QUALITY
 from tsog_stream.codec.sh_bands import without_sh
 from tsog_stream.container.stream_index import StreamIndex, unpacked_index
 from tsog_stream.errors import InputError, MetaError
+from tsog_stream.framing import default_view
 from tsog_stream.io.sequence import open_sequence
 from tsog_stream.io.splatv import read_splatv
 from tsog_stream.model import Gaussians, Scene
@@ -649,20 +650,45 @@ def test_a_size_spread_skews_importance_like_a_capture_and_changes_only_sizes() 
 
 
 @pytest.mark.parametrize("bare", [False, True])
-def test_a_share_is_drawn_at_a_time_from_the_rows_that_time_shows(bare: bool) -> None:
-    """A share's picture at t is made from the chosen rows t shows, evaluated: exactly the
-    Gaussians of the chosen rows' scene at t (its SH bands dropped for a base), without copying
-    what every other time shows."""
+def test_a_share_drawn_from_one_projection_is_the_picture_of_its_rows_alone(bare: bool) -> None:
+    """Each sampled time is projected once and a share's picture selects rows of it: pixel
+    for pixel the render of the chosen rows' scene at t (its SH bands dropped for a base)."""
     scene = generate_scene(SceneSpec(background=600, objects=3, per_object=80, sh_bands=1))
     groups = [np.arange(0, 300), np.arange(300, len(scene))]
-    chosen = top_share(importance(scene.gaussians), groups, 0.4)
+    picked = top_share(importance(scene.gaussians), groups, 0.4)
+    chosen = np.zeros(len(scene), bool)
+    chosen[picked] = True
+    view = default_view(scene.gaussians, [])
+    assert view is not None
+    camera = from_capture(view, quality_layers.MEASURE_WIDTH)
     for t in (0.1, 0.5, 0.9):
-        part = scene.subset(chosen)
-        expected = (without_sh(part) if bare else part).at(t)
-        got = quality_layers._share_at(scene, chosen, t, bare)
-        assert 0 < len(got) < len(chosen)
-        for mine, theirs in zip(vars(got).values(), vars(expected).values(), strict=True):
-            assert np.array_equal(mine, theirs)
+        part = scene.subset(picked)
+        expected = to_uint8(render((without_sh(part) if bare else part).at(t), camera))
+        sample = quality_layers._sampled(scene, t, camera, bare=True)
+        got = quality_layers._share_picture(sample, chosen, bare)
+        assert 0 < int(chosen[sample.rows].sum()) < len(picked)
+        assert expected.any() and np.array_equal(got, expected)
+        assert np.array_equal(sample.full, to_uint8(render(scene.at(t), camera)))
+
+
+def test_the_layer_measure_tells_each_step_and_the_shares_it_chose() -> None:
+    """Measuring layers is the default path's longest serial phase: each sampled time drawn
+    and each share measured is told, and the shares the plan keeps are among those told."""
+    scene = generate_scene(SceneSpec(background=20000, objects=4, per_object=2000, sh_bands=1))
+    view = default_view(scene.gaussians, [])
+    told: list[str] = []
+    groups = [np.arange(len(scene))]
+    plan = quality_layers.plan_layers(scene, groups, view, 3, told=told.append)
+    drawn = [line for line in told if line.endswith("times drawn")]
+    assert drawn == [f"measuring quality layers: {k}/3 times drawn" for k in (1, 2, 3)]
+    measured = told[3:]
+    assert measured and all(line.endswith(" dB") for line in measured)
+    base, middle = plan.shares[0], plan.shares[1]
+    assert (
+        f"measuring quality layers: {base:.0%}, DC colour only: {plan.psnr_db[0]:.1f} dB"
+        in measured
+    )
+    assert f"measuring quality layers: {middle:.0%}: {plan.psnr_db[1]:.1f} dB" in measured
 
 
 def _lie(manifest: dict[str, Any], shape: str) -> None:

@@ -32,6 +32,7 @@ from tsog_stream.cli import view_cache, view_command
 from tsog_stream.cli.main import build_parser, main
 from tsog_stream.cli.progress import Progress
 from tsog_stream.container.header import Header
+from tsog_stream.io.ply import write_ply
 from tsog_stream.model import Gaussians, Scene, evaluate_all
 from tsog_stream.segment import SegmentOptions, segment_scene
 from tsog_stream.server import make_app
@@ -212,6 +213,36 @@ def test_the_scene_list_shows_thumbnail_duration_and_count(samples: Path, tmp_pa
         assert missing.value.code == 404
     finally:
         server.stop()
+
+
+DRAWN_WHERE = """
+import sys
+from tsog_stream.pipeline import segment_input
+from tsog_stream.segment import SegmentOptions
+report = segment_input(sys.argv[1], sys.argv[2], SegmentOptions(workers=int(sys.argv[3])))
+print(report.thumbnail, "numba" in sys.modules)
+"""
+"""Segment in a fresh process; print the thumbnail's path and whether numba (the renderer's
+kernel) was ever loaded in that process."""
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_the_thumbnail_is_drawn_where_the_jobs_run(workers: int, tmp_path: Path) -> None:
+    """With workers, the thumbnail is drawn in a process of its own (the renderer loaded on top
+    of the heap segmenting left was the run's peak); with one, in this process."""
+    source = tmp_path / "scene.ply"
+    write_ply(source, static_gaussians(3000, seed=2))
+    out = tmp_path / "scene.tsogs"
+    done = subprocess.run(
+        [sys.executable, "-c", DRAWN_WHERE, str(source), str(out), str(workers)],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    thumbnail, loaded = done.stdout.split()
+    assert thumbnail == f"{out}.thumb.png" and loaded == str(workers == 1)
+    with Image.open(thumbnail) as image:
+        pixels = np.asarray(image.convert("RGB"))
+    assert (np.abs(pixels.astype(int) - 18).max(axis=2) > 40).mean() > 0.01  # not blank
 
 
 def test_a_thumbnail_draws_at_most_its_cap_of_the_most_opaque(

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import os
-import threading
 import time
+from collections.abc import Callable, Iterator
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
@@ -31,6 +32,7 @@ from .merge.sequence import MAX_HELD
 from .model import Scene
 from .schemas.cameras import Camera
 from .segment import SegmentOptions, SegmentReport, merge_or_frames, segment_scene, segment_sequence
+from .segment.engines import engine
 from .segment.layout import Choice
 from .segment.sequence import spread
 
@@ -249,50 +251,65 @@ def _segment(
         raise InputError("nothing to segment")
     fps = _fps(source)
     options = _with_window(options, inputs.window_frames, fps)
-    cameras, cameras_source = capture
-    warming = _RendererWarmUp()
+    del source
     for stale in remove_stale_temp_files(output):
         told.note(f"removed {stale}, left by an interrupted run")
-
-    def on_chunk(done: int, total: int, eta_s: float | None) -> None:
-        if done >= total - options.workers:  # the last jobs run: their parts are sent
-            warming.start()
-        left = "ETA    ?" if eta_s is None else f"ETA {eta_s:4.0f}s"
-        told.bar(f"chunk {done}/{total}, {left}", done / total)
-
-    def segment(what: Scene | FrameSequence, layout: Choice | None) -> SegmentReport:
-        """A frame sequence window by window, or a scene in memory, with the same options."""
-        if isinstance(what, FrameSequence):
-            return segment_sequence(
-                what, output, options, layout=layout, cameras=cameras, on_chunk=on_chunk,
-                on_stage=told,
-            )  # fmt: skip
-        return segment_scene(
-            what, output, options, layout=layout, cameras=cameras, on_chunk=on_chunk,
-            on_stage=told, duration_assumed=held.duration_assumed,
-        )  # fmt: skip
-
-    merged, layout, temporal = _probed(source, inputs, options, told)
-    report = segment(merged if merged is not None else source, layout)
-    check: FrameCheck | None = None
-    if merged is not None and isinstance(source, FrameSequence):
+    separate = inputs.thumbnail and options.workers > 1
+    with _thumbnail_drawer(separate=separate) as draw:
+        report, temporal, check = _written(
+            held, output, options=options, inputs=inputs, told=told, cameras=capture[0]
+        )
         told.done()
-        check = frame_check(source, output)
-    held.source = None  # the thumbnail below decodes and draws the scene again: drop ours
-    del source, merged
-    told.done()
-    warming.join()
-    drawn = _write_thumbnail(output, told) if inputs.thumbnail else None
+        drawn = _write_thumbnail(output, draw, told) if inputs.thumbnail else None
     return InputReport(
         segment=report,
         input_bytes=input_size,
         fps=fps,
-        cameras=cameras,
-        cameras_source=cameras_source,
+        cameras=capture[0],
+        cameras_source=capture[1],
         temporal=temporal,
         frame_check=check,
         thumbnail=drawn,
     )
+
+
+def _written(
+    held: _Held,
+    output: str,
+    *,
+    options: SegmentOptions,
+    inputs: InputOptions,
+    told: Listener,
+    cameras: list[Camera],
+) -> tuple[SegmentReport, TemporalOutcome | None, FrameCheck | None]:
+    """The container written (and a merged sequence's frames checked); ``held`` is emptied, so
+    the thumbnail drawn after decodes the scene again without ours held beside it."""
+    source = held.source
+    assert source is not None  # _segment checked it
+
+    def on_chunk(done: int, total: int, eta_s: float | None) -> None:
+        left = "ETA    ?" if eta_s is None else f"ETA {eta_s:4.0f}s"
+        told.bar(f"chunk {done}/{total}, {left}", done / total)
+
+    merged, layout, temporal = _probed(source, inputs, options, told)
+    what = merged if merged is not None else source
+    held.source = None
+    if isinstance(what, FrameSequence):
+        report = segment_sequence(
+            what, output, options, layout=layout, cameras=cameras, on_chunk=on_chunk,
+            on_stage=told,
+        )  # fmt: skip
+    else:
+        report = segment_scene(
+            what, output, options, layout=layout, cameras=cameras, on_chunk=on_chunk,
+            on_stage=told, duration_assumed=held.duration_assumed,
+        )  # fmt: skip
+    check: FrameCheck | None = None
+    if merged is not None and isinstance(source, FrameSequence):
+        del what, merged
+        told.done()
+        check = frame_check(source, output)
+    return report, temporal, check
 
 
 def _probed(
@@ -380,43 +397,41 @@ def frame_check(seq: FrameSequence, path: str, samples: int = FRAME_CHECKS) -> F
     return FrameCheck(frames=frames, worst=worst, unpaired=unpaired)
 
 
-class _RendererWarmUp:
-    """The renderer loaded on a thread while the last jobs are encoded (this process then waits
-    and holds no part), so the thumbnail starts at once; a failure is left to the thumbnail."""
-
-    def __init__(self) -> None:
-        self._thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        """Start loading, once."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=_load_renderer, name="tsog-warm", daemon=True)
-            self._thread.start()
-
-    def join(self) -> None:
-        """Wait until the renderer is loaded (it is loaded here when encoding never ran)."""
-        self.start()
-        if self._thread is not None:
-            self._thread.join()
+@contextlib.contextmanager
+def _thumbnail_drawer(*, separate: bool) -> Iterator[Callable[[str], bytes]]:
+    """:func:`inputs.thumbnail_png`, run here or (``separate``) in a process of its own started
+    now, so it loads the renderer while this one segments. Why: this process's heap still holds
+    what segmenting freed, and the renderer loaded on top of it was the run's peak
+    (docs/design/segmenter.md, "Memory by process")."""
+    if not separate:
+        yield thumbnail_png
+        return
+    with engine(1, None, largest_job=1) as drawing:
+        drawing.submit(0, _load_renderer)
+        yield lambda container: drawing.submit(1, thumbnail_png, container).result()
 
 
 def _load_renderer() -> None:
-    """Load the renderer's compiled kernel (render.warm), ignoring any failure."""
+    """Load the renderer's compiled kernel (render.warm), ignoring any failure (the drawing
+    then says it)."""
     with contextlib.suppress(Exception):
-        from .render import warm  # noqa: PLC0415 - numba, only when segmenting
+        from .render import warm  # noqa: PLC0415 - numba, only when drawing
 
         warm()
 
 
-def _write_thumbnail(container: str, told: Listener) -> str | None:
+def _write_thumbnail(container: str, draw: Callable[[str], bytes], told: Listener) -> str | None:
     """The scene list's picture beside the container, or None (told why: the container is
     whole without it)."""
     told("drawing the thumbnail")
     target = thumbnail_path(container)
     try:
-        atomic_write_bytes(target, thumbnail_png(container))
+        atomic_write_bytes(target, draw(container))
     except TsogError as exc:
         told.note(f"no thumbnail: {exc}")
+        return None
+    except BrokenProcessPool:
+        told.note("no thumbnail: the process drawing it ended")
         return None
     told.done()
     return target

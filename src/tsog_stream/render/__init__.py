@@ -31,6 +31,7 @@ __all__ = [
     "Backend",
     "Camera",
     "Projected",
+    "draw",
     "from_capture",
     "load_cameras_json",
     "look_at",
@@ -69,11 +70,26 @@ def render(
         raise InputError(f"unknown backend {backend!r} (expected auto, numpy or numba)")
     if backend == "numba" and not raster_numba.available():
         raise InputError("the numba backend needs numba: pip install 'tsog-stream[render]'")
+    proj = project(gaussians, camera, antialiased=antialiased)
+    return draw(proj, camera, background=background, backend=backend)
+
+
+def draw(
+    proj: Projected,
+    camera: Camera,
+    *,
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    backend: Backend = "auto",
+    only: npt.NDArray[np.int64] | None = None,
+) -> npt.NDArray[np.float32]:
+    """The picture of Gaussians already projected for ``camera`` (what :func:`render` does
+    after projecting); ``only``: of those rows alone, ties in depth drawn in the order given
+    (:func:`raster.bin_tiles`), so several subsets of one projection are drawn without
+    projecting or copying them again."""
     bg = np.asarray(background, dtype=np.float64)
     if bg.shape != (3,) or not np.all(np.isfinite(bg)):
         raise InputError(f"background must be three finite numbers, got {background!r}")
-    proj = project(gaussians, camera, antialiased=antialiased)
-    bins = bin_tiles(proj, camera.width, camera.height)
+    bins = bin_tiles(proj, camera.width, camera.height, only)
     use_numba = backend == "numba" or (backend == "auto" and raster_numba.available())
     composite = raster_numba.rasterize_numba if use_numba else rasterize_numpy
     return composite(proj, bins, camera.width, camera.height, bg)

@@ -40,10 +40,15 @@ class TileBins:
     starts: I64
 
 
-def bin_tiles(proj: Projected, width: int, height: int) -> TileBins:
-    """Duplicate each Gaussian into its tiles and sort the pairs by (tile, depth, input order)."""
+def bin_tiles(proj: Projected, width: int, height: int, only: I64 | None = None) -> TileBins:
+    """Duplicate each Gaussian into its tiles and sort the pairs by (tile, depth, input order);
+    ``only``: just those rows, as if the projection held no others, in that input order (rows
+    already in drawing order sort at once)."""
     gx, gy = -(-width // TILE), -(-height // TILE)
-    by_depth = np.argsort(proj.depth, kind="stable")
+    if only is None:
+        by_depth = np.argsort(proj.depth, kind="stable")
+    else:
+        by_depth = only[np.argsort(proj.depth[only], kind="stable")]
     rect = proj.rect[by_depth]
     w = rect[:, 1] - rect[:, 0]
     counts = w * (rect[:, 3] - rect[:, 2])

@@ -11,19 +11,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
 
-from ..codec.sh_bands import without_sh
 from ..constants import MAX_PSNR_DB
 from ..errors import InputError
 from ..model import Gaussians, Scene, count_at, shown_at
 from ..opacity import logit_to_alpha
-from ..render import render, to_uint8
+from ..render import draw, to_uint8
 from ..render.camera import from_capture
 from ..render.metrics import mse, psnr_from_mse
+from ..render.project import Projected, project
+from ..render.sh import sh_colors
 from ..schemas.cameras import Camera
 from ..temporal import time_range
 
@@ -48,6 +49,7 @@ FRACTIONS += (0.35, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
+Bools = npt.NDArray[np.bool_]
 
 
 def importance(gaussians: Gaussians) -> F64:
@@ -59,10 +61,20 @@ def importance(gaussians: Gaussians) -> F64:
     return weights
 
 
+def ranked(weights: F64, groups: Sequence[Ints]) -> list[Ints]:
+    """Each group's rows, most important first (ties by index)."""
+    return [g[np.argsort(-weights[g], kind="stable")] for g in groups]
+
+
 def top_share(weights: F64, groups: Sequence[Ints], share: float) -> Ints:
     """The most important ``share`` of each group (at least one of a non-empty group), sorted."""
-    keep = [g[np.argsort(-weights[g], kind="stable")[: math.ceil(share * g.size)]] for g in groups]
+    keep = _top_of(ranked(weights, groups), share)
     return np.sort(np.concatenate(keep)) if keep else np.zeros(0, np.int64)
+
+
+def _top_of(ranked_groups: Sequence[Ints], share: float) -> list[Ints]:
+    """The first ``share`` of each ranked group (at least one of a non-empty group)."""
+    return [r[: math.ceil(share * r.size)] for r in ranked_groups]
 
 
 @dataclass(frozen=True)
@@ -131,10 +143,12 @@ def plan_layers(
     times: Sequence[float] = (),
     *,
     sh_apart: bool = True,
+    told: Callable[[str], None] = lambda _: None,
 ) -> LayerPlan:
     """Cut ``scene``, stored as ``groups`` (index arrays), into ``layers`` quality layers
     (None: choose), each cut's picture measured from ``view`` at ``times`` (none given:
-    MEASURE_TIMES spread over the scene); ``sh_apart``: see :attr:`LayerPlan.sh_apart`."""
+    MEASURE_TIMES spread over the scene); ``sh_apart``: see :attr:`LayerPlan.sh_apart`;
+    ``told`` hears each step (a time projected, a share measured)."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
@@ -149,12 +163,15 @@ def plan_layers(
                 f"(layered from {LAYERED_MIN_GAUSSIANS})"
             )
     camera = from_capture(view, MEASURE_WIDTH)
-    full = [to_uint8(render(scene.at(t), camera)) for t in times]  # a frame at a time
-    quality = _quality_of_share(scene, groups, camera, dict(zip(times, full, strict=True)))
+    sh_apart = sh_apart and scene.gaussians.sh_bands > 0
+    samples = []
+    for k, t in enumerate(times, 1):
+        samples.append(_sampled(scene, t, camera, sh_apart))
+        told(f"measuring quality layers: {k}/{len(times)} times drawn")
+    quality = _quality_of_share(scene, groups, samples, told)
     limit = 1.0 if layers else AUTO_MAX_FRACTION
     shares: list[float] = []
     psnr: list[float | None] = []
-    sh_apart = sh_apart and scene.gaussians.sh_bands > 0
     for target in LAYER_TARGETS_DB[: (layers or AUTO_LAYERS) - 1]:
         bare = sh_apart and not shares  # the base is stored without its SH bands
         share, reached = _smallest_share(quality, target, shares[-1] if shares else 0.0, bare)
@@ -171,35 +188,68 @@ def plan_layers(
     )
 
 
+@dataclass(frozen=True)
+class _Sampled:
+    """One sampled time, projected once: every share's picture at that time selects rows of
+    this projection (the Gaussians of a share project as they do in the whole scene)."""
+
+    camera: Camera
+    full: U8
+    """The whole scene's picture."""
+    rows: Ints
+    """The scene row of each projected row."""
+    proj: Projected
+    by_depth: Ints
+    """The projected rows in drawing order (by depth, ties in row order)."""
+    bare_color: F64 | None
+    """Each projected row's colour from its DC term alone (None: not needed)."""
+
+
+def _sampled(scene: Scene, t: float, camera: Camera, bare: bool) -> _Sampled:
+    """The scene at ``t`` projected for ``camera`` (``bare``: DC colours kept too), with its
+    drawing order, so that a share's draw finds its rows already sorted."""
+    at_t = scene.at(t)  # the rows shown at t, in row order
+    proj = project(at_t, camera)
+    by_depth = np.argsort(proj.depth, kind="stable")
+    rows = np.flatnonzero(shown_at(scene, t))[proj.index]
+    bare_color = None
+    if bare:
+        eye = np.asarray(camera.position, np.float64)
+        means, sh0 = at_t.means[proj.index], at_t.sh0[proj.index]
+        bare_color = sh_colors(means, sh0, np.zeros((len(means), 0, 3), np.float32), eye)
+    full = to_uint8(draw(proj, camera, only=by_depth))
+    return _Sampled(camera, full, rows, proj, by_depth, bare_color)
+
+
 def _quality_of_share(
-    scene: Scene, groups: Sequence[Ints], camera: Camera, full_at: dict[float, U8]
+    scene: Scene, groups: Sequence[Ints], samples: Sequence[_Sampled], told: Callable[[str], None]
 ) -> Callable[[float, bool], float]:
-    """PSNR, over the sampled times (``full_at``: the whole scene's picture at each), of the
-    most important ``share`` of each group (``bare``: DC colour only), drawn from ``camera``;
-    cached."""
-    times, full = list(full_at), list(full_at.values())
-    weights = importance(scene.gaussians)
+    """PSNR, over the sampled times, of the most important ``share`` of each group (``bare``:
+    DC colour only) against the whole scene's picture, each told; cached."""
+    order = ranked(importance(scene.gaussians), groups)
     cache: dict[tuple[float, bool], float] = {}
 
     def quality(share: float, bare: bool) -> float:
         if (share, bare) not in cache:
-            chosen = top_share(weights, groups, share)
-            errors = [
-                mse(to_uint8(render(_share_at(scene, chosen, t, bare), camera)), f)
-                for t, f in zip(times, full, strict=True)
-            ]
+            chosen = np.zeros(len(scene), bool)
+            for top in _top_of(order, share):
+                chosen[top] = True
+            errors = [mse(_share_picture(s, chosen, bare), s.full) for s in samples]
             cache[share, bare] = min(psnr_from_mse(float(np.mean(errors))), MAX_PSNR_DB)
+            colour = ", DC colour only" if bare else ""
+            told(f"measuring quality layers: {share:.0%}{colour}: {cache[share, bare]:.1f} dB")
         return cache[share, bare]
 
     return quality
 
 
-def _share_at(scene: Scene, chosen: Ints, t: float, bare: bool) -> Gaussians:
-    """``scene.subset(chosen).at(t)`` (``bare``: DC colour only), without copying the chosen
-    rows not shown at ``t``."""
-    rows = chosen[shown_at(scene, t)[chosen]]
-    part = scene.subset(rows)
-    return (without_sh(part) if bare else part).at(t)
+def _share_picture(sample: _Sampled, chosen: Bools, bare: bool) -> U8:
+    """The picture of the ``chosen`` Gaussians at a sampled time (``bare``: DC colour only)."""
+    proj = sample.proj
+    if bare and sample.bare_color is not None:
+        proj = replace(proj, color=sample.bare_color)
+    order = sample.by_depth
+    return to_uint8(draw(proj, sample.camera, only=order[chosen[sample.rows[order]]]))
 
 
 def _smallest_share(

@@ -244,7 +244,9 @@ def _scene_ready(
     stored = sum(len(g) for _, g in groups)
     members = [g for _, g in groups]
     stage(_layers_stage(options.layers, "rendering", "cutting the scene into chunks"))
-    layering = plan_layers(scene, members, views.view, options.layers, sh_apart=options.sh_apart)
+    layering = plan_layers(
+        scene, members, views.view, options.layers, sh_apart=options.sh_apart, told=stage
+    )
     layer_of = None
     if layering.layers > 1:
         layer_of = layering.assign(importance(scene.gaussians), members)
@@ -354,7 +356,9 @@ def _sequence_measured(
     framing, measured = sampled_frames(seq)
     views = views_of(framing, cameras)
     del framing
-    layering = sequence_layers(seq, measured, views.view, options.layers, options.sh_apart)
+    layering = sequence_layers(
+        seq, measured, views.view, options.layers, options.sh_apart, told=stage
+    )
     if options.layers is None:
         layering = layers_within_flipbook(seq, measured, layering, max_count, options, stage=stage)
     del measured

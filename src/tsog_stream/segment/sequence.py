@@ -4,7 +4,7 @@ layout's costs, the frames sampled for the view and the layers, and the window j
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, replace
 
@@ -174,14 +174,18 @@ def sequence_layers(
     view: Camera | None,
     layers: int | None,
     sh_apart: bool = True,
+    *,
+    told: Callable[[str], None] = lambda _: None,
 ) -> LayerPlan:
     """The layers of a frame sequence, measured on the frames :func:`sampled_frames` joined,
-    each frame its own group."""
+    each frame its own group (``told``: as :func:`plan_layers`)."""
     check_layers(layers)
     if layers == 1:
         return ONE_LAYER_ASKED
     times = [(k + 0.5) / seq.fps for k in measured.numbers]
-    return plan_layers(measured.scene, measured.groups, view, layers, times, sh_apart=sh_apart)
+    return plan_layers(
+        measured.scene, measured.groups, view, layers, times, sh_apart=sh_apart, told=told
+    )
 
 
 LAYER_CHECK_MAX_GAUSSIANS = 262144
