@@ -52,9 +52,10 @@ FORMAT_IMPORTS = [
     for name in FORMAT_LAYER
 ]
 """The module name of each file of the format layer."""
-OS_ALLOWED = {"register_at_fork"}
-"""The only name of ``os`` the format layer may use (making new thread pools in a forked child;
-it sizes them by machine.usable_cores)."""
+OS_ALLOWED = {"register_at_fork", "sched_getaffinity", "cpu_count"}
+"""The only names of ``os`` the format layer may use: making new thread pools in a forked
+child, and asking the kernel which cores the process may run on to size them (a container's
+quota, read from cgroup files, is the caller's to say: webp.use_cores)."""
 KNOWN_CIRCLES: set[tuple[str, str]] = set()
 """Pairs of modules that still import each other (also ignored by the contract "no-circles")."""
 PUBLIC = [

@@ -17,6 +17,8 @@ import numpy.typing as npt
 import pytest
 
 from conftest import SAMPLES, optional_data_dir
+from tsog_stream import columns
+from tsog_stream.constants import BLOCK_BYTES
 from tsog_stream.errors import (
     InputError,
     PlyError,
@@ -26,7 +28,6 @@ from tsog_stream.errors import (
 )
 from tsog_stream.io import ply
 from tsog_stream.io.ply import (
-    GATHER_BLOCK_BYTES,
     PlyContents,
     parse_ply,
     ply_bytes,
@@ -431,7 +432,7 @@ def test_reading_holds_the_gaussians_and_a_few_blocks(tmp_path: Path) -> None:
     finally:
         tracemalloc.stop()
     arrays = sum(a.nbytes for a in (g.means, g.scales, g.quats, g.opacities, g.sh0, g.shN))
-    assert peak <= arrays + 4 * GATHER_BLOCK_BYTES
+    assert peak <= arrays + 4 * BLOCK_BYTES
 
 
 def _generated_plys() -> dict[str, bytes]:
@@ -489,7 +490,7 @@ def test_reading_a_file_by_blocks_gives_what_parsing_its_bytes_gives(
         files.append(tmp_path / f"{name}.ply")
         files[-1].write_bytes(data)
     assert len(files) > 40
-    monkeypatch.setattr(ply, "GATHER_BLOCK_BYTES", 5 * 60)  # a few rows a block
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 5 * 60)  # a few rows a block
     for path in files:
         whole = _contents_or_error(lambda p: parse_ply(p.read_bytes(), name=str(p)), path)
         assert _contents_or_error(read_ply, path) == whole, path.name

@@ -366,7 +366,7 @@ def test_coarsening_a_block_of_rows_at_a_time_gives_the_codes_of_all_at_once(
     codes[:400] = codes[0]
     tol = np.exp(rng.normal(0.0, 5.0, (1000, 3)))
     expected = {shared: _coarsen_by_the_formula(codes, tol, shared) for shared in (False, True)}
-    monkeypatch.setattr(columns, "BLOCK_ROWS", 7)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 7 * 8 * 3)  # 7 rows of three float64 a block
     asked: list[slice] = []
 
     def of_rows(rows: slice) -> np.ndarray:

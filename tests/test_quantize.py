@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tsog_stream import quantize
+from tsog_stream import columns, quantize
 from tsog_stream.constants import CODEBOOK_SIZE
 from tsog_stream.errors import InputError
 from tsog_stream.quantize import (
@@ -430,7 +430,7 @@ def test_weighted_sums_taken_a_block_at_a_time_are_the_sums_of_all_at_once(
         np.bincount(index, scale, quantize.WEIGHTED_BINS),
         np.bincount(index, scale * values, quantize.WEIGHTED_BINS),
     )
-    monkeypatch.setattr(quantize, "BLOCK_VALUES", 777)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 777 * 8)  # 777 float64 values a block
     blocked = quantize._binned(samples, usable, scale, span)
     for ours, theirs in zip(blocked, whole, strict=True):
         assert ours.tobytes() == theirs.tobytes()
@@ -467,9 +467,9 @@ def test_blocks_change_no_bit(monkeypatch: pytest.MonkeyPatch) -> None:
     rng = np.random.default_rng(25)
     samples = np.concatenate([rng.standard_t(3, 90_000), [np.nan, np.inf, -np.inf] * 4])
     samples = samples.astype(np.float32)
-    monkeypatch.setattr(quantize, "BLOCK_VALUES", 1 << 40)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 1 << 40)
     whole = _codebook_work(samples)
-    monkeypatch.setattr(quantize, "BLOCK_VALUES", 7)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 7 * 8)
     for blocked, at_once in zip(_codebook_work(samples), whole, strict=True):
         assert blocked.dtype == at_once.dtype
         assert np.array_equal(blocked.view(np.uint8), at_once.view(np.uint8))

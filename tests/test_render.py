@@ -20,6 +20,7 @@ from pydantic import ValidationError
 from conftest import SAMPLES
 from helpers import ThreadedServer
 from test_invalid_corpus import targets
+from tsog_stream import columns
 from tsog_stream.cli.main import main
 from tsog_stream.constants import SH_C0
 from tsog_stream.errors import FormatError, InputError, SourceError
@@ -227,7 +228,7 @@ def test_blocked_projection_equals_one_block(monkeypatch: pytest.MonkeyPatch) ->
     scene = random_scene(300, seed=5)
     camera = aimed((64, 48), 50.0, [0, 0, 3.0], [0, 0, 6.0])
     whole = project(scene, camera, antialiased=True)
-    monkeypatch.setattr(project_module, "BLOCK", 64)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 64 * project_module.ROW_BYTES)  # 64 rows a block
     blocked = project(scene, camera, antialiased=True)
     assert 0 < whole.index.size < 300  # some culled (behind the camera at z = 3)
     for name in ("index", "xy", "conic", "opacity", "color", "depth", "radius", "rect"):

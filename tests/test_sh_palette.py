@@ -10,7 +10,8 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from tsog_stream import palette_kernels, sh_palette
+from tsog_stream import columns, palette_kernels, sh_palette
+from tsog_stream.constants import BLOCK_BYTES
 from tsog_stream.errors import InputError
 from tsog_stream.render.sh import sh_basis
 from tsog_stream.sh_palette import (
@@ -132,7 +133,7 @@ def test_distinct_rows_are_found_by_bytes_even_when_hashes_collide(
     pick = rng.integers(0, 40, 700)
     points = distinct[pick]
     given = points.copy()
-    monkeypatch.setattr(palette_kernels, "BLOCK_BYTES", 4 * 9 * 3)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 4 * 9 * 3)
     unique, inverse, weights = palette_kernels.unique_rows(given)
     expected = np.unique(points.view(np.uint32), axis=0)
     assert len(unique) == len(expected) == len(np.unique(pick))
@@ -284,7 +285,7 @@ def test_work_in_blocks_gives_what_whole_arrays_give(monkeypatch: pytest.MonkeyP
     for copied, in_place in zip(whole[:3], whole[3:6], strict=True):
         np.testing.assert_array_equal(copied, in_place)
     fitted = sh_palette.fit_palette(points, 256, seed=2)
-    monkeypatch.setattr(palette_kernels, "BLOCK_BYTES", 1024)
+    monkeypatch.setattr(columns, "BLOCK_BYTES", 1024)
     for fit, again in zip(fitted, sh_palette.fit_palette(points, 256, seed=2), strict=True):
         np.testing.assert_array_equal(fit, again)  # the whole fit: only the covariance's blocks
     blocked = run()
@@ -337,9 +338,9 @@ def test_merged_means_are_each_hosts_weighted_mean_with_its_movers_in_order() ->
     total = mass.copy()
     np.add.at(total, target[movers], mass[movers])
     expected = (expected / total[:40, None]).astype(np.float32)
-    for block_bytes in (palette_kernels.BLOCK_BYTES, 1024):
+    for block_bytes in (BLOCK_BYTES, 1024):
         with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(palette_kernels, "BLOCK_BYTES", block_bytes)
+            patch.setattr(columns, "BLOCK_BYTES", block_bytes)
             for own in (False, True):
                 merged, _, _ = palette_kernels.merge(points.copy(), mass, movers, partner, own=own)
                 np.testing.assert_array_equal(merged, expected)

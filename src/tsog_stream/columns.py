@@ -5,15 +5,14 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterator
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-Array = npt.NDArray[Any]
+from .constants import BLOCK_BYTES
 
-BLOCK_ROWS: Final = 1 << 16
-"""Rows worked on at a time by row-wise work done in blocks (bounds its temporaries)."""
+Array = npt.NDArray[Any]
 
 
 def down(pick: Any, values: Array, **options: Any) -> Array:
@@ -29,7 +28,13 @@ def across(pick: np.ufunc, values: Array) -> Array:
     return np.asarray(functools.reduce(pick, values.T))
 
 
-def row_blocks(count: int) -> Iterator[slice]:
-    """Slices of ``count`` rows, BLOCK_ROWS at a time."""
-    for start in range(0, count, BLOCK_ROWS):
-        yield slice(start, min(count, start + BLOCK_ROWS))
+def rows_per_block(row_bytes: int) -> int:
+    """Rows whose temporaries of ``row_bytes`` each fill one block (BLOCK_BYTES), at least 1."""
+    return max(1, BLOCK_BYTES // max(1, row_bytes))
+
+
+def row_blocks(count: int, row_bytes: int) -> Iterator[slice]:
+    """Slices of ``count`` rows, :func:`rows_per_block` at a time."""
+    step = rows_per_block(row_bytes)
+    for start in range(0, count, step):
+        yield slice(start, min(count, start + step))

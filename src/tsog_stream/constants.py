@@ -6,6 +6,10 @@ import os
 from typing import Final
 
 # --- SOG v2 -------------------------------------------------------------------------------
+BLOCK_BYTES: Final = 2 << 20
+"""Bytes of temporaries a blocked loop holds at a time, its one block size (a kernel's rows per
+block follow from its row's bytes: ``columns.rows_per_block``): memory bounded and in cache;
+no result depends on it (each kernel's test changes it)."""
 SOG_VERSION: Final = 2
 CODEBOOK_SIZE: Final = 256
 """Entries in every scalar codebook (scales, sh0, shN)."""

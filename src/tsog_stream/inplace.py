@@ -4,14 +4,12 @@ where ``a[...] = np.take(a, order, axis=0)`` would hold a whole copy beside them
 
 from __future__ import annotations
 
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-BLOCK_BYTES: Final = 4 << 20
-"""Bytes of rows moved per step: the most this holds beside the array, twice (the rows a block
-takes and the rows it evicts)."""
+from .columns import rows_per_block
 
 
 def permute_rows(
@@ -66,9 +64,13 @@ def compact_rows(
 
 
 def _rows_per_step(array: npt.NDArray[Any], block_bytes: int | None) -> int:
-    """Rows of ``array`` a block of ``block_bytes`` (BLOCK_BYTES) holds, at least one."""
+    """Rows of ``array`` a block of ``block_bytes`` (default: ``columns.rows_per_block``)
+    holds, at least one: the most this holds beside the array, twice (the rows a block takes
+    and the rows it evicts)."""
     row_bytes = max(1, array.nbytes // max(1, len(array)))
-    return max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // row_bytes)
+    if block_bytes is None:
+        return rows_per_block(row_bytes)
+    return max(1, block_bytes // row_bytes)
 
 
 __all__ = ["compact_rows", "permute_rows"]

@@ -1,8 +1,8 @@
 """The SH palette's kernels (``sh_palette``): distinct rows, principal axes, approximate
 nearest neighbours in balanced kd-trees, Ward merges and Lloyd steps, on numpy arrays.
 
-Work goes a block of rows at a time (BLOCK_BYTES) so a fit holds about one copy of its
-vectors; results do not depend on the block size (docs/design/quantizers.md).
+Work goes a block of rows at a time (``constants.BLOCK_BYTES``) so a fit holds about one copy of
+its vectors; results do not depend on the block size (docs/design/quantizers.md).
 """
 
 from __future__ import annotations
@@ -12,15 +12,13 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from .columns import rows_per_block
 from .inplace import compact_rows
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 Ints = npt.NDArray[np.intp]
 
-BLOCK_BYTES: Final = 2 << 20
-"""Upper bound on the bytes of one block of products or distances (stays in cache; results
-do not depend on it)."""
 COVARIANCE_BLOCK_BYTES: Final = 16 << 20
 """Bytes of the rows summed at a time into the principal axes' covariance: a fixed summation
 order, on which the palette (and so a chunk's bytes) depends."""
@@ -64,11 +62,6 @@ def _each_matches(data: F32, first: Ints, inverse: Ints) -> bool:
     return True
 
 
-def rows_per_block(row_bytes: int, block_bytes: int | None = None) -> int:
-    """Rows of ``row_bytes`` that a block of ``block_bytes`` (BLOCK_BYTES) holds, at least 1."""
-    return max(1, (BLOCK_BYTES if block_bytes is None else block_bytes) // max(1, row_bytes))
-
-
 def row_hashes(data: F32) -> npt.NDArray[np.uint64]:
     """A 64-bit hash of each row's bytes: h = h * HASH_MULTIPLIER + word, word by word, each
     step mixed by a xor-shift (wrapping arithmetic)."""
@@ -87,7 +80,7 @@ def principal_axes(points: F32, weights: F64) -> tuple[F32, F32]:
     mean = np.einsum("n,nd->d", weights, points) / weights.sum()  # float64 sums, no copy
     centre = mean.astype(np.float32)
     cov = np.zeros((points.shape[1], points.shape[1]), np.float64)
-    step = rows_per_block(4 * points.shape[1], COVARIANCE_BLOCK_BYTES)
+    step = max(1, COVARIANCE_BLOCK_BYTES // (4 * points.shape[1]))
     for start in range(0, len(points), step):
         centred = points[start : start + step] - centre
         weighted = centred * weights[start : start + step, None].astype(np.float32)

@@ -13,6 +13,7 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from .columns import rows_per_block
 from .constants import CODEBOOK_SIZE, INFINITY_SENTINEL_OFFSET
 from .errors import InputError
 
@@ -30,8 +31,9 @@ BETA_MIN: Final = 0.5
 BETA_MAX: Final = 0.999
 REFINE_PASSES: Final = 200
 """Upper bound on 1-D Lloyd passes in :func:`build_codebook`; it stops when nothing moves."""
-BLOCK_VALUES: Final = 1 << 16
-"""Values per block of float64 temporaries (bounds a codebook's memory)."""
+VALUE_BYTES: Final = 32
+"""Bytes of temporaries one value's blocked arithmetic holds (its float64 and about three
+more): a block (``columns.rows_per_block``) bounds a codebook's memory."""
 
 
 def dp_codebook(samples: npt.ArrayLike) -> F32:
@@ -65,8 +67,9 @@ def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
     flat = data.reshape(-1)
     bins = _label_bins(flat, mids) if flat.size >= BINNED_FROM else None
     labels = np.empty(flat.size, np.uint8)
-    for start in range(0, flat.size, BLOCK_VALUES):  # float64 a block at a time
-        block = np.asarray(flat[start : start + BLOCK_VALUES], dtype=np.float64)
+    step = rows_per_block(VALUE_BYTES)  # float64 a block at a time
+    for start in range(0, flat.size, step):
+        block = np.asarray(flat[start : start + step], dtype=np.float64)
         if bins is None:
             labels[start : start + len(block)] = np.searchsorted(mids, block, side="right")
         else:
@@ -94,8 +97,9 @@ def _label_bins(values: npt.NDArray[Any], mids: F64) -> _LabelBins | None:
     """The bins :func:`_binned_labels` reads; None where none can be laid (no finite value,
     or a range too narrow for its magnitude)."""
     low, high = np.inf, -np.inf
-    for start in range(0, values.size, BLOCK_VALUES):
-        block = np.asarray(values[start : start + BLOCK_VALUES], dtype=np.float64)
+    step = rows_per_block(VALUE_BYTES)
+    for start in range(0, values.size, step):
+        block = np.asarray(values[start : start + step], dtype=np.float64)
         block = block[np.isfinite(block)]
         if block.size:
             low, high = min(low, float(block.min())), max(high, float(block.max()))
@@ -200,8 +204,9 @@ def _binned(
     low, high = span
     mass, moment = np.zeros(WEIGHTED_BINS), np.zeros(WEIGHTED_BINS)
     done = 0
-    for start in range(0, data.size, BLOCK_VALUES):
-        values = data[start : start + BLOCK_VALUES][usable[start : start + BLOCK_VALUES]]
+    step = rows_per_block(VALUE_BYTES)
+    for start in range(0, data.size, step):
+        values = data[start : start + step][usable[start : start + step]]
         values = values.astype(np.float64)
         index = ((values - low) * (WEIGHTED_BINS / (high - low))).astype(np.intp)
         np.minimum(index, WEIGHTED_BINS - 1, out=index)
@@ -275,8 +280,9 @@ def _histogram(finite: F64) -> tuple[F64, F64]:
     vmin, vrange = finite[0], finite[-1] - finite[0]
     iqr = finite[int(n * 0.75)] - finite[int(n * 0.25)]
     index = np.empty(n, np.intp)
-    for start in range(0, n, BLOCK_VALUES):
-        stop = min(n, start + BLOCK_VALUES)
+    step = rows_per_block(VALUE_BYTES)
+    for start in range(0, n, step):
+        stop = min(n, start + step)
         rank = np.arange(start, stop) / n
         index[start:stop] = _blended_bins(rank, finite[start:stop], iqr, vmin, vrange, bins=bins)
     counts = np.bincount(index, minlength=bins).astype(np.float64)
@@ -311,7 +317,7 @@ def _cost_matrix(pw: F64, pwx: F64, pwxx: F64, out: F64 | None = None) -> F64:
     when given, a block of ends at a time."""
     h = pw.size - 1
     cost = np.empty((h, h)) if out is None else out
-    step = max(1, BLOCK_VALUES // h)
+    step = rows_per_block(VALUE_BYTES * h)
     for first in range(0, h, step):
         _group_costs_ending(pw, pwx, pwxx, first, cost[first : first + step])
     return cost
@@ -357,7 +363,7 @@ def _dp_centroids(centers: F64, weights: F64, target: int) -> F32:
     for m in range(2, groups + 1):
         # end j = m - 1 + i, splits s from low[i] on (inf past i): cost[j, m - 1 + s] + row[s]
         width = int((ends - low).max()) + 1
-        step = max(1, BLOCK_VALUES // width)  # wide in the first rows: ends a block at a time
+        step = rows_per_block(VALUE_BYTES * width)  # wide in the first rows: ends a block at a time
         for first in range(0, band, step):
             block = slice(first, first + step)
             candidates = low[block, None] + np.arange(width)
@@ -417,8 +423,9 @@ def _prefix_moments(points: F64, shift: float, mass: F64 | None) -> tuple[F64, F
     square (weight ``mass``, 1 when None), a block at a time."""
     n = points.size
     p1, p2 = np.zeros(n + 1), np.zeros(n + 1)
-    for start in range(0, n, BLOCK_VALUES):
-        stop = min(n, start + BLOCK_VALUES)
+    step = rows_per_block(VALUE_BYTES)
+    for start in range(0, n, step):
+        stop = min(n, start + step)
         centred = points[start:stop] - shift
         weighted = centred if mass is None else mass[start:stop] * centred
         p1[start + 1 : stop + 1] = weighted

@@ -18,12 +18,14 @@ from typing import Any
 from .._version import __version__
 from ..codec.chunk import decode_chunk_timeline, encode_chunk
 from ..codec.precision import DEFAULT_QUALITY, without_faint
+from ..codec.webp import use_cores
 from ..errors import TsogError, printable
 from ..inputs import STREAM_KINDS, input_kind
 from ..io.chunks import read_chunk_files, write_chunk_files
 from ..io.files import check_output
 from ..io.fourdgs import write_4dgs
 from ..io.ply import write_ply
+from ..machine import usable_cores
 from ..summary import cameras_summary, chunk_summary, scene_summary, timeline_summary
 from ..temporal import time_range
 from . import interrupt
@@ -308,6 +310,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     progress = Progress(quiet=args.quiet)
     interrupt.quiet_resource_tracker()
+    use_cores(usable_cores())  # a container's CPU quota, which the codec does not read
     try:
         with interrupt.latched():
             return COMMANDS[args.command](args, progress)

@@ -40,7 +40,7 @@ def coarsen(codes: CodesT, tolerance: Tolerance, *, shared: bool = False) -> Cod
     anchor = most_frequent(codes).astype(np.int32) if shared else None
     of_rows = tolerance if callable(tolerance) else _rows_of(tolerance, codes.shape)
     out = np.empty_like(codes)
-    for rows in row_blocks(len(codes)):
+    for rows in row_blocks(len(codes), 8 * int(np.prod(codes.shape[1:]))):
         out[rows] = _on_grids(codes[rows], of_rows(rows), anchor)
     return out
 

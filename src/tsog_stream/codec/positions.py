@@ -49,11 +49,11 @@ def encode_means(means: F32) -> tuple[F64, F64, npt.NDArray[np.uint16]]:
         zeros = np.zeros(3)
         return zeros, zeros.copy(), np.zeros((0, 3), np.uint16)
     mins, maxs = np.full(3, np.inf), np.full(3, -np.inf)
-    for rows in row_blocks(len(means)):
+    for rows in row_blocks(len(means), 8 * means.shape[1]):
         logs = log_transform(means[rows])
         mins, maxs = np.minimum(mins, down(np.min, logs)), np.maximum(maxs, down(np.max, logs))
     codes = np.empty((len(means), 3), np.uint16)
-    for rows in row_blocks(len(means)):
+    for rows in row_blocks(len(means), 8 * means.shape[1]):
         codes[rows] = quantize_u16(log_transform(means[rows]), mins, maxs)
     return mins, maxs, codes
 

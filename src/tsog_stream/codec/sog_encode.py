@@ -138,7 +138,7 @@ def encode_geometry(
     mins, maxs, codes = encode_means(gaussians.means)
     quats = np.empty((len(gaussians), 4), np.uint8)
     limits = (budgets.base_position(), budgets.rotation) if budgets is not None else None
-    for rows in row_blocks(len(gaussians)):
+    for rows in row_blocks(len(gaussians), 8 * 4):  # a quaternion or a position in float64
         quats[rows] = encode_quats(gaussians.quats[rows])
         if limits is not None:
             means = gaussians.means[rows].astype(np.float64)

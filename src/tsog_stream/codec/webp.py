@@ -20,7 +20,6 @@ from PIL import Image
 
 from ..constants import MAX_IMAGE_PIXELS
 from ..errors import SogError
-from ..machine import usable_cores
 from .webp_header import Size, webp_size
 
 _pillow_webp: Any
@@ -116,9 +115,18 @@ MAX_DECODE_THREADS = 8
 pages leaves its core to another (docs/design/chunk-codec.md)."""
 
 
+def affinity_cores() -> int:
+    """The cores this process's CPU affinity allows (the machine's count where the system
+    cannot say): the pools' size unless a caller says less (:func:`use_cores`)."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    return len(affinity(0)) if affinity is not None else os.cpu_count() or 1
+
+
 class _SharedPools:
     """The process's pools (decoding, working on decoded images, encoding, and the helper of
-    :func:`in_two`), made on first use and kept: starting threads per chunk cost 10-15 %."""
+    :func:`in_two`), made on first use and kept: starting threads per chunk cost 10-15 %.
+    Sized for :func:`affinity_cores` unless :func:`use_cores` said otherwise: what a container's
+    CPU quota leaves is for the caller to say (the codec reads no system file)."""
 
     _lock: threading.Lock
     _pools: dict[str, ThreadPoolExecutor] | None
@@ -131,7 +139,7 @@ class _SharedPools:
         """The pools by name, made on the first call."""
         with self._lock:
             if self._pools is None:
-                cores = self._cores or usable_cores()
+                cores = self._cores or affinity_cores()
                 sizes = {"decoding": max(MAX_DECODE_THREADS, 2 * cores), "working": cores}
                 sizes |= {"encoding": cores, "helping": 1}
                 self._pools = {k: ThreadPoolExecutor(n, f"tsog-{k}") for k, n in sizes.items()}
@@ -140,7 +148,7 @@ class _SharedPools:
     def cores(self) -> int:
         """The cores the pools are (or will be) sized for."""
         with self._lock:
-            return self._cores or usable_cores()
+            return self._cores or affinity_cores()
 
     def size_for(self, cores: int) -> None:
         """Pools for ``cores`` from now on (pools of another size end once idle)."""
@@ -158,8 +166,8 @@ os.register_at_fork(after_in_child=_SHARED_POOLS.forget)
 
 
 def use_cores(cores: int) -> None:
-    """Size this process's codec pools for ``cores``: a Dask worker given fewer threads than
-    :func:`~tsog_stream.machine.usable_cores` says."""
+    """Size this process's codec pools for ``cores`` (the CLI and the segmenter's workers say
+    what ``machine.usable_cores`` finds under a container's quota; a Dask worker, its threads)."""
     _SHARED_POOLS.size_for(max(1, cores))
 
 

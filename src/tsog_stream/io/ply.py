@@ -19,6 +19,7 @@ from typing import BinaryIO, Final
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import rows_per_block
 from ..constants import GENERATOR
 from ..errors import InputError, PlyError
 from ..model import F32, Gaussians
@@ -26,7 +27,6 @@ from .compressed_ply import is_compressed_ply, parse_compressed_ply
 from .files import Readable, atomic_write_bytes, open_regular, read_bytes, read_from
 from .ply_columns import (
     F_REST_COUNTS,
-    GATHER_BLOCK_BYTES,
     PlyContents,
     extras_note,
     gather_column_groups,
@@ -141,8 +141,8 @@ def _by_blocks(header: PlyHeader) -> bool:
 
 def _read_by_blocks(file: BinaryIO, header: PlyHeader, name: str) -> PlyContents:
     """:func:`parse_ply` of a file :func:`_by_blocks` takes, its vertex rows read and
-    gathered GATHER_BLOCK_BYTES at a time: the same Gaussians, extras and notes, the file's
-    bytes never held whole."""
+    gathered a block (``columns.rows_per_block``) at a time: the same Gaussians, extras and
+    notes, the file's bytes never held whole."""
     vertex = header.element("vertex")
     assert vertex is not None
     layout = _VertexLayout.of(vertex.names, name)
@@ -154,7 +154,7 @@ def _read_by_blocks(file: BinaryIO, header: PlyHeader, name: str) -> PlyContents
         if n not in layout.mapped
     }
     columns = [np.empty((vertex.count, len(names)), np.float32) for names in layout.groups]
-    step = max(1, GATHER_BLOCK_BYTES // max(1, dtype.itemsize))
+    step = rows_per_block(dtype.itemsize)
     file.seek(located.offsets["vertex"][1])
     for start in range(0, vertex.count, step):
         rows = min(step, vertex.count - start)
@@ -274,7 +274,6 @@ def _extra_columns(
 
 
 __all__ = [
-    "GATHER_BLOCK_BYTES",
     "PlyContents",
     "parse_ply",
     "ply_bytes",

@@ -12,6 +12,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import rows_per_block
 from ..model import F32, Gaussians
 from .ply_header import PlyHeader, Records
 
@@ -34,12 +35,6 @@ def sh_column_order(k: int) -> tuple[str, ...]:
     return tuple(f"f_rest_{c * k + i}" for i in range(k) for c in range(3))
 
 
-GATHER_BLOCK_BYTES: Final = 1 << 20
-"""Bytes of the file's body :func:`gather_column_groups` takes columns from at once: numpy copies
-an unaligned body (a header whose length is not a multiple of 4) before taking from it, and
-a whole body's copy was as large as the file."""
-
-
 def gather_columns(records: Records, names: Sequence[str]) -> F32:
     """Columns ``names`` as one (N, len(names)) float32 matrix."""
     return gather_column_groups(records, [names])[0]
@@ -48,9 +43,10 @@ def gather_columns(records: Records, names: Sequence[str]) -> F32:
 def gather_column_groups(records: Records, groups: Sequence[Sequence[str]]) -> list[F32]:
     """Each group of columns as its own (N, len(group)) float32 matrix, in one pass over the
     rows, a block at a time when the fields share one type (each block copied once when the
-    body is unaligned, then every group taken from it)."""
+    body is unaligned, then every group taken from it: a whole body's copy was as large as
+    the file)."""
     outs = [np.empty((len(records), len(names)), np.float32) for names in groups]
-    step = max(1, GATHER_BLOCK_BYTES // max(1, records.dtype.itemsize))
+    step = rows_per_block(records.dtype.itemsize)
     for start in range(0, len(records), step):
         gather_rows(records[start : start + step], groups, outs, start)
     return outs

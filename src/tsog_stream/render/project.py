@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import rows_per_block
 from ..framing import rotation, world_to_camera
 from ..model import Gaussians
 from ..opacity import logit_to_alpha
@@ -32,8 +33,9 @@ LOW_PASS = 0.3
 """Added to the diagonal of every screen covariance (a one-pixel-ish low-pass filter)."""
 GUARD_BAND = 1.3
 """The Jacobian is evaluated at x/z, y/z clamped to this multiple of the half frustum."""
-BLOCK = 1 << 15
-"""Gaussians projected together (bounds the size of temporaries)."""
+ROW_BYTES = 64
+"""Bytes of float64 temporaries one Gaussian's projection holds at once (about eight values):
+``columns.rows_per_block`` of them are projected together."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,17 +133,17 @@ def _tile_rects(xy: F64, radius: I64, camera: Camera) -> I64:
 def project(gaussians: Gaussians, camera: Camera, *, antialiased: bool = False) -> Projected:
     """Cull and project ``gaussians`` for ``camera``; see the module docstring for the maths.
 
-    Works in blocks of :data:`BLOCK` Gaussians (temporaries stay in cache; same results); a
+    Works a block of Gaussians at a time (temporaries stay in cache; same results); a
     camera :func:`~tsog_stream.render.camera.check_drawable` refuses raises InputError.
     """
     check_drawable(camera)
-    n = len(gaussians)
-    if n <= BLOCK:
+    n, step = len(gaussians), rows_per_block(ROW_BYTES)
+    if n <= step:
         return _project_block(gaussians, camera, antialiased)
     parts = []
     g = gaussians
-    for lo in range(0, n, BLOCK):
-        r = slice(lo, lo + BLOCK)  # views, no copies
+    for lo in range(0, n, step):
+        r = slice(lo, lo + step)  # views, no copies
         part = Gaussians(g.means[r], g.scales[r], g.quats[r], g.opacities[r], g.sh0[r], g.shN[r])
         block = _project_block(part, camera, antialiased)
         parts.append(replace(block, index=block.index + lo))

@@ -12,12 +12,10 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from ..columns import rows_per_block
 from ..constants import SH_C0
 
 F64 = npt.NDArray[np.float64]
-
-BLOCK = 1 << 14
-"""Gaussians per block in :func:`sh_colors`."""
 
 SH_C1: Final = 0.4886025119029199
 SH_C2: Final = (
@@ -74,11 +72,13 @@ def sh_colors(
     """RGB (N, 3) of Gaussians at ``means`` seen from ``camera_position``, clamped at 0.
 
     ``sh0`` is (N, 3) f_dc, ``shN`` (N, K, 3) with K in 0/3/8/15 (all available bands are used).
-    Evaluated in blocks so the temporaries stay in cache.
+    Evaluated a block at a time (a row's basis: a float64 per coefficient) so the temporaries
+    stay in cache.
     """
     out = np.empty((means.shape[0], 3), np.float64)
-    for lo in range(0, means.shape[0], BLOCK):
-        hi = lo + BLOCK
+    block = rows_per_block(8 * (1 + shN.shape[1]))
+    for lo in range(0, means.shape[0], block):
+        hi = lo + block
         out[lo:hi] = _block_colors(means[lo:hi], sh0[lo:hi], shN[lo:hi], camera_position)
     return out
 

@@ -211,9 +211,11 @@ def engine(
 
 def _start_worker(reports: Connection) -> None:
     """A pool worker's start: Ctrl-C ignored (the parent handles it), job reports written to
-    ``reports`` (one pipe for all: a write under PIPE_BUF is never interleaved, so no lock)."""
+    ``reports`` (one pipe for all: a write under PIPE_BUF is never interleaved, so no lock),
+    the codec's pools sized for the cores this process may use."""
     _ignore_interrupts()
     _WORKER.reports = reports
+    use_cores(usable_cores())
 
 
 @contextlib.contextmanager
