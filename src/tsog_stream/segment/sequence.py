@@ -106,41 +106,56 @@ def sequence_encoded(
     meter: Meter,
 ) -> Encoded:
     """A frame sequence's chunks in container order: with enough windows to keep every worker
-    busy, each job is a window its worker reads itself; otherwise windows are read here and
-    their chunks are the jobs."""
-    starts = range(0, seq.count, per_window)
+    busy (WINDOWS_PER_SLOT per worker), each job is a window its worker reads itself; otherwise
+    windows are read here and their chunks are the jobs."""
     parts = _sequence_parts(seq, per_window, max_count, layering, options.quality)
+    starts = range(0, seq.count, per_window)
     if options.workers <= 1 and options.cluster is None:
         yield from encoded(parts, plan, options, meter)
         return
+    by_window = len(starts) >= WINDOWS_PER_SLOT * options.workers
     frames = [count for count, _ in seq.shapes]
     largest = max(sum(frames[first : first + per_window]) for first in starts)
-    if len(starts) < WINDOWS_PER_SLOT * options.workers:
-        largest = min(largest, max_count)  # the jobs are chunks
+    largest = largest if by_window else min(largest, max_count)
     with engine(options.workers, options.cluster, meter.advance, largest_job=largest) as running:
         meter.slots = running.slots
-        if len(starts) < WINDOWS_PER_SLOT * running.slots:
-            chunks = submitted(parts, plan, options, running, meter)
-            yield from in_order(chunks, running.slots, meter)
-            return
-        jobs = (
-            WindowJob(
-                seq.window(first, min(seq.count, first + per_window)),
-                w,
-                max_count,
-                layering,
-                plan,
-                options.seed,
-                options.quality,
-            )
-            for w, first in enumerate(starts)
-        )
-        started = ((w, _tracked(running, job, meter)) for w, job in enumerate(jobs))
-        written = 0
-        for _, results in in_order(started, WINDOWS_PER_SLOT * running.slots, meter):
-            for info, payload in results:
-                yield replace(info, sh_of=_after(info.sh_of, written)), payload
-            written += len(results)
+        if by_window:
+            window = _WindowOf(seq, per_window, max_count, layering, plan, options)
+            yield from _windows_encoded(window, running, meter)
+        else:
+            started = submitted(parts, plan, options, running, meter)
+            yield from in_order(started, running.slots, meter)
+
+
+@dataclass(frozen=True)
+class _WindowOf:
+    """What every window job of one sequence shares."""
+
+    seq: FrameSequence
+    per_window: int
+    max_count: int
+    layering: LayerPlan
+    plan: Plan
+    options: SegmentOptions
+
+    def job(self, w: int) -> WindowJob:
+        """The job of window ``w``."""
+        first = w * self.per_window
+        frames = self.seq.window(first, min(self.seq.count, first + self.per_window))
+        o = self.options
+        return WindowJob(frames, w, self.max_count, self.layering, self.plan, o.seed, o.quality)
+
+
+def _windows_encoded(window: _WindowOf, running: Engine, meter: Meter) -> Encoded:
+    """Every window a job its worker reads, WINDOWS_PER_SLOT per slot in flight; the chunks in
+    container order."""
+    count = -(-window.seq.count // window.per_window)
+    started = ((w, _tracked(running, window.job(w), meter)) for w in range(count))
+    written = 0
+    for _, results in in_order(started, WINDOWS_PER_SLOT * running.slots, meter):
+        for info, payload in results:
+            yield replace(info, sh_of=_after(info.sh_of, written)), payload
+        written += len(results)
 
 
 def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple[PartInfo, bytes]]]:
