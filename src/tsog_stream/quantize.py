@@ -13,7 +13,7 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from .columns import rows_per_block
+from .columns import row_blocks, rows_per_block
 from .constants import CODEBOOK_SIZE, INFINITY_SENTINEL_OFFSET
 from .errors import InputError
 
@@ -67,13 +67,12 @@ def assign_codebook(values: npt.ArrayLike, codebook: npt.ArrayLike) -> U8:
     flat = data.reshape(-1)
     bins = _label_bins(flat, mids) if flat.size >= BINNED_FROM else None
     labels = np.empty(flat.size, np.uint8)
-    step = rows_per_block(VALUE_BYTES)  # float64 a block at a time
-    for start in range(0, flat.size, step):
-        block = np.asarray(flat[start : start + step], dtype=np.float64)
+    for rows in row_blocks(flat.size, VALUE_BYTES):  # float64 a block at a time
+        block = np.asarray(flat[rows], dtype=np.float64)
         if bins is None:
-            labels[start : start + len(block)] = np.searchsorted(mids, block, side="right")
+            labels[rows] = np.searchsorted(mids, block, side="right")
         else:
-            labels[start : start + len(block)] = _binned_labels(block, mids, bins)
+            labels[rows] = _binned_labels(block, mids, bins)
     return labels.reshape(data.shape)
 
 
@@ -97,9 +96,8 @@ def _label_bins(values: npt.NDArray[Any], mids: F64) -> _LabelBins | None:
     """The bins :func:`_binned_labels` reads; None where none can be laid (no finite value,
     or a range too narrow for its magnitude)."""
     low, high = np.inf, -np.inf
-    step = rows_per_block(VALUE_BYTES)
-    for start in range(0, values.size, step):
-        block = np.asarray(values[start : start + step], dtype=np.float64)
+    for rows in row_blocks(values.size, VALUE_BYTES):
+        block = np.asarray(values[rows], dtype=np.float64)
         block = block[np.isfinite(block)]
         if block.size:
             low, high = min(low, float(block.min())), max(high, float(block.max()))
@@ -204,9 +202,8 @@ def _binned(
     low, high = span
     mass, moment = np.zeros(WEIGHTED_BINS), np.zeros(WEIGHTED_BINS)
     done = 0
-    step = rows_per_block(VALUE_BYTES)
-    for start in range(0, data.size, step):
-        values = data[start : start + step][usable[start : start + step]]
+    for rows in row_blocks(data.size, VALUE_BYTES):
+        values = data[rows][usable[rows]]
         values = values.astype(np.float64)
         index = ((values - low) * (WEIGHTED_BINS / (high - low))).astype(np.intp)
         np.minimum(index, WEIGHTED_BINS - 1, out=index)
@@ -280,11 +277,9 @@ def _histogram(finite: F64) -> tuple[F64, F64]:
     vmin, vrange = finite[0], finite[-1] - finite[0]
     iqr = finite[int(n * 0.75)] - finite[int(n * 0.25)]
     index = np.empty(n, np.intp)
-    step = rows_per_block(VALUE_BYTES)
-    for start in range(0, n, step):
-        stop = min(n, start + step)
-        rank = np.arange(start, stop) / n
-        index[start:stop] = _blended_bins(rank, finite[start:stop], iqr, vmin, vrange, bins=bins)
+    for rows in row_blocks(n, VALUE_BYTES):
+        rank = np.arange(rows.start, rows.stop) / n
+        index[rows] = _blended_bins(rank, finite[rows], iqr, vmin, vrange, bins=bins)
     counts = np.bincount(index, minlength=bins).astype(np.float64)
     sums = np.bincount(index, weights=finite, minlength=bins)
     empty_centre = vmin + (np.arange(bins) + 0.5) / bins * vrange
@@ -423,13 +418,12 @@ def _prefix_moments(points: F64, shift: float, mass: F64 | None) -> tuple[F64, F
     square (weight ``mass``, 1 when None), a block at a time."""
     n = points.size
     p1, p2 = np.zeros(n + 1), np.zeros(n + 1)
-    step = rows_per_block(VALUE_BYTES)
-    for start in range(0, n, step):
-        stop = min(n, start + step)
-        centred = points[start:stop] - shift
-        weighted = centred if mass is None else mass[start:stop] * centred
-        p1[start + 1 : stop + 1] = weighted
-        np.multiply(weighted, centred, out=p2[start + 1 : stop + 1])
+    for rows in row_blocks(n, VALUE_BYTES):
+        centred = points[rows] - shift
+        weighted = centred if mass is None else mass[rows] * centred
+        after = slice(rows.start + 1, rows.stop + 1)  # p1[0] = p2[0] = 0
+        p1[after] = weighted
+        np.multiply(weighted, centred, out=p2[after])
     np.cumsum(p1[1:], out=p1[1:])
     np.cumsum(p2[1:], out=p2[1:])
     return p1, p2

@@ -26,6 +26,7 @@ from .project import Projected, project
 from .raster import bin_tiles, rasterize_numpy
 
 Backend = Literal["auto", "numpy", "numba"]
+F64 = npt.NDArray[np.float64]
 
 __all__ = [
     "Backend",
@@ -66,10 +67,7 @@ def render(
     (identical in practice, tested to 1e-5). ``antialiased`` applies Mip-Splatting's 2D
     filter opacity compensation.
     """
-    if backend not in ("auto", "numpy", "numba"):
-        raise InputError(f"unknown backend {backend!r} (expected auto, numpy or numba)")
-    if backend == "numba" and not raster_numba.available():
-        raise InputError("the numba backend needs numba: pip install 'tsog-stream[render]'")
+    _drawing_options(background, backend)  # refused before any projecting
     proj = project(gaussians, camera, antialiased=antialiased)
     return draw(proj, camera, background=background, backend=backend)
 
@@ -86,13 +84,24 @@ def draw(
     after projecting); ``only``: of those rows alone, ties in depth drawn in the order given
     (:func:`raster.bin_tiles`), so several subsets of one projection are drawn without
     projecting or copying them again."""
-    bg = np.asarray(background, dtype=np.float64)
-    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-        raise InputError(f"background must be three finite numbers, got {background!r}")
+    bg = _drawing_options(background, backend)
     bins = bin_tiles(proj, camera.width, camera.height, only)
     use_numba = backend == "numba" or (backend == "auto" and raster_numba.available())
     composite = raster_numba.rasterize_numba if use_numba else rasterize_numpy
     return composite(proj, bins, camera.width, camera.height, bg)
+
+
+def _drawing_options(background: tuple[float, float, float], backend: Backend) -> F64:
+    """The background as an array; InputError for an unknown or missing backend or a
+    background that is not three finite numbers."""
+    if backend not in ("auto", "numpy", "numba"):
+        raise InputError(f"unknown backend {backend!r} (expected auto, numpy or numba)")
+    if backend == "numba" and not raster_numba.available():
+        raise InputError("the numba backend needs numba: pip install 'tsog-stream[render]'")
+    bg = np.asarray(background, dtype=np.float64)
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise InputError(f"background must be three finite numbers, got {background!r}")
+    return bg
 
 
 def warm() -> None:

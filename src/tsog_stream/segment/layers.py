@@ -110,10 +110,9 @@ class LayerPlan:
     def assign(self, weights: F64, groups: Sequence[Ints]) -> Ints:
         """The layer of each Gaussian of ``groups`` given its importance (ties by index)."""
         layer = np.zeros(weights.size, np.int64)
-        for g in groups:
-            order = g[np.argsort(-weights[g], kind="stable")]
-            cuts = [math.ceil(share * g.size) for share in self.shares]
-            layer[order] = np.searchsorted(np.asarray(cuts), np.arange(g.size), "right")
+        for order in ranked(weights, groups):
+            cuts = [math.ceil(share * order.size) for share in self.shares]
+            layer[order] = np.searchsorted(np.asarray(cuts), np.arange(order.size), "right")
         return layer
 
 

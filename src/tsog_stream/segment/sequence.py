@@ -119,43 +119,28 @@ def sequence_encoded(
     largest = largest if by_window else min(largest, max_count)
     with engine(options.workers, options.cluster, meter.advance, largest_job=largest) as running:
         meter.slots = running.slots
-        if by_window:
-            window = _WindowOf(seq, per_window, max_count, layering, plan, options)
-            yield from _windows_encoded(window, running, meter)
-        else:
+        if not by_window:
             started = submitted(parts, plan, options, running, meter)
             yield from in_order(started, running.slots, meter)
-
-
-@dataclass(frozen=True)
-class _WindowOf:
-    """What every window job of one sequence shares."""
-
-    seq: FrameSequence
-    per_window: int
-    max_count: int
-    layering: LayerPlan
-    plan: Plan
-    options: SegmentOptions
-
-    def job(self, w: int) -> WindowJob:
-        """The job of window ``w``."""
-        first = w * self.per_window
-        frames = self.seq.window(first, min(self.seq.count, first + self.per_window))
-        o = self.options
-        return WindowJob(frames, w, self.max_count, self.layering, self.plan, o.seed, o.quality)
-
-
-def _windows_encoded(window: _WindowOf, running: Engine, meter: Meter) -> Encoded:
-    """Every window a job its worker reads, WINDOWS_PER_SLOT per slot in flight; the chunks in
-    container order."""
-    count = -(-window.seq.count // window.per_window)
-    started = ((w, _tracked(running, window.job(w), meter)) for w in range(count))
-    written = 0
-    for _, results in in_order(started, WINDOWS_PER_SLOT * running.slots, meter):
-        for info, payload in results:
-            yield replace(info, sh_of=_after(info.sh_of, written)), payload
-        written += len(results)
+            return
+        jobs = (
+            WindowJob(
+                seq.window(first, min(seq.count, first + per_window)),
+                w,
+                max_count,
+                layering,
+                plan,
+                options.seed,
+                options.quality,
+            )
+            for w, first in enumerate(starts)
+        )
+        tracked = ((w, _tracked(running, job, meter)) for w, job in enumerate(jobs))
+        written = 0
+        for _, results in in_order(tracked, WINDOWS_PER_SLOT * running.slots, meter):
+            for info, payload in results:
+                yield replace(info, sh_of=_after(info.sh_of, written)), payload
+            written += len(results)
 
 
 def _tracked(running: Engine, job: WindowJob, meter: Meter) -> Future[list[tuple[PartInfo, bytes]]]:
