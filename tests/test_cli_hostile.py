@@ -64,6 +64,7 @@ HOSTILE_FILE_RUNS = {
     "render": ["{input}", "-o", "{out}/r.png", "--width", "32", "--height", "24"],
     "eval": ["{input}", "{input}", "--width", "32", "--height", "24"],
     "view": ["{input}", "--port", "0"],
+    "live": ["{input}", "-o", "{out}/l", "--fps", "30", "--idle", "0.5"],
 }
 """Every command that reads an input, with the input replaced by something hostile (serve,
 sign and demo take no input file)."""
@@ -81,6 +82,7 @@ GOOD_RUNS = {
     "sign": ["http://127.0.0.1:1/files/clip.tsogs", "--secret-file", "{secret}"],
     "demo": ["--out", "{out}/demo"],
     "view": ["{stream}", "--port", "0"],
+    "live": ["{frames}", "-o", "{out}/l", "--fps", "30", "--idle", "0.5"],
 }
 """A command line per command that works on the test's small files: each option is then
 replaced by hostile values one at a time."""
@@ -155,7 +157,13 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     meta = json.loads(read_bundle(chunk.read_bytes())["meta.json"])
     meta["count"] = 36_000_000
     bombs = hostile_inputs(root / "hostile", json.dumps(meta).encode())
+    frames = root / "frames"  # an event that has ended: two frames and the end marker
+    frames.mkdir()
+    for k in range(2):
+        write_ply(frames / f"frame_{k}.ply", static_gaussians(50, seed=k))
+    (frames / "END").write_bytes(b"")
     named = {"chunk": chunk, "stream": stream, "unpacked": unpacked, "root": streams}
+    named |= {"frames": frames}
     return {**named, "secret": secret, **{f"hostile:{k}": v for k, v in bombs.items()}}
 
 

@@ -85,7 +85,7 @@ class HeldFetcher(ChunkFetcher):
         self.most_in_flight = 0
         self.release = asyncio.Event()
 
-    async def open(self) -> StreamIndex:
+    async def open(self, after: int | None = None) -> StreamIndex:
         return self.index
 
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:

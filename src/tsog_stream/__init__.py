@@ -6,6 +6,8 @@ The public API is the names of ``__all__`` (pinned by a test); everything else i
   :class:`StreamClient` (async); ``frame_at(t)`` gives :class:`Gaussians`, ``write_ply`` saves them.
 - Make a stream: :func:`segment_input` does all ``tsog segment`` does (any input to a ``.tsogs``
   with its thumbnail); or :func:`load_scene` reads any input and :func:`segment_scene` writes it.
+- A live event: :func:`run_live` publishes frames as they are written into a folder (``tsog
+  live``); ``Stream.follow_live`` plays one at its live edge.
 - One chunk: :func:`encode_chunk` / :func:`decode_chunk` (file bytes by name), :func:`read_chunk`.
 - Errors: everything raised on purpose is a :class:`TsogError` (tree in ``tsog_stream.errors``).
 
@@ -33,6 +35,9 @@ _HOMES = {
     "segment_scene": "segment.segmenter",
     "SegmentOptions": "segment.segmenter",
     "SegmentReport": "segment.segmenter",
+    "run_live": "segment.live",
+    "LiveOptions": "segment.live",
+    "LiveReport": "segment.live",
     "encode_chunk": "codec.chunk",
     "decode_chunk": "codec.chunk",
     "read_chunk": "io.chunks",
@@ -63,6 +68,8 @@ __all__ = [
     "InputOptions",
     "InputReport",
     "IntegrityError",
+    "LiveOptions",
+    "LiveReport",
     "MetaError",
     "PlyError",
     "ReadOptions",
@@ -83,6 +90,7 @@ __all__ = [
     "load_scene",
     "open_stream",
     "read_chunk",
+    "run_live",
     "segment_input",
     "segment_scene",
     "write_ply",
@@ -109,6 +117,7 @@ if TYPE_CHECKING:
     from .model import Gaussians, Scene, Timeline, TimelineType
     from .pipeline import InputOptions, InputReport, segment_input
     from .segment import SegmentOptions, SegmentReport, segment_scene
+    from .segment.live import LiveOptions, LiveReport, run_live
 
 
 def __getattr__(name: str) -> Any:

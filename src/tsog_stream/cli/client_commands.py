@@ -8,14 +8,23 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import math
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from ..client import PlayStats, open_stream
+from ..client import LiveStats, PlayStats, open_stream
 from ..errors import InputError
 from ..server.link import LinkShape, parse_bandwidth, parse_latency
-from .common import Subparsers, add_common, add_frame_output, add_timeout, check_file_output
+from .common import (
+    Subparsers,
+    add_common,
+    add_frame_output,
+    add_timeout,
+    check_file_output,
+    note,
+)
 from .progress import Progress
 from .stream_commands import STREAM_HELP, stream_frame
 
@@ -73,6 +82,14 @@ def add_client_commands(sub: Subparsers) -> None:
         help="wait for every layer of each frame (no adaptation): the comparison",
     )
     p.add_argument(
+        "--live",
+        action="store_true",
+        help="follow a live stream (tsog live) in real time from just behind its live edge "
+        "until it ends or --duration passes; the report adds the latency from each frame's "
+        "arrival in the source to its showing (p50/p95)",
+    )
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    p.add_argument(
         "-v",
         "--verbose",
         action="store_true",
@@ -92,6 +109,10 @@ def cmd_fetch(args: argparse.Namespace, progress: Progress) -> int:
 
 def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """tsog play: a simulated playback with startup latency, stalls and throughput."""
+    if args.json and args.bandwidth is not None:
+        raise InputError("prints the report of a playback without --bandwidth", where="--json")
+    if args.live:
+        return _play_live(args, progress)
     if args.bandwidth is not None:
         return _play_shaped(args, progress)
     if args.latency is not None:
@@ -111,8 +132,48 @@ def cmd_play(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             playback, lambda f: _on_frame(progress, _line(f.t, playback.stats), args.verbose)
         )
     _end_live_line(progress)
-    print(_report(playback.stats, EVERY if args.verbose else SHORT))
+    if args.json:
+        print(json.dumps(_report_json(playback.stats)))
+    else:
+        print(_report(playback.stats, EVERY if args.verbose else SHORT))
     return 0
+
+
+def _report_json(stats: PlayStats) -> dict[str, object]:
+    """A playback's report as ``tsog play --json`` prints it."""
+    fields = ("frames", "first_picture_s", "startup_s", "stalls", "stall_s", "requests", "bytes")
+    return {name: getattr(stats, name) for name in fields} | {"hit_rate": stats.hit_rate}
+
+
+def _play_live(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
+    """tsog play --live: follow a live stream in real time; first picture, stalls, latency."""
+    if args.bandwidth is not None or args.start != 0.0 or args.speed != 1.0:
+        raise InputError("follows the live edge in real time", where="--live")
+    began = time.monotonic()
+    progress(f"opening {args.url}")
+    with open_stream(args.url, timeout=args.timeout) as client:
+        opened = time.monotonic() - began
+        if not client.is_live:
+            note("the stream is not live (recorded, or its event ended): playing it from its end")
+        stats = client.follow_live(
+            fps=args.fps,
+            duration_s=args.duration,
+            on_frame=lambda t, s: _on_frame(progress, _live_line(t, s), args.verbose),
+        )
+    _end_live_line(progress)
+    report = stats.as_dict() | {"first_picture_s": round(opened + stats.first_picture_s, 4)}
+    if args.json:
+        print(json.dumps(report))
+        return 0
+    for name, value in report.items():
+        print(f"{name.replace('_', ' ') + ':':<24}{value}")
+    return 0
+
+
+def _live_line(t: float, stats: LiveStats) -> str:
+    """The progress line of a live follow."""
+    latency = f", latency {stats.latencies_s[-1]:.2f} s" if stats.latencies_s else ""
+    return f"t = {t:7.3f} s, frame {stats.frames}, {stats.stalls} stalls{latency}"
 
 
 def _play_shaped(args: argparse.Namespace, progress: Callable[[str], None]) -> int:

@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
 
 from ..client.http_options import DEFAULT_DEADLINE_S
+from ..codec.precision import DEFAULT_QUALITY
+from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
 from ..errors import InputError, printable
 from ..io.chunks import chunk_folder
 from ..io.files import check_output, local_path
@@ -95,6 +97,18 @@ def local_file(text: str) -> Path:
 def add_common(p: argparse.ArgumentParser) -> None:
     """Options every subcommand has."""
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output on stderr")
+
+
+def add_chunk_options(p: argparse.ArgumentParser) -> None:
+    """How chunks are encoded (``tsog segment``, ``tsog live``): pixel budget, seed, quality."""
+    p.add_argument(
+        "--max-pixels",
+        type=Integer(1, MAX_IMAGE_PIXELS),
+        default=DEFAULT_MAX_PIXELS,
+        help="pixel budget per image (default 4096x4096)",
+    )
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
+    p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
 
 
 def add_force(p: argparse.ArgumentParser, what: str = "OUTPUT") -> None:

@@ -47,6 +47,7 @@ from .common import (
     local_file,
     note,
 )
+from .live_command import add_live_command, cmd_live
 from .progress import Progress
 from .render_commands import add_render_commands, cmd_eval, cmd_render
 from .serve_commands import add_serve_command, add_sign_command, cmd_serve, cmd_sign
@@ -70,6 +71,7 @@ EPILOG = """examples:
   tsog encode chunk.sog out/                  re-encode into an unbundled folder
   tsog encode clip.splatv clip.4dgs --lossy   write .4dgs (drops motion it cannot hold)
   tsog segment frames/ --fps 30 -o c.tsogs    segment into a stream container
+  tsog live capture/ --fps 30 -o live/        publish frames as they are written
   tsog frame c.tsogs --t 2 -o f.ply -v        read only the chunks t needs
   tsog decode scene.sog scene.ply             back to a float PLY (base values)
   tsog info scene.sog                         count, SH bands, timeline, sizes
@@ -90,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_file_commands(sub)
     add_stream_commands(sub)
+    add_live_command(sub)
     add_client_commands(sub)
     add_serve_command(sub)
     add_sign_command(sub)
@@ -291,6 +294,7 @@ COMMANDS = {
     "frame": cmd_frame,
     "demo": cmd_demo,
     "segment": cmd_segment,
+    "live": cmd_live,
     "verify": cmd_verify,
     "extract": cmd_extract,
     "unpack": cmd_unpack,

@@ -17,7 +17,6 @@ import numpy as np
 from ..client import Stream, open_stream
 from ..codec.chunk import encode_chunk
 from ..codec.precision import DEFAULT_QUALITY
-from ..constants import DEFAULT_MAX_PIXELS, MAX_IMAGE_PIXELS
 from ..container.sources import ReadStats
 from ..errors import InputError
 from ..io.chunks import write_chunk_files
@@ -34,13 +33,11 @@ from ..segment.layers import AUTO_LAYERS, LAYER_TARGETS_DB, LAYERED_MIN_GAUSSIAN
 from ..segment.plan import POLICIES
 from ..summary import cameras_summary
 from .common import (
-    QUALITY,
-    QUALITY_HELP,
-    SEED,
     Integer,
     Subparsers,
     Told,
     add_cameras,
+    add_chunk_options,
     add_common,
     add_input,
     add_timeout,
@@ -153,12 +150,6 @@ def _add_segment_layout(p: argparse.ArgumentParser) -> None:
         help="how Gaussians crossing windows are stored (default: chosen with the window)",
     )
     p.add_argument(
-        "--max-pixels",
-        type=Integer(1, MAX_IMAGE_PIXELS),
-        default=DEFAULT_MAX_PIXELS,
-        help="pixel budget per image (default 4096x4096)",
-    )
-    p.add_argument(
         "--workers",
         type=Integer(1, 256),
         default=default_workers(),
@@ -177,8 +168,7 @@ def _add_segment_layout(p: argparse.ArgumentParser) -> None:
 
 def _add_segment_encoding(p: argparse.ArgumentParser) -> None:
     """tsog segment's encoding, layer and merge-over-time options."""
-    p.add_argument("--seed", type=SEED, default=0, help="seed of the SH palette fits")
-    p.add_argument("--quality", type=QUALITY, default=DEFAULT_QUALITY, help=QUALITY_HELP)
+    add_chunk_options(p)
     p.add_argument(
         "--layers",
         type=Integer(1, MAX_LAYERS),

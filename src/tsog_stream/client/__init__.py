@@ -15,6 +15,7 @@ from .cache import CacheStats, SceneCache
 from .costs import SeekCost
 from .fetchers import ChunkFetcher, FolderFetcher, RangeFetcher, make_fetcher
 from .http_options import HttpOptions
+from .live import LiveStats, follow_live
 from .playback import Playback, PlayedFrame, PlayStats
 from .stream import StreamClient
 from .sync import Stream, open_stream
@@ -31,6 +32,7 @@ __all__ = [
     "HttpFiles",
     "HttpOptions",
     "HttpSource",
+    "LiveStats",
     "PlayStats",
     "Playback",
     "PlayedFrame",
@@ -40,6 +42,7 @@ __all__ = [
     "Stream",
     "StreamClient",
     "VerifyReport",
+    "follow_live",
     "make_fetcher",
     "open_stream",
 ]

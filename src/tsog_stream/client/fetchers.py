@@ -40,8 +40,9 @@ class ChunkFetcher(ABC):
     coalesces: bool = False
 
     @abstractmethod
-    async def open(self) -> StreamIndex:
-        """Read the index (one request in the usual case)."""
+    async def open(self, after: int | None = None) -> StreamIndex:
+        """Read the index (one request in the usual case); ``after``: see
+        :meth:`FolderFetcher.open`."""
 
     @abstractmethod
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
@@ -62,8 +63,9 @@ class RangeFetcher(ChunkFetcher):
         self.name = source.name
         self.stats = source.stats
 
-    async def open(self) -> StreamIndex:
-        """Read the header and index (one request when the index fits the prefix)."""
+    async def open(self, after: int | None = None) -> StreamIndex:
+        """Read the header and index (one request when the index fits the prefix); a
+        container file is never live, so ``after`` is not used."""
         return await read_index(self.source)
 
     async def fetch(self, group: Sequence[ChunkEntry]) -> list[bytes]:
@@ -98,11 +100,14 @@ class FolderFetcher(ChunkFetcher):
             self._http = HttpFiles(options)
         self.stats = self._http.stats if self._http is not None else ReadStats()
 
-    async def _get(self, name: str, limit: int) -> bytes:
+    async def _get(self, name: str, limit: int, query: str | None = None) -> bytes:
         """The file ``name`` of the folder, at most ``limit`` bytes (a longer one is refused
-        after ``limit`` + 1 bytes, never read whole)."""
+        after ``limit`` + 1 bytes, never read whole); ``query`` added to its URL."""
         if self._http is not None:
-            return await self._http.get(self._url(name), limit)
+            url = self._url(name)
+            if query:
+                url += f"&{query}" if "?" in url else f"?{query}"
+            return await self._http.get(url, limit)
         where = self._where(name)
         data = await asyncio.to_thread(read_head, where, limit + 1)
         if len(data) > limit:
@@ -110,9 +115,12 @@ class FolderFetcher(ChunkFetcher):
         self.stats.add(len(data))
         return data
 
-    async def open(self) -> StreamIndex:
-        """Read ``manifest.json`` (one request) and present it as an opened container."""
-        raw = await self._get(MANIFEST, MAX_INDEX_BYTES)
+    async def open(self, after: int | None = None) -> StreamIndex:
+        """Read ``manifest.json`` (one request) and present it as an opened container;
+        ``after``: a live stream's last publication seen, which an origin with the blocking
+        reload (``tsog serve``) waits to pass before it answers (others ignore it)."""
+        query = None if after is None or self._http is None else f"after={after}"
+        raw = await self._get(MANIFEST, MAX_INDEX_BYTES, query)
         index = unpacked_index(raw, where=self._where(MANIFEST))
         return StreamIndex(index.header, index.manifest, self.name, packed=False)
 

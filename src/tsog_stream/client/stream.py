@@ -104,6 +104,33 @@ class StreamClient:
             coalesce_gap=coalesce_gap,
         )
 
+    @property
+    def is_live(self) -> bool:
+        """The stream is live: its index is republished as windows are encoded, until it ends
+        (docs/client.md, "Live streams")."""
+        live = self.index.manifest.live
+        return live is not None and not live.ended
+
+    @property
+    def live_edge_s(self) -> float:
+        """The end of the last frame published (of a recorded stream: its end)."""
+        return self.index.manifest.scene.end_s
+
+    async def refresh(self) -> bool:
+        """Read a live stream's index again, waiting on an origin with the blocking reload
+        for a publication after the one held; True when a newer one replaced it (chunks
+        already fetched stay: they never change)."""
+        live = self.index.manifest.live
+        if live is None or live.ended:
+            return False
+        index = await self.source.open(after=live.sequence)
+        fresh = index.manifest.live
+        if fresh is None or fresh.sequence <= live.sequence:
+            return False
+        self.index = index
+        self._fetches.index = index
+        return True
+
     async def frame_at(self, t: float, layers: int | None = None) -> Gaussians:
         """The Gaussians visible at ``t`` with the first ``layers`` quality layers (None: all),
         fetching only the chunks that needs."""

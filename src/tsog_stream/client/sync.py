@@ -21,6 +21,7 @@ from ..container.stream_index import StreamIndex
 from ..model import Gaussians, Scene
 from .costs import SeekCost
 from .http_options import HttpOptions
+from .live import LiveStats, follow_live
 from .playback import Playback, PlayedFrame, PlayStats
 from .stream import MiB, StreamClient
 from .verify import VerifyReport
@@ -98,6 +99,30 @@ class Stream:
     def verify(self) -> VerifyReport:
         """Check every chunk (hash, decode, pixel budget, agreement with the index)."""
         return self._run(self.client.verify())
+
+    @property
+    def is_live(self) -> bool:
+        """See :attr:`StreamClient.is_live`."""
+        return self.client.is_live
+
+    def refresh(self) -> bool:
+        """See :meth:`StreamClient.refresh`."""
+        return self._run(self.client.refresh())
+
+    def follow_live(
+        self,
+        *,
+        fps: float = 30.0,
+        duration_s: float | None = None,
+        behind_s: float | None = None,
+        on_frame: Callable[[float, LiveStats], None] | None = None,
+    ) -> LiveStats:
+        """See :func:`.live.follow_live`."""
+        return self._run(
+            follow_live(
+                self.client, fps=fps, duration_s=duration_s, behind_s=behind_s, on_frame=on_frame
+            )
+        )
 
     def unpack(self, folder: str | os.PathLike[str], *, overwrite: bool = False) -> int:
         """Write the unpacked layout into ``folder``; returns the number of chunks."""

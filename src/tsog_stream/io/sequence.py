@@ -272,6 +272,11 @@ def _sog_shape(path: Location) -> tuple[int, int]:
     return int(meta.count), SH_COEFFS_BY_BANDS[meta.shN.bands] if meta.shN else 0
 
 
+def frame_shape(kind: str, path: Location) -> tuple[int, int]:
+    """(Gaussians, SH coefficients per channel) a ``kind`` ("ply" or "sog") frame declares."""
+    return _ply_shape(path) if kind == "ply" else _sog_shape(path)
+
+
 def _sequence_notes(frames: _Frames, shapes: Sequence[tuple[int, int]]) -> list[str]:
     """Notes on skipped files, numbering gaps, differing sizes and mixed SH degrees."""
     notes: list[str] = []
@@ -421,8 +426,8 @@ def open_sequence(
     if kind is not None and frames.kind != kind:
         reader = f"read_{frames.kind}_sequence"
         raise InputError(f"holds {frames.kind.upper()} frames; use {reader}", where=where)
-    shape_of = _ply_shape if frames.kind == "ply" else _sog_shape
-    return FrameSequence(frames, [shape_of(p) for p in frames.paths], rate, where)
+    shapes = [frame_shape(frames.kind, p) for p in frames.paths]
+    return FrameSequence(frames, shapes, rate, where)
 
 
 def read_ply_sequence(
@@ -454,6 +459,7 @@ __all__ = [
     "FrameWindow",
     "detect_sequence",
     "frame_number",
+    "frame_shape",
     "list_frames",
     "natural_key",
     "open_sequence",

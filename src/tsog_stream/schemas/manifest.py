@@ -140,6 +140,25 @@ class Layer(_Model):
     )
 
 
+@dataclass(frozen=True, slots=True, config=_STRICT)
+class LiveWindow:
+    """When a live window's frames came and when it was listed (Unix seconds, wall clock)."""
+
+    arrived_s: Annotated[Finite, Field(description="its first frame complete in the source")]
+    published_s: Annotated[Finite, Field(description="the first index listing it published")]
+
+
+class Live(_Model):
+    """What a live stream's index adds: it is republished as windows are encoded, the scene's
+    ``end_s`` being the live edge, until ``ended`` (then it reads as a recorded stream)."""
+
+    sequence: NonNegInt = Field(description="publication number, one more at each publish")
+    ended: Annotated[bool, Field(strict=True)] = Field(
+        description="the event is over: this index is the last"
+    )
+    windows: list[LiveWindow] = Field(description="one per window (level-0 node), in order")
+
+
 class Manifest(_Model):
     """The index of a ``.tsogs`` container."""
 
@@ -166,6 +185,9 @@ class Manifest(_Model):
         max_length=MAX_LAYERS_READ,
         description="quality layers, base first (empty: one layer, every chunk's layer is 0)",
     )
+    live: Live | None = Field(
+        default=None, description="a live stream's publication (absent: a recorded stream)"
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> Manifest:
@@ -175,6 +197,9 @@ class Manifest(_Model):
             if not _CHUNK_FILE.fullmatch(chunk.file):
                 raise ValueError(f"chunks[{i}].file {chunk.file!r} is not chunks/NNNNNN.sog")
         _check_layers(self.layers, self.chunks)
+        windows = sum(1 for node in self.nodes if node.level == 0)
+        if self.live is not None and len(self.live.windows) != windows:
+            raise ValueError(f"live.windows has {len(self.live.windows)} entries, not {windows}")
         _check_sh_chunks(self.chunks, self.scene.sh_bands)
         for j, node in enumerate(self.nodes):
             for c in node.chunks:
@@ -238,8 +263,11 @@ def parse_manifest(data: bytes | str, *, where: str = "manifest.json") -> Manife
 
 def dump_manifest(manifest: Manifest) -> bytes:
     """Compact, deterministic JSON of the index, without the keys at their defaults that older
-    indexes lack (``layers`` empty, a chunk's ``layer`` 0 and ``sh_of``, ``duration_assumed``)."""
+    indexes lack (``layers`` empty, a chunk's ``layer`` 0 and ``sh_of``, ``duration_assumed``,
+    ``live``)."""
     data = manifest.model_dump(mode="json")
+    if data["live"] is None:
+        del data["live"]
     if not data["layers"]:
         del data["layers"]
     if not data["scene"]["duration_assumed"]:

@@ -2,7 +2,8 @@
 
 The package's face: what callers import. Its rooms (``segmenter`` the two entry points and the
 layout, ``options``, ``plan``, ``layout``, ``layers``, ``jobs``, ``encoding``, ``engines``,
-``write``, ``sequence``, ``meter``) are described in docs/design/segmenter.md.
+``write``, ``sequence``, ``meter``, and ``live`` for live events) are described in
+docs/design/segmenter.md and docs/live.md.
 """
 
 from .options import (

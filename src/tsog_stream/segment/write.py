@@ -14,7 +14,7 @@ from .._version import __version__
 from ..constants import GENERATOR
 from ..container.objects import container_output
 from ..schemas.cameras import Camera
-from ..schemas.manifest import Box, ChunkEntry, Layer, Manifest, Node
+from ..schemas.manifest import Box, ChunkEntry, Layer, Live, Manifest, Node
 from .encoding import Encoded, PartInfo
 from .layers import LayerPlan
 from .meter import Meter
@@ -63,7 +63,7 @@ def write_container(
         meter.on_tick = lambda: on_chunk(len(entries), max(total, len(entries)), meter.eta_s())
     with container_output(path) as out, contextlib.closing(chunks) as encoded:
         for i, (info, payload) in enumerate(encoded):
-            entries.append(_entry(i, info, *out.add(payload)))
+            entries.append(entry_of(i, info, *out.add(payload)))
             keys.append(info.key)
             if on_chunk:
                 on_chunk(i + 1, max(total, i + 1), meter.eta_s())
@@ -71,7 +71,7 @@ def write_container(
         if scene_fields["gaussians"] is None:  # a frame sequence: each stored once
             counted = sum(e.count for e in entries if e.holds_gaussians)
             scene_fields = {**scene_fields, "gaussians": counted, "stored": counted}
-        manifest = _manifest(
+        manifest = index_of(
             entries,
             keys,
             plan=plan,
@@ -84,7 +84,7 @@ def write_container(
     return _report(str(path), size, manifest, plan=plan, views=views, layering=layering)
 
 
-def _entry(i: int, info: PartInfo, offset: int, length: int, digest: str) -> ChunkEntry:
+def entry_of(i: int, info: PartInfo, offset: int, length: int, digest: str) -> ChunkEntry:
     """The index's entry of chunk ``i``, stored at ``offset`` with ``length`` bytes."""
     return ChunkEntry(
         id=i,
@@ -103,7 +103,7 @@ def _entry(i: int, info: PartInfo, offset: int, length: int, digest: str) -> Chu
     )
 
 
-def _manifest(
+def index_of(
     entries: list[ChunkEntry],
     keys: Sequence[NodeKey],
     *,
@@ -112,8 +112,10 @@ def _manifest(
     options: SegmentOptions,
     views: Views,
     layering: LayerPlan,
+    live: Live | None = None,
 ) -> Manifest:
-    """The container's index of ``entries`` (``keys``: each one's node)."""
+    """The container's index of ``entries`` (``keys``: each one's node; ``live``: a live
+    stream's publication)."""
     scene = {
         **scene_fields,
         "start_s": plan.start_s,
@@ -134,6 +136,7 @@ def _manifest(
             "cameras": views.cameras,
             "view": views.view,
             "layers": _layers(layering, entries),
+            "live": live,
         }
     )
 

@@ -1,7 +1,7 @@
 """The aiohttp application: raw files with RFC 9110 byte ranges, and the streaming API.
 
 Routes (see docs/http.md): ``GET|HEAD /files/{path}``, ``GET /v1/scenes``,
-``GET /v1/scenes/{id}/manifest``, ``GET /v1/scenes/{id}/chunks?t=&horizon=``,
+``GET /v1/scenes/{id}/manifest[?after=SEQ]``, ``GET /v1/scenes/{id}/chunks?t=&horizon=``,
 ``GET /v1/scenes/{id}/chunks/{n}.sog``, ``GET /v1/scenes/{id}/thumbnail``, ``GET /healthz``,
 ``GET /v1/authorize``, ``OPTIONS`` preflight anywhere, and the player's pages (:mod:`.player`).
 Bodies go out through :mod:`.respond`; each request's privacy is decided once (:mod:`.private`).
@@ -20,10 +20,12 @@ from urllib.parse import quote
 
 from aiohttp import HttpVersion10, HttpVersion11, web
 
-from ..errors import AccessError, InputError
+from ..container.stream_index import MANIFEST
+from ..errors import AccessError, InputError, TsogError
 from ..io.objects import ObjectPath, is_object_url
 from .catalog import BusyError, Catalog, NotFoundError
 from .conditional import Outcome, evaluate, http_date
+from .live import after_sequence, manifest_caching, newer_than
 from .logs import log_out_of_fds, quiet_client_errors
 from .object_catalog import ObjectCatalog
 from .player import add_player_routes
@@ -110,10 +112,21 @@ async def _add_cors(request: web.Request, response: web.StreamResponse) -> None:
 
 
 async def files(request: web.Request) -> web.StreamResponse:
-    """GET/HEAD /files/{path}: a raw file under the root (private ones need a signed URL)."""
+    """GET/HEAD /files/{path}: a raw file under the root (private ones need a signed URL); a
+    live scene's ``manifest.json`` with ``?after=SEQ`` as the API's blocking reload."""
     catalog, rel = request.app[CATALOG], request.match_info["path"]
     found = await admitted(request, [rel], catalog.find(rel), lambda f: catalog.relative(f[0]))
-    return await send_representation(request, await catalog.file_at(*found))
+    after = after_sequence(request.query.get("after"))
+    scene_id = rel.removesuffix(f"/{MANIFEST}")
+    if after is None or scene_id == rel:
+        return await send_representation(request, await catalog.file_at(*found))
+    try:
+        scene = await catalog.scene(scene_id)
+    except TsogError:  # not a scene's index: a file like any other
+        return await send_representation(request, await catalog.file_at(*found))
+    scene = await newer_than(scene, after, lambda: catalog.scene(scene_id))
+    rep = await catalog.file_at(*await catalog.find(rel))
+    return await send_representation(request, rep, manifest_caching(scene, after))
 
 
 async def thumbnail(request: web.Request) -> web.StreamResponse:
@@ -131,10 +144,16 @@ async def scenes(request: web.Request) -> web.StreamResponse:
 
 
 async def manifest(request: web.Request) -> web.StreamResponse:
-    """GET /v1/scenes/{id}/manifest: the index JSON, ETag = the container identity."""
+    """GET /v1/scenes/{id}/manifest: the index JSON, ETag = the container identity; with
+    ``?after=SEQ``, a live scene's next publication as soon as there is one (:mod:`.live`)."""
+    after = after_sequence(request.query.get("after"))
     scene = await find_scene(request, request.match_info["id"])
+    if after is not None:
+        catalog = request.app[CATALOG]
+        scene = await newer_than(scene, after, lambda: catalog.scene(scene.id))
     etag = f'"{scene.index.identity}"'
-    headers = {"ETag": etag, "Cache-Control": REVALIDATE, "Last-Modified": http_date(scene.mtime)}
+    caching = manifest_caching(scene, after)
+    headers = {"ETag": etag, "Cache-Control": caching, "Last-Modified": http_date(scene.mtime)}
     outcome = evaluate(request.method, request.headers, etag, scene.mtime)
     if outcome is not Outcome.PROCEED:
         return web.Response(status=outcome.value, headers=headers)
