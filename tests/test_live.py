@@ -395,6 +395,23 @@ def test_sigterm_ends_the_event_cleanly(tmp_path: Path) -> None:
     assert not [p for p in out.rglob("*") if p.name.startswith(".")]  # no temp file left
 
 
+def test_pack_writes_the_ended_stream_as_one_container(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_event(tmp_path / "src", frames_of(12))
+    out, packed = tmp_path / "live", tmp_path / "event.tsogs"
+    argv = ["live", str(tmp_path / "src"), "-o", str(out), "--fps", "10", "--workers", "1"]
+    assert main([*argv, "--pack", str(packed), "-q"]) == 0
+    assert f"{packed}: {packed.stat().st_size} bytes" in capsys.readouterr().out
+    with open_stream(packed) as one, open_stream(out) as folder:
+        assert one.index.manifest == folder.index.manifest.model_copy(
+            update={"chunks": one.index.manifest.chunks}
+        )
+        assert one.verify().problems == []
+        for t in (0.05, 1.15):
+            np.testing.assert_array_equal(one.frame_at(t).means, folder.frame_at(t).means)
+
+
 def test_the_command_refuses_bad_options_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

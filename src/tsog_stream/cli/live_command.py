@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
+from ..client import open_stream
 from ..io.arrivals import END_MARKER, SETTLE_S
 from ..io.files import check_output
 from ..io.objects import is_object_url
@@ -74,6 +75,12 @@ def add_live_command(sub: Subparsers) -> None:
     )
     add_chunk_options(p)
     p.add_argument(
+        "--pack",
+        metavar="FILE",
+        help="when the event ends, also write the stream as one .tsogs container (a path or "
+        "storage URL), the file to keep or to hand to any static origin",
+    )
+    p.add_argument(
         "-f",
         "--force",
         action="store_true",
@@ -88,6 +95,8 @@ def cmd_live(args: argparse.Namespace, progress: Progress) -> int:
         check_output(f"{args.output.rstrip('/')}/chunks/000000.sog", overwrite=True)
     else:
         check_output(args.output, overwrite=True, folder=True)
+    if args.pack is not None:
+        check_output(args.pack, overwrite=args.force)
     options = LiveOptions(
         fps=args.fps,
         window_s=args.window,
@@ -109,6 +118,12 @@ def cmd_live(args: argparse.Namespace, progress: Progress) -> int:
         f"{report.output}: {report.windows} windows{resumed}, {report.frames} frames, "
         f"{report.chunks} chunks, {report.payload_bytes} bytes (ended: {report.ended_by})"
     )
+    if args.pack is not None:
+        progress(f"packing {args.pack}")
+        with open_stream(args.output) as stream:
+            size = stream.pack(args.pack)
+        progress.done()
+        print(f"{args.pack}: {size} bytes")
     return 0
 
 

@@ -339,8 +339,17 @@ class LiveIndex:
         window = FrameWindow(
             kind, [a.path for a in frames], shapes, self.sh_coeffs, self.options.fps, first, stop
         )
-        if self.views is None:
-            self.views = views_of(window.read().scene.gaussians, ())
+        if self.views is None:  # framed on the event's first frame
+            first_frame = FrameWindow(
+                kind,
+                window.paths[:1],
+                shapes[:1],
+                self.sh_coeffs,
+                self.options.fps,
+                first,
+                first + 1,
+            )
+            self.views = views_of(first_frame.read().scene.gaussians, ())
         plan = Plan(0.0, stop / self.options.fps, self._window_s, w + 1, {}, 0)
         return WindowJob(
             window,

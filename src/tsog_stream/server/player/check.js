@@ -127,11 +127,26 @@ export function checkManifest(m) {
         list(m.nodes, 'nodes').forEach((n, j) => checkNode(n, j, m.chunks.length));
         if (m.cameras != null) list(m.cameras, 'cameras').forEach((c, i) => checkCamera(c, `cameras[${i}]`));
         if (m.view != null) checkCamera(m.view, 'view');
+        if (m.live != null) checkLive(m.live, m.nodes.filter((n) => n.level === 0).length);
     } catch (err) {
         if (err instanceof Refused) throw new Error(`manifest refused: ${err.message}`);
         throw err;
     }
     return m;
+}
+
+/** A live stream's publication (docs/spec.md section 8.8): one time entry per window. */
+function checkLive(live, windows) {
+    object(live, 'live');
+    integer(live.sequence, 'live.sequence');
+    if (typeof live.ended !== 'boolean') refuse('live.ended', 'must be true or false', live.ended);
+    const times = list(live.windows, 'live.windows');
+    if (times.length !== windows) refuse('live.windows', `must have one entry per window (${windows})`, times.length);
+    times.forEach((w, i) => {
+        object(w, `live.windows[${i}]`);
+        finite(w.arrived_s, `live.windows[${i}].arrived_s`);
+        finite(w.published_s, `live.windows[${i}].published_s`);
+    });
 }
 
 /** The body of `response` as an ArrayBuffer, refused with the message `tooLong` as soon as it

@@ -7,6 +7,7 @@ import { ChunkStream } from './stream.js';
 import { MAX_MANIFEST_BYTES, checkManifest, readCapped } from './check.js';
 import { fadeWhenIdle } from './idle.js';
 import { CameraControls } from './controls.js';
+import { CATCH_UP, LiveFollow, isLive, liveTarget } from './live.js';
 import { UP_CHOICES, capturePose, pivotDistance, sceneUp, upRotation } from './views.js';
 
 const $ = (id) => document.getElementById(id);
@@ -126,17 +127,21 @@ function isStill(scene) {
     return scene.timeline_type == null || scene.end_s <= scene.start_s;
 }
 
-/** Playback state: time, speed, loop, and what the controls show. */
+/** Playback state: time, speed, loop, and what the controls show. A live stream (spec 8.8)
+ * is played `target` seconds behind its edge, up to CATCH_UP faster while further behind, and
+ * waits at the edge with its last picture; once its event ends it plays as a recorded one. */
 class Playback {
     constructor(manifest, config) {
         this.start = manifest.scene.start_s;
         this.end = manifest.scene.end_s;
-        this.still = isStill(manifest.scene);
+        this.still = isStill(manifest.scene) && !isLive(manifest);
         this.frame = manifest.scene.fps ? 1 / manifest.scene.fps : DEFAULT_FRAME_S;
-        this.t = config.t === null ? this.start : this.clamp(config.t);
+        this.live = isLive(manifest);
+        this.target = liveTarget(manifest);
+        this.t = config.t === null ? this.liveStart() : this.clamp(config.t);
         this.playing = !config.paused && !this.still;
         this.speed = 1;
-        this.loop = true;
+        this.loop = !this.live;
         this.buffering = false;
     }
 
@@ -144,17 +149,42 @@ class Playback {
         return Math.min(Math.max(t, this.start), this.end);
     }
 
+    /** Where playback opens: the start, or a live stream's target behind its edge. */
+    liveStart() {
+        return this.live ? Math.max(this.start, this.end - this.target) : this.start;
+    }
+
+    /** A newer index of a live stream: its edge, and whether its event goes on. */
+    follow(manifest) {
+        this.end = manifest.scene.end_s;
+        this.live = isLive(manifest);
+    }
+
+    /** Jump to the live edge's target and play. */
+    goLive() {
+        this.t = this.liveStart();
+        this.playing = true;
+    }
+
+    /** Seconds behind the live edge beyond the target (0 when not live). */
+    get behind() {
+        return this.live ? this.end - this.t - this.target : 0;
+    }
+
     /** Play or pause (a still scene stays as it is). */
     toggle() {
         this.playing = !this.playing && !this.still;
     }
 
-    /** Advance by dt seconds of wall time unless paused or waiting for chunks. */
+    /** Advance by dt seconds of wall time unless paused or waiting for chunks; a live stream
+     * catches up (at most CATCH_UP) and never passes its edge. */
     advance(dt) {
         if (!this.playing || this.buffering) return;
-        this.t += dt * this.speed;
+        const rate = this.behind > this.frame ? CATCH_UP : 1;
+        this.t += dt * this.speed * rate;
         if (this.t > this.end) {
-            if (this.loop) this.t = this.start;
+            if (this.live) this.t = this.end;
+            else if (this.loop) this.t = this.start;
             else {
                 this.t = this.end;
                 this.playing = false;
@@ -176,6 +206,7 @@ class Playback {
     get state() {
         if (this.still) return 'still';
         if (this.buffering) return 'buffering';
+        if (this.live && this.playing && this.t >= this.end) return 'waiting for the live edge';
         return this.playing ? 'playing' : 'paused';
     }
 }
@@ -225,12 +256,9 @@ function linkFor(playback, controls, preset, camera) {
 
 /** Wire the buttons, the scrub bar and the keyboard to playback and camera. */
 function bindControls(playback, controls, views, camera, manifest) {
-    const scrub = $('scrub');
-    scrub.min = String(playback.start);
-    scrub.max = String(playback.end);
-    scrub.step = String(Math.max((playback.end - playback.start) / 1000, 1e-4));
-    showDuration(playback.end, manifest.scene.duration_assumed === true);
+    showRange(playback, manifest);
     document.body.classList.toggle('still', playback.still);
+    $('loop').checked = playback.loop; // a live stream does not loop
     const preset = { index: null, moved: 0 };
     const choose = (value) => {
         const index = value === '' ? null : Number(value);
@@ -246,6 +274,7 @@ function bindControls(playback, controls, views, camera, manifest) {
     };
     fillPresets(views);
     $('play').addEventListener('click', () => playback.toggle());
+    $('live').addEventListener('click', () => playback.goLive());
     $('back').addEventListener('click', () => playback.step(-1));
     $('forward').addEventListener('click', () => playback.step(1));
     scrub.addEventListener('input', () => { playback.t = Number.parseFloat(scrub.value); });
@@ -262,6 +291,24 @@ function bindControls(playback, controls, views, camera, manifest) {
     $('help').addEventListener('click', () => { $('keys').hidden = !$('keys').hidden; });
     bindKeys(playback, controls, choose);
     return { preset };
+}
+
+/** The scrub bar's range and the duration label (a live stream's grow with its edge). */
+function showRange(playback, manifest) {
+    const scrub = $('scrub');
+    scrub.min = String(playback.start);
+    scrub.max = String(playback.end);
+    scrub.step = String(Math.max((playback.end - playback.start) / 1000, 1e-4));
+    showDuration(playback.end, manifest.scene.duration_assumed === true);
+}
+
+/** The live badge: shown while the event goes on, lit at the edge, "go live" behind it. */
+function showLive(playback) {
+    const badge = $('live');
+    badge.hidden = !playback.live;
+    const behind = playback.behind > 1 || !playback.playing;
+    badge.classList.toggle('behind', behind);
+    badge.textContent = behind ? 'go live' : 'LIVE';
 }
 
 function toggleFullscreen() {
@@ -354,6 +401,7 @@ function showState(playback, stream, fps) {
     $('o-state').textContent = stats.error ? `${playback.state} (${stats.error})` : playback.state;
     $('play').textContent = playback.playing ? 'pause' : 'play';
     $('time').textContent = clock(playback.t);
+    showLive(playback);
     if (document.activeElement !== $('scrub')) $('scrub').value = String(playback.t);
     drawBuffered(playback, stream.buffered());
 }
@@ -392,18 +440,26 @@ function drawOnChange(app, camera, stream) {
     return { check, redraw };
 }
 
+/** A scene's index from `url`, checked (its fetch errors said in a way a viewer can act on). */
+async function readIndex(url) {
+    const response = await fetch(url, { cache: 'no-cache' }).catch(() => {
+        throw new Error(`cannot fetch ${url} (network error, or its origin does not allow CORS)`);
+    });
+    if (response.status === 404) throw new Error(`scene not found: ${url} (HTTP 404)`);
+    if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${url}`);
+    return checkManifest(await readManifest(response, url));
+}
+
 async function main() {
     const config = readConfig();
     const fetchLog = [];
     window.tsogPlayer = { fetchLog };
     const manifestUrl = config.query ? `${config.manifest.href}?${config.query}` : config.manifest.href;
-    fetchLog.push(manifestUrl);
-    const response = await fetch(manifestUrl).catch(() => {
-        throw new Error(`cannot fetch ${manifestUrl} (network error, or its origin does not allow CORS)`);
-    });
-    if (response.status === 404) throw new Error(`scene not found: ${manifestUrl} (HTTP 404)`);
-    if (!response.ok) throw new Error(`manifest: HTTP ${response.status} from ${manifestUrl}`);
-    const manifest = checkManifest(await readManifest(response, manifestUrl));
+    const read = (url) => {
+        fetchLog.push(url);
+        return readIndex(url);
+    };
+    const manifest = await read(manifestUrl);
     const { app, camera, controls, scene, views } = createApp(manifest, config.view);
     const stream = new ChunkStream(pc, app, scene, manifest, chunkUrlFor(config), fetchLog);
     const playback = new Playback(manifest, config);
@@ -434,6 +490,17 @@ async function main() {
         }
     });
     Object.assign(window.tsogPlayer, { pc, app, camera, controls, stream, playback, manifest, views, redraw: drawing.redraw });
+    if (isLive(manifest)) {
+        const follow = new LiveFollow(manifestUrl, manifest, read, (fresh) => {
+            stream.setManifest(fresh);
+            playback.follow(fresh);
+            showRange(playback, fresh);
+            window.tsogPlayer.manifest = fresh;
+            drawing.redraw();
+        });
+        window.tsogPlayer.live = follow;
+        follow.run();
+    }
     app.start();
 }
 

@@ -450,6 +450,16 @@ export class ChunkStream {
         return ranges;
     }
 
+    /** A live stream's newer index (spec 8.8): the chunks already loaded stay (a published
+     * chunk never changes), the next plan sees the new ones. */
+    setManifest(manifest) {
+        this.index = new SceneIndex(manifest);
+        this.bandsOf = new Map(manifest.chunks.filter((c) => c.sh_of != null).map((c) => [c.sh_of, c.id]));
+        this.planned = null;
+        this.bufferedFor = null;
+        this.changes += 1;
+    }
+
     /** Counts for the overlay and the tests. */
     stats() {
         const all = [...this.chunks.values()];
