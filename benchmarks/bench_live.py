@@ -48,6 +48,8 @@ SOURCES = {
     "monkey (31.7k, SOG)": "4d/pc_flipbook_monkey",
     "generated (30k, SH1)": "",
 }
+ENDING_S = 300.0
+"""How long after its last frame a live run may take to end before the benchmark stops it."""
 DISTINCT_FRAMES = 24
 """Frames of a source written (cyclically) at most: enough to vary, few to decode."""
 
@@ -127,12 +129,13 @@ def wait_file(path: Path, limit_s: float) -> None:
 
 
 def cpu_of(proc: psutil.Process) -> float:
-    """CPU seconds of a process and its children so far."""
-    total = 0.0
-    for p in [proc, *proc.children(recursive=True)]:
+    """CPU seconds of a process, its children that ended (replaced workers) and those alive."""
+    t = proc.cpu_times()
+    total = float(t.user + t.system + t.children_user + t.children_system)
+    for child in proc.children(recursive=True):
         try:
-            t = p.cpu_times()
-            total += t.user + t.system
+            c = child.cpu_times()
+            total += float(c.user + c.system)
         except psutil.NoSuchProcess:
             pass
     return total
@@ -148,7 +151,7 @@ def lags(manifest_path: Path, fps: float) -> list[float]:
 
 
 def run(name: str, frames: list[bytes], fps: float, seconds: float, root: Path) -> LiveRun:
-    """One live event of ``seconds`` at ``fps``."""
+    """One live event of ``seconds`` at ``fps`` (the bytes compared on its first seconds)."""
     src, media = root / "src", root / "media"
     shutil.rmtree(root, ignore_errors=True)
     src.mkdir(parents=True)
@@ -186,6 +189,9 @@ def run(name: str, frames: list[bytes], fps: float, seconds: float, root: Path) 
         time.sleep(max(0.0, seconds / 2 - (time.monotonic() - began)))
         joiner = follow(url, duration=min(10.0, seconds / 4))
         while live.poll() is None:
+            if time.monotonic() - began > seconds + ENDING_S:
+                live.kill()
+                raise SystemExit(f"tsog live did not end within {ENDING_S} s of its last frame")
             cpu_samples.append(cpu_of(watched))
             time.sleep(0.5)
         writer.join()
@@ -201,35 +207,7 @@ def run(name: str, frames: list[bytes], fps: float, seconds: float, root: Path) 
     waited = lags(media / "event" / "manifest.json", fps)
     quarter = max(1, len(waited) // 4)
     first, last = float(np.median(waited[:quarter])), float(np.median(waited[-quarter:]))
-    live_bytes = sum(p.stat().st_size for p in (media / "event" / "chunks").iterdir())
-    segmented = root / "segment.tsogs"
-    auto = root / "segment-auto.tsogs"
-    subprocess.run(
-        [
-            *TSOG,
-            "segment",
-            str(src),
-            "-o",
-            str(segmented),
-            "--fps",
-            str(fps),
-            "--window",
-            "1s",
-            "--layers",
-            "1",
-            "--temporal",
-            "off",
-            "-q",
-        ],
-        check=True,
-    )
-    subprocess.run(
-        [*TSOG, "segment", str(src), "-o", str(auto), "--fps", str(fps), "-q"], check=True
-    )
-    with open_stream(segmented) as s:
-        segment_bytes = s.index.manifest.payload_bytes
-    with open_stream(auto) as s:
-        auto_bytes = s.index.manifest.payload_bytes
+    live_bytes, segment_bytes, auto_bytes = compare_bytes(src, media / "event", fps, root)
     return LiveRun(
         name,
         fps,
@@ -247,6 +225,44 @@ def run(name: str, frames: list[bytes], fps: float, seconds: float, root: Path) 
     )
 
 
+COMPARE_S = 10
+"""Seconds of frames (whole windows from the start) whose bytes are set against tsog segment's:
+enough for every layout choice, bounded so a long run of large frames stays quick to compare."""
+
+
+def compare_bytes(src: Path, event: Path, fps: float, root: Path) -> tuple[int, int, int]:
+    """The live stream's chunk bytes for its first COMPARE_S seconds, and `tsog segment`'s for
+    the same frames: one-second windows and one layer, and its own choices."""
+    m = json.loads((event / "manifest.json").read_bytes())
+    windows = [n for n in m["nodes"] if n["level"] == 0][: max(1, round(COMPARE_S / m["window_s"]))]
+    live_bytes = sum(m["chunks"][c]["length"] for n in windows for c in n["chunks"])
+    count = min(len(list(src.glob("frame_*.ply"))), round(len(windows) * m["window_s"] * fps))
+    frames = root / "compared"
+    frames.mkdir()
+    for k in range(count):
+        os.link(src / f"frame_{k:06d}.ply", frames / f"frame_{k:06d}.ply")
+    sizes = []
+    for name, extra in (
+        ("one.tsogs", ["--window", "1s", "--layers", "1", "--temporal", "off"]),
+        ("auto.tsogs", []),
+    ):
+        argv = [
+            *TSOG,
+            "segment",
+            str(frames),
+            "-o",
+            str(root / name),
+            "--fps",
+            str(fps),
+            "-q",
+            *extra,
+        ]
+        subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
+        with open_stream(root / name) as s:
+            sizes.append(s.index.manifest.payload_bytes)
+    return live_bytes, sizes[0], sizes[1]
+
+
 def table(runs: list[LiveRun], seconds: float) -> list[str]:
     when = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
@@ -258,8 +274,9 @@ def table(runs: list[LiveRun], seconds: float) -> list[str]:
         "arrived (median of the first and last quarter of the run, and the most); it kept up "
         "when the last quarter's is within 0.5 s of the first's and none reached 2 s. Latency: "
         "from a frame's arrival in the source to its showing (`tsog play --live`, p50/p95; the "
-        "target is the window + 1.5 s = 2.5 s). Bytes: the live stream against `tsog segment` of "
-        "the same frames with one-second windows and one layer, and with its own choices.",
+        "target is the window + 1.5 s = 2.5 s). Bytes: the live stream's first "
+        f"{COMPARE_S} s against `tsog segment` of the same frames with one-second windows and one "
+        "layer, and with its own choices.",
         "",
         "| source | fps | frames | publish lag first / last / most | kept up | latency p50 / p95 | stalls | late joiner: behind edge, first picture | CPU of tsog live | bytes vs segment 1 s / auto |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",

@@ -35,6 +35,7 @@ from tsog_stream.io.sequence import open_sequence
 from tsog_stream.model import Gaussians
 from tsog_stream.schemas.manifest import Live, Manifest, dump_manifest, parse_manifest
 from tsog_stream.segment import SegmentOptions, segment_sequence
+from tsog_stream.segment import live as live_module
 from tsog_stream.segment.live import LiveOptions, LiveReport, run_live
 from tsog_stream.server import make_app
 from tsog_stream.server.live import RELOAD_POLL_S
@@ -274,6 +275,16 @@ def test_an_event_ends_after_idle_seconds(tmp_path: Path) -> None:
     report = live(tmp_path / "src", tmp_path / "live", idle_s=0.5)
     assert report.ended_by == "no frame for 0.5 s" and report.frames == 4
     assert published(tmp_path / "live")["ended"]
+
+
+def test_a_frame_still_settling_is_not_idleness(tmp_path: Path) -> None:
+    watch = FrameArrivals(tmp_path)
+    put_frame(tmp_path, 0, frames_of(1)[0])
+    watch.poll()  # seen, not yet settled
+    assert live_module._ended(watch, threading.Event(), idle=99.0, idle_s=5.0) == ""
+    time.sleep(SETTLE_S + 0.05)
+    assert len(watch.poll()) == 1
+    assert live_module._ended(watch, threading.Event(), idle=99.0, idle_s=5.0) == "no frame for 5 s"
 
 
 def test_a_stop_publishes_the_last_partial_window(tmp_path: Path) -> None:
@@ -517,6 +528,15 @@ def test_a_live_index_is_cached_at_most_half_a_window(live_scene: tuple[Path, st
     chunk = json.loads(asyncio.run(get(f"{base}/v1/scenes/show/chunks?t=0.5"))[2])["chunks"][0]
     _, headers, _, _ = asyncio.run(get(f"{base}{chunk['url']}"))
     assert "immutable" in headers["Cache-Control"]
+
+
+def test_after_on_a_file_that_is_no_scene_index_is_ignored(live_scene: tuple[Path, str]) -> None:
+    out, base = live_scene
+    other = out.parent / "notes"
+    other.mkdir()
+    (other / "manifest.json").write_bytes(b'{"not": "a scene"}')
+    status, _, body, took = asyncio.run(get(f"{base}/files/notes/manifest.json?after=5"))
+    assert status == 200 and body == b'{"not": "a scene"}' and took < 1.0
 
 
 @pytest.mark.parametrize("after", ["-1", "x", "1e3", "99999999999999999", "1%00"])

@@ -181,12 +181,15 @@ def engine(
     cluster: str | None,
     listener: Listener | None = None,
     *,
-    largest_job: int = REPLACE_AFTER_GAUSSIANS,
+    largest_job: int | None = REPLACE_AFTER_GAUSSIANS,
 ) -> Iterator[Engine]:
     """The engine for ``workers`` local processes, or for the Dask cluster ``cluster``; an
     error or Ctrl-C in the body stops it at once (queued jobs dropped, running ones
     abandoned). ``listener`` hears the jobs' progress reports (on another thread). A local
-    process is replaced after :func:`jobs_per_process` jobs: memory is bounded by process."""
+    process is replaced after :func:`jobs_per_process` jobs of at most ``largest_job``
+    Gaussians, so memory is bounded by process; None keeps each process for the engine's life
+    (jobs that arrive one at a time, as a live event's windows: a replacement would start
+    between two of them, and Python 3.11's pool can then wait for a worker that never comes)."""
     if cluster is not None:
         with _dask_engine(workers, check_cluster(cluster), listener) as found:
             yield found
@@ -199,7 +202,7 @@ def engine(
             mp_context=context,
             initializer=_start_worker,
             initargs=(writer,),
-            max_tasks_per_child=jobs_per_process(largest_job),
+            max_tasks_per_child=None if largest_job is None else jobs_per_process(largest_job),
         )
         try:
             yield Engine(pool, workers, run_reported)

@@ -159,12 +159,12 @@ class _Encoder:
         self.stack = stack
         self.running: Engine | None = None
 
-    def warm(self, frame_gaussians: int, per_window: int) -> None:
-        """Start the workers, for windows of about ``per_window`` frames of this size."""
+    def warm(self) -> None:
+        """Start the workers (kept for the event: a window's memory is bounded, and a
+        replaced worker would make some window wait for its start)."""
         if self.workers <= 1 or self.running is not None:
             return
-        largest = max(1, frame_gaussians * per_window)
-        self.running = self.stack.enter_context(engine(self.workers, None, largest_job=largest))
+        self.running = self.stack.enter_context(engine(self.workers, None, largest_job=None))
         for k in range(self.workers):
             self.running.submit(-1 - k, _ready)
 
@@ -172,14 +172,9 @@ class _Encoder:
         """Encode a window job on the workers (its future), or here (its results)."""
         if self.workers <= 1:
             return encode_window(job)
-        self.warm(job.frames.shapes[0][0], len(job.frames.paths))
+        self.warm()
         assert self.running is not None
         return self.running.submit(job.index, encode_window, job)
-
-    @property
-    def cold(self) -> bool:
-        """Workers are wanted and not started yet."""
-        return self.workers > 1 and self.running is None
 
     @property
     def slots(self) -> int:
@@ -206,19 +201,20 @@ def _follow(
     last_frame = time.monotonic()
     ended_by, told_out = "", 0
     while not ended_by:
+        # publish first (it may wait on the workers), then look: the idle clock and the end
+        # are judged on what the folder holds now, never on a look taken before a long wait
+        _publish_done(flight, index, told, wait=len(flight) > 2 * encoder.slots)
         fresh = arrivals.poll()
         if fresh:
             last_frame = time.monotonic()
+            encoder.warm()
         for said in arrivals.left_out[told_out:]:
             told(said)
         told_out = len(arrivals.left_out)
-        if fresh and encoder.cold:
-            encoder.warm(frame_shape(_kind_of(fresh), fresh[0].path)[0], index.options.per_window)
         frames += fresh
         while len(frames) >= index.options.per_window:
             window, frames = frames[: index.options.per_window], frames[index.options.per_window :]
             flight.append((window, encoder.start(index.window_job(window))))
-        _publish_done(flight, index, told, wait=len(flight) > 2 * encoder.slots)
         ended_by = _ended(arrivals, stop, time.monotonic() - last_frame, index.options.idle_s)
         if not ended_by:
             stop.wait(POLL_S)
@@ -229,12 +225,12 @@ def _follow(
 
 
 def _ended(arrivals: FrameArrivals, stop: threading.Event, idle: float, idle_s: float) -> str:
-    """Why the event is over ("" while it goes on)."""
+    """Why the event is over ("" while it goes on): a frame still settling is not idleness."""
     if stop.is_set():
         return "stopped"
     if arrivals.ended() and not arrivals.waiting():
         return "end marker"
-    if idle >= idle_s:
+    if idle >= idle_s and not arrivals.waiting():
         return f"no frame for {idle_s:g} s"
     return ""
 
