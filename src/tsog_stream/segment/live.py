@@ -276,7 +276,6 @@ class LiveIndex:
         self.resumed_windows = len(self.times)
         self.views: Views | None = None
         self.sh_coeffs: int | None = None
-        self.kind: str | None = None
         if manifest is not None:
             core = manifest.scene.core
             kept = None if core is None else {"center": core.center, "radius": core.radius}

@@ -139,6 +139,7 @@ class Playback {
         this.live = isLive(manifest);
         this.target = liveTarget(manifest);
         this.t = config.t === null ? this.liveStart() : this.clamp(config.t);
+        this.openedBehind = this.end - this.t; // how far behind the edge it opened (tests, overlay)
         this.playing = !config.paused && !this.still;
         this.speed = 1;
         this.loop = !this.live;
