@@ -104,10 +104,7 @@ class FolderFetcher(ChunkFetcher):
         """The file ``name`` of the folder, at most ``limit`` bytes (a longer one is refused
         after ``limit`` + 1 bytes, never read whole); ``query`` added to its URL."""
         if self._http is not None:
-            url = self._url(name)
-            if query:
-                url += f"&{query}" if "?" in url else f"?{query}"
-            return await self._http.get(url, limit)
+            return await self._http.get(self._url(name, query), limit)
         where = self._where(name)
         data = await asyncio.to_thread(read_head, where, limit + 1)
         if len(data) > limit:
@@ -128,10 +125,11 @@ class FolderFetcher(ChunkFetcher):
         """Each chunk's file, one request each (a longer file is refused, never read whole)."""
         return list(await asyncio.gather(*(self._get(c.file, c.length) for c in group)))
 
-    def _url(self, name: str) -> str:
-        """The URL of the folder's file ``name``, with the folder URL's query."""
+    def _url(self, name: str, query: str | None = None) -> str:
+        """The URL of the folder's file ``name``, with the folder URL's query (and ``query``)."""
         url = urljoin(self.base, name)
-        return f"{url}?{self._query}" if self._query else url
+        joined = "&".join(q for q in (self._query, query) if q)
+        return f"{url}?{joined}" if joined else url
 
     def _where(self, name: str) -> str:
         if self._http is not None:

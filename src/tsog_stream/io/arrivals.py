@@ -35,12 +35,13 @@ FRAME_SUFFIXES = (".ply", ".sog")
 
 @dataclass(frozen=True)
 class Arrival:
-    """A complete frame: its file, its position in the event and when it was complete (Unix
-    seconds: the file's last modification)."""
+    """A complete frame: its file, its position in the event, when it was complete (Unix
+    seconds: the file's last modification) and its kind ("ply" or "sog", by its content)."""
 
     path: Path
     index: int
     arrived_s: float
+    kind: str
 
 
 class FrameArrivals:
@@ -81,8 +82,7 @@ class FrameArrivals:
                 self._leave_out(name, f"it stayed short of its declared size for {GIVE_UP_S:g} s")
                 self._take(name, counted=False)
                 continue
-            self._check_kind(path)
-            out.append(Arrival(path, self.taken, arrived))
+            out.append(Arrival(path, self.taken, arrived, self._kind_of(path)))
             self._take(name)
         return out
 
@@ -156,8 +156,8 @@ class FrameArrivals:
             return None
         return st.st_mtime_ns / 1e9
 
-    def _check_kind(self, path: Path) -> None:
-        """Every frame of an event is of the first frame's kind."""
+    def _kind_of(self, path: Path) -> str:
+        """A frame's kind by its content; every frame of an event is of the first frame's."""
         kind = sniff_frame(path)
         if kind is None:
             raise InputError("is neither a PLY nor a SOG frame", where=str(path))
@@ -168,6 +168,7 @@ class FrameArrivals:
                 f"is a {kind.upper()} frame in an event of {self.kind.upper()} frames",
                 where=str(path),
             )
+        return kind
 
 
 def _whole(path: Path) -> bool:

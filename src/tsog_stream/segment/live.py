@@ -320,7 +320,7 @@ class LiveIndex:
         coefficients and opening view."""
         first = frames[0].index
         w = first // self.options.per_window
-        kind = _kind_of(frames)
+        kind = frames[0].kind
         shapes = [frame_shape(kind, a.path) for a in frames]
         if self.sh_coeffs is None:
             self.sh_coeffs = shapes[0][1]
@@ -409,11 +409,6 @@ class LiveIndex:
             layering=ONE_LAYER_ASKED,
             live=Live(sequence=self.sequence, ended=ended, windows=self.times),
         )
-
-
-def _kind_of(frames: Sequence[Arrival]) -> str:
-    """The frames' kind, "ply" or "sog" (FrameArrivals checked they agree)."""
-    return "ply" if frames[0].path.suffix.lower() == ".ply" else "sog"
 
 
 def _at(output: str, name: str) -> str:
