@@ -328,6 +328,17 @@ def test_an_ended_stream_is_not_resumed_without_force(tmp_path: Path) -> None:
     assert report.frames == 3 and report.resumed_windows == 0
 
 
+def test_an_index_to_resume_is_bounded_before_it_is_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(live_module, "MAX_INDEX_BYTES", 100)
+    (tmp_path / "live").mkdir()
+    (tmp_path / "live" / "manifest.json").write_bytes(b" " * 101)
+    write_event(tmp_path / "src", frames_of(1))
+    with pytest.raises(SourceError, match="index over 100 bytes"):
+        live(tmp_path / "src", tmp_path / "live")
+
+
 def test_a_resume_with_another_frame_rate_is_refused(tmp_path: Path) -> None:
     out = tmp_path / "live"
     write_event(tmp_path / "src", frames_of(3))

@@ -24,9 +24,10 @@ from dataclasses import dataclass
 from ..codec.precision import QUALITY_MAX
 from ..constants import DEFAULT_MAX_PIXELS, SH_BANDS_BY_COEFFS, SH_COEFFS_BY_BANDS
 from ..container.header import PREFIX_SIZE
-from ..errors import InputError, SourceError, TsogError
+from ..container.index import MAX_INDEX_BYTES
+from ..errors import InputError, SourceError
 from ..io.arrivals import Arrival, FrameArrivals
-from ..io.files import atomic_write_bytes, read_bytes
+from ..io.files import atomic_write_bytes, read_head
 from ..io.objects import as_location, is_object_url
 from ..io.sequence import FrameWindow, frame_shape
 from ..schemas.manifest import (
@@ -425,11 +426,14 @@ def _published(output: str) -> Manifest | None:
         location = as_location(where)
         if not location.exists():
             return None
-        return parse_manifest(read_bytes(location), where=where)
-    except TsogError:
-        raise
+        data = read_head(location, MAX_INDEX_BYTES + 1)  # bounded before it is held whole
     except OSError as exc:
         raise SourceError(f"cannot read: {exc.strerror or exc}", where=where) from exc
+    if len(data) > MAX_INDEX_BYTES:
+        raise SourceError(
+            f"index over {MAX_INDEX_BYTES} bytes: not a stream to resume", where=where
+        )
+    return parse_manifest(data, where=where)
 
 
 __all__ = [
